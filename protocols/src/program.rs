@@ -1,0 +1,36 @@
+//! Programs: what a post makes from a tool path and a link sends, unit by unit.
+
+use serde::{Deserialize, Serialize};
+
+/// An ordered list of units that the device acknowledges one by one. Progress is counted
+/// in units; the last acknowledged unit is where a resume starts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", content = "units", rename_all = "snake_case")]
+pub enum Program {
+    /// G-code lines, without line endings, comments or bytes >= 0x80.
+    Gcode(Vec<String>),
+}
+
+impl Program {
+    /// How many units the program has.
+    pub fn len(&self) -> usize {
+        match self {
+            Program::Gcode(lines) => lines.len(),
+        }
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// A short name of the program's kind, for messages and the store.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Program::Gcode(_) => "gcode",
+        }
+    }
+    /// Unit `i` as text, for messages (a G-code line as it is).
+    pub fn describe_unit(&self, i: usize) -> String {
+        match self {
+            Program::Gcode(lines) => lines.get(i).cloned().unwrap_or_default(),
+        }
+    }
+}
