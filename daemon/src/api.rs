@@ -28,7 +28,8 @@ use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
 
 /// What `POST /jobs` takes: the shape file itself (its name picks the reader), the
-/// planning parameters and the machine.
+/// planning parameters and the machine. A G-code file (.nc, .gcode, .ngc, .tap) is
+/// streamed as it is, without planning.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SubmitRequest {
     pub machine: String,
@@ -39,7 +40,51 @@ pub struct SubmitRequest {
     /// … or as base64, for binary files.
     #[serde(default)]
     pub file_base64: Option<String>,
-    pub params: PlanParams,
+    /// How to plan a shape file (ignored for a G-code file).
+    #[serde(default)]
+    pub params: Option<PlanParams>,
+}
+
+/// Whether a file name says G-code, to be streamed as it is.
+pub fn is_gcode_file(name: &str) -> bool {
+    let ext = std::path::Path::new(name)
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    matches!(ext.as_deref(), Some("nc" | "gcode" | "ngc" | "tap" | "gc"))
+}
+
+/// The program lines of a G-code file: comments, blank lines and `%` marks dropped;
+/// a byte GRBL cannot take is refused, naming the line.
+pub fn gcode_lines(file_name: &str, text: &str) -> Result<Vec<String>, ApiError> {
+    let mut out = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let mut line = String::new();
+        let mut in_paren = false;
+        for c in raw.chars() {
+            match c {
+                _ if in_paren => in_paren = c != ')',
+                '(' => in_paren = true,
+                ';' => break,
+                c => line.push(c),
+            }
+        }
+        let line = line.trim();
+        if line.is_empty() || line == "%" {
+            continue;
+        }
+        if let Some(c) = line
+            .chars()
+            .find(|&c| !c.is_ascii() || c.is_ascii_control() || matches!(c, '?' | '!' | '~'))
+        {
+            return Err(bad(format!(
+                "{file_name}, line {}: the character {c:?} cannot be sent to the machine",
+                i + 1
+            )));
+        }
+        out.push(line.to_string());
+    }
+    Ok(out)
 }
 
 /// A refusal: status and one sentence.
@@ -165,25 +210,47 @@ async fn submit(State(st): State<AppState>, body: axum::body::Bytes) -> Result<R
             ))
         }
     };
-    let params = req.params.clone();
-    let name = req.file_name.clone();
-    let program = tokio::task::spawn_blocking(move || plan(&machine, &name, &bytes, &params))
-        .await
-        .map_err(|e| {
-            ApiError(
-                StatusCode::INTERNAL_SERVER_ERROR,
-                format!("planning crashed: {e}"),
-            )
-        })??;
-    let op = serde_json::to_value(req.params.op)
-        .ok()
-        .and_then(|v| v.as_str().map(String::from))
-        .unwrap_or_default();
+    let (op, params, program) = if is_gcode_file(&req.file_name) {
+        let text = String::from_utf8(bytes)
+            .map_err(|_| bad(format!("{} is not a text file", req.file_name)))?;
+        let lines = gcode_lines(&req.file_name, &text)?;
+        (
+            "gcode".to_string(),
+            serde_json::Value::Null,
+            Program::Gcode(lines),
+        )
+    } else {
+        let Some(params) = req.params.clone() else {
+            return Err(bad(format!(
+                "{} is a shape file: give the planning parameters (at least the operation)",
+                req.file_name
+            )));
+        };
+        let name = req.file_name.clone();
+        let p2 = params.clone();
+        let program = tokio::task::spawn_blocking(move || plan(&machine, &name, &bytes, &p2))
+            .await
+            .map_err(|e| {
+                ApiError(
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    format!("planning crashed: {e}"),
+                )
+            })??;
+        let op = serde_json::to_value(params.op)
+            .ok()
+            .and_then(|v| v.as_str().map(String::from))
+            .unwrap_or_default();
+        (
+            op,
+            serde_json::to_value(&params).unwrap_or_default(),
+            program,
+        )
+    };
     let rec = st.sched.submit(NewJob {
         machine: req.machine,
         op,
         file_name: req.file_name,
-        params: serde_json::to_value(&req.params).unwrap_or_default(),
+        params,
         program,
     })?;
     Ok((StatusCode::CREATED, Json(rec)).into_response())

@@ -117,6 +117,14 @@ pub struct GrblLinkConfig {
     /// Run every program through GRBL's check mode ($C) before cutting.
     #[serde(default)]
     pub check_first: bool,
+    /// Unlock ($X) a machine an earlier job left in alarm before the next job starts.
+    /// Say false where an alarm must be looked at by someone first.
+    #[serde(default = "yes")]
+    pub auto_unlock: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 fn default_baud() -> u32 {
@@ -508,7 +516,8 @@ time_scale = 20
             LinkConfig::Grbl(GrblLinkConfig {
                 port: "/dev/ttyUSB0".into(),
                 baud: 115_200,
-                check_first: false
+                check_first: false,
+                auto_unlock: true
             })
         );
         assert_eq!(c.machines[0].max_feed, Some(3000.0));
@@ -580,7 +589,7 @@ time_scale = 20
     fn struct_fields_lists_the_link_keys() {
         assert_eq!(
             struct_fields::<GrblLinkConfig>(),
-            vec!["port", "baud", "check_first"]
+            vec!["port", "baud", "check_first", "auto_unlock"]
         );
     }
 }

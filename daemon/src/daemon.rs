@@ -50,7 +50,7 @@ pub struct Daemon {
     /// The TCP address actually bound, when asked to listen on TCP.
     pub tcp: Option<SocketAddr>,
     /// The simulated GRBL machines this daemon started, by machine name.
-    pub sims: BTreeMap<String, ()>,
+    pub sims: BTreeMap<String, machlink_sim::grbl::GrblSimHandle>,
     servers: Vec<JoinHandle<()>>,
 }
 
@@ -59,15 +59,23 @@ impl Daemon {
     /// of `sim-grbl` entries, the machine workers and the API. Needs a tokio runtime.
     pub async fn start(config: Config, opts: StartOptions) -> Result<Daemon, DaemonError> {
         let store = Store::open(&config.daemon.store)?;
-        let sims = BTreeMap::new();
-        let opener = ConfigOpener::default();
+        let mut sims = BTreeMap::new();
+        let mut opener = ConfigOpener::default();
         for m in &config.machines {
             match &m.link {
-                LinkConfig::SimGrbl(_) => {
-                    return Err(DaemonError::Sim {
-                        machine: m.name.clone(),
-                        source: std::io::Error::other("the GRBL simulator is not built yet"),
-                    });
+                LinkConfig::SimGrbl(s) => {
+                    let cfg = machlink_sim::grbl::GrblSimConfig {
+                        time_scale: s.time_scale,
+                        ..Default::default()
+                    };
+                    let h = machlink_sim::grbl::GrblSim::spawn_pty(cfg).map_err(|source| {
+                        DaemonError::Sim {
+                            machine: m.name.clone(),
+                            source,
+                        }
+                    })?;
+                    opener.sim_ports.insert(m.name.clone(), h.port());
+                    sims.insert(m.name.clone(), h);
                 }
                 LinkConfig::Grbl(g) => {
                     if !std::path::Path::new(&g.port).exists() {
@@ -142,7 +150,9 @@ impl Daemon {
         self.scheduler.cancel_all().await;
         self.crash();
         let _ = std::fs::remove_file(&self.socket);
-        self.sims.clear();
+        for (_, s) in std::mem::take(&mut self.sims) {
+            s.shutdown();
+        }
     }
 }
 

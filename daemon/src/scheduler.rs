@@ -504,7 +504,7 @@ async fn stream_job(
     };
     inner.set_state(id, JobState::Running, None);
     if link.is_none() {
-        match inner.opener.open(&m.config).await {
+        match open_link(inner, &m.config).await {
             Ok(l) => *link = Some(l),
             Err(e) => {
                 return (
@@ -553,9 +553,12 @@ async fn stream_job(
             (JobState::Cancelled, None)
         }
         Err(e) => {
-            // a failed link is reopened for the next job (a GRBL reset clears an alarm)
             let msg = describe_failure(&e, &program, journal.acked());
-            *link = None;
+            // a device that refused a line or raised an alarm is still talking (the link
+            // resets it); a link that broke is opened afresh for the next job
+            if !matches!(e, LinkError::Rejected { .. } | LinkError::Alarm(_)) {
+                *link = None;
+            }
             if cancel_requested {
                 (JobState::Cancelled, Some(msg))
             } else {
@@ -569,6 +572,27 @@ async fn stream_job(
         flush(inner, id, &mut journal);
     }
     outcome
+}
+
+/// Opens the machine's link; a port still held by the link just closed (its lock is
+/// released a moment later) is tried again for up to two seconds.
+async fn open_link(inner: &Inner, m: &MachineConfig) -> Result<Box<dyn Link>, LinkError> {
+    let give_up = Instant::now() + Duration::from_secs(2);
+    loop {
+        match inner.opener.open(m).await {
+            Err(LinkError::Open { source, .. })
+                if Instant::now() < give_up
+                    && matches!(
+                        source.kind(),
+                        std::io::ErrorKind::ResourceBusy | std::io::ErrorKind::Other
+                    )
+                    && source.to_string().contains("lock") =>
+            {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            r => return r,
+        }
+    }
 }
 
 async fn sleep_until(deadline: Option<Instant>) {

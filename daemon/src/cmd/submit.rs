@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct SubmitArgs {
-    /// The shape file (.json geometry, or any format the planner reads).
+    /// The shape file (.json geometry, or any format the planner reads), or a G-code file
+    /// (.nc, .gcode, .ngc, .tap) to stream as it is (the plan options are then ignored).
     pub file: PathBuf,
     /// The machine to queue the job on (see `machlink machines`).
     #[arg(long)]
@@ -44,7 +45,7 @@ pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
         file_name,
         file_text,
         file_base64,
-        params: a.params,
+        params: Some(a.params),
     };
     let client = a.client.client();
     super::operate::runtime()?.block_on(async {
