@@ -133,10 +133,14 @@ pub fn nurbs(
     if degree == 0 || n <= degree || knots.len() != n + degree + 1 {
         return None;
     }
-    if !weights.is_empty() && (weights.len() != n || weights.iter().any(|w| w.is_nan() || *w <= 0.0)) {
+    if !weights.is_empty()
+        && (weights.len() != n || weights.iter().any(|w| w.is_nan() || *w <= 0.0))
+    {
         return None;
     }
-    if knots.windows(2).any(|w| w[1].is_nan() || w[1] < w[0]) || !control.iter().all(|p| p.is_finite()) {
+    if knots.windows(2).any(|w| w[1].is_nan() || w[1] < w[0])
+        || !control.iter().all(|p| p.is_finite())
+    {
         return None;
     }
     let (lo, hi) = (knots[degree], knots[n]);
