@@ -8,8 +8,12 @@
 //! collinear within the tolerance and otherwise the equal-tangent-length biarc between the
 //! two points and their tangents. A piece fits when every input point it spans lies within
 //! the tolerance of it and every point sampled on it lies within the tolerance of the input
-//! polyline. Neighbouring biarcs share their end tangent, so the result is tangent-
-//! continuous wherever the input is smooth; consecutive arcs on one circle are merged.
+//! curve. The input curve between two consecutive points is the arc that leaves the first
+//! along its tangent and ends at the second (the local circular interpolant: a line for
+//! collinear points, the circle itself for points on a circle), so a circle sampled at 100
+//! points comes back as the circle at any tolerance. Neighbouring biarcs share their end
+//! tangent, so the result is tangent-continuous wherever the input is smooth; consecutive
+//! arcs on one circle are merged.
 
 use crate::geom::{Point, Polyline, Segment, Vertex};
 use std::f64::consts::PI;
@@ -213,7 +217,7 @@ fn fit_run(run: &[Point], tans: &[Point], tol: f64, out: &mut Vec<Vertex>) {
     while i < m {
         // the longest piece from i: double the span while it fits, then bisect
         let mut good = i + 1;
-        let mut best = piece(run, tans, i, i + 1, tol).unwrap_or_else(|| line_piece(run, i, i + 1));
+        let mut best = piece(run, tans, i, i + 1, tol).unwrap_or_else(|| line_piece(run, i));
         let mut step = 1;
         let mut bad = None;
         while good < m {
@@ -249,7 +253,7 @@ fn fit_run(run: &[Point], tans: &[Point], tol: f64, out: &mut Vec<Vertex>) {
     }
 }
 
-fn line_piece(run: &[Point], i: usize, _j: usize) -> Vec<Vertex> {
+fn line_piece(run: &[Point], i: usize) -> Vec<Vertex> {
     vec![Vertex::line(run[i])]
 }
 
@@ -263,7 +267,8 @@ fn piece(run: &[Point], tans: &[Point], i: usize, j: usize, tol: f64) -> Option<
     // a line when every point lies on the chord and the tangents agree with it
     let line = Segment::Line { a: p0, b: p1 };
     let dir = chord.unit();
-    let ang_tol = (tol / chord.len()).min(1e-3);
+    // (only for truly straight input: a dense circle would otherwise come back as chords)
+    let ang_tol = 1e-9;
     if run[i..=j].iter().all(|&p| line.distance_to(p) <= tol)
         && tans[i].cross(dir).abs() <= ang_tol
         && tans[j].cross(dir).abs() <= ang_tol
@@ -298,17 +303,24 @@ fn piece(run: &[Point], tans: &[Point], i: usize, j: usize, tol: f64) -> Option<
     if !run[i..=j].iter().all(|&p| near(p)) {
         return None;
     }
-    let input = &run[i..=j];
+    // the input curve between two points is the arc that leaves the first along its tangent
+    let spans: Vec<Segment> = (i..j)
+        .map(|k| {
+            let b = bulge_from_tangent(run[k], tans[k], run[k + 1]).unwrap_or(0.0);
+            Segment::from_bulge(run[k], run[k + 1], b)
+        })
+        .collect();
     let to_input = |p: Point| {
-        input
-            .windows(2)
-            .map(|w| Segment::Line { a: w[0], b: w[1] }.distance_to(p))
+        spans
+            .iter()
+            .map(|s| s.distance_to(p))
             .fold(f64::INFINITY, f64::min)
     };
+    // sampled, so keep a margin for what lies between the samples
     for s in [s0, s1] {
-        let k = 8;
+        let k = 16;
         for q in 1..k {
-            if to_input(s.point_at(q as f64 / k as f64)) > tol {
+            if to_input(s.point_at(q as f64 / k as f64)) > 0.95 * tol {
                 return None;
             }
         }
