@@ -11,6 +11,7 @@ pub mod geom;
 pub mod io;
 pub mod offset;
 pub mod ops;
+pub mod preview;
 pub mod toolpath;
 
 pub use geom::{Bounds, Point, Polyline, Region, Segment, Shape, Vertex};

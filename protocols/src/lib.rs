@@ -4,6 +4,7 @@
 //! acknowledged, so the daemon can journal progress and resume exactly where it stopped.
 
 pub mod gcode;
+pub mod gcode_read;
 pub mod link;
 pub mod program;
 
