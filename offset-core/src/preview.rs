@@ -91,15 +91,16 @@ fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
                     f(a.x), f(a.y), f(b.x), f(b.y), f(sw)
                 );
             }
-            Move::Linear { .. } if same_xy => {
-                if to.z < from.z {
-                    let _ = writeln!(
-                        out,
-                        r#"<circle cx="{}" cy="{}" r="{}" fill="{PLUNGE_COLOUR}"/>"#,
-                        f(b.x), f(b.y), f(sw * 2.5)
-                    );
-                }
+            Move::Linear { .. } if same_xy && to.z < from.z => {
+                let _ = writeln!(
+                    out,
+                    r#"<circle cx="{}" cy="{}" r="{}" fill="{PLUNGE_COLOUR}"/>"#,
+                    f(b.x),
+                    f(b.y),
+                    f(sw * 2.5)
+                );
             }
+            Move::Linear { .. } if same_xy => {}
             Move::Linear { .. } => {
                 let _ = writeln!(
                     out,
