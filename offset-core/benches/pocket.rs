@@ -2,8 +2,8 @@
 //! with the offset kernel and with Clipper2's offsets under the same pass logic.
 //! Run: `cargo bench -p offset-core --bench pocket`
 
-#[path = "../tests/common/mod.rs"]
-mod common;
+#[path = "../tests/pocket_support/mod.rs"]
+mod pocket_support;
 
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, PocketParams, Stepover};
@@ -54,7 +54,7 @@ fn main() {
         Err(e) => println!("| offset kernel | – | – | {e} | |"),
     }
     let t = Instant::now();
-    let off = |r: &Region, d: f64| common::clipper_offset(r, d, 1e-3);
+    let off = |r: &Region, d: f64| pocket_support::clipper_offset(r, d, 1e-3);
     let tp = pocket_with(&shape, &p, &off).expect("the Clipper2 pocket plans");
     let ms = t.elapsed().as_secs_f64() * 1e3;
     let (cut, rapid) = tp.lengths();

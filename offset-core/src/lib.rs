@@ -6,6 +6,7 @@
 //! It does no I/O beyond parsing bytes handed to it, and needs no async runtime.
 
 pub mod biarc;
+pub mod check;
 pub mod flatten;
 pub mod geom;
 pub mod io;

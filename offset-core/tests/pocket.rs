@@ -2,9 +2,9 @@
 //! wall or an island, on pockets whose islands merge, split the pocket, or vanish into the
 //! wall; checked by rasterising the pocket and the tool's swept disc at 0.1 mm.
 
-mod common;
+mod pocket_support;
 
-use common::{check_coverage, clipper_offset};
+use pocket_support::{check_coverage, clipper_offset};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, OpError, PocketParams, Stepover};
 use offset_core::toolpath::{Move, Tool, P3};

@@ -1,191 +1,193 @@
-//! Shared test helpers: a region offset built on Clipper2 (for comparison and for testing
-//! the pocket's pass logic on its own), and a coverage and gouge check by rasterising.
+//! Shared helpers of the offset tests: shape generators, the independent area from
+//! Clipper2, and the distance checker's verdict.
 #![allow(dead_code)]
 
-use clipper2::{EndType, JoinType, Milli, Paths};
-use offset_core::geom::{Point, Polyline, Region, Segment, Shape};
-use offset_core::offset::OffsetError;
-use offset_core::toolpath::{Move, Toolpath, P3};
+use offset_core::check::{check_offset, first_crossing, Report};
+use offset_core::geom::{Point, Polyline, Region, Vertex};
+use offset_core::offset::seg::Seg;
 
-/// The region's boundaries as polygons, arcs cut into chords within `tol`.
-pub fn polygons(r: &Region, tol: f64) -> Vec<Vec<(f64, f64)>> {
-    r.boundaries()
-        .map(|pl| {
-            let mut pts = Vec::new();
-            for s in pl.segments() {
-                match s {
-                    Segment::Line { a, .. } => pts.push((a.x, a.y)),
-                    Segment::Arc { radius, .. } => {
-                        let step = 2.0 * (1.0 - tol / radius).clamp(-1.0, 1.0).acos();
-                        let k = ((s.sweep().abs() / step.max(1e-3)).ceil() as usize).max(1);
-                        for q in 0..k {
-                            let p = s.point_at(q as f64 / k as f64);
-                            pts.push((p.x, p.y));
-                        }
-                    }
-                }
-            }
-            pts
+/// Clipper2 at 1e-5 mm resolution.
+#[derive(Debug, Default, Copy, Clone, PartialEq, Hash)]
+pub struct Fine;
+impl clipper2::PointScaler for Fine {
+    const MULTIPLIER: f64 = 1e5;
+}
+
+/// Points of a closed polyline, arcs flattened to chords whose sagitta stays below `sag`.
+pub fn flatten(p: &Polyline, sag: f64) -> Vec<(f64, f64)> {
+    let mut pts = Vec::new();
+    for i in 0..p.segment_count() {
+        let a = p.vertices[i];
+        let b = p.vertices[(i + 1) % p.len()];
+        let s = Seg::from_bulge(a.pos(), b.pos(), a.bulge);
+        let k = if s.is_arc() {
+            // sagitta of a chord spanning angle φ: r (1 - cos φ/2)
+            let phi = 2.0 * (1.0 - (sag / s.r).min(1.0)).acos();
+            ((s.sw.abs() / phi.max(1e-6)).ceil() as usize).clamp(1, 100_000)
+        } else {
+            1
+        };
+        for j in 0..k {
+            let q = s.point_at(j as f64 / k as f64);
+            pts.push((q.x, q.y));
+        }
+    }
+    pts
+}
+
+fn ccw(mut poly: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    let mut a = 0.0;
+    for i in 0..poly.len() {
+        let (x0, y0) = poly[i];
+        let (x1, y1) = poly[(i + 1) % poly.len()];
+        a += x0 * y1 - x1 * y0;
+    }
+    if a < 0.0 {
+        poly.reverse();
+    }
+    poly
+}
+
+/// Points along an arc (or a line) from t = 0 to 1, chords within `sag` of the curve.
+fn arc_points(s: &Seg, r: f64, sag: f64) -> Vec<Point> {
+    let k = if s.is_arc() && r > 0.0 {
+        ((s.sw.abs() * (r / (8.0 * sag)).sqrt()).ceil() as usize).clamp(1, 200_000)
+    } else {
+        1
+    };
+    (0..=k)
+        .map(|j| {
+            let ang = s.sa + s.sw * j as f64 / k as f64;
+            s.c + Point::new(ang.cos(), ang.sin()) * r
         })
         .collect()
 }
 
-/// Offsets a region with Clipper2 (round joins, 1 µm grid), regrouped into regions.
-pub fn clipper_offset(r: &Region, d: f64, tol: f64) -> Result<Vec<Region>, OffsetError> {
-    let paths: Paths<Milli> = polygons(r, tol).into();
-    let out = paths.inflate(d, JoinType::Round, EndType::Polygon, 2.0);
-    let pls: Vec<Polyline> = out
-        .iter()
-        .map(|p| {
-            let pts: Vec<Point> = p.iter().map(|q| Point::new(q.x(), q.y())).collect();
-            Polyline::from_points(&pts, true)
-        })
-        .filter(|p| p.len() >= 3)
-        .collect();
-    Ok(Shape::new(pls).regions())
+/// The band of points within d of the closed boundaries, as polygons: a rectangle per
+/// line, an annular sector per arc (its inner radius clamped at the centre), and a
+/// 1440-gon disk at every vertex.
+fn band(boundaries: &[Polyline], d: f64) -> Vec<Vec<(f64, f64)>> {
+    let mut out = Vec::new();
+    let disk = 1440;
+    for pl in boundaries {
+        for i in 0..pl.segment_count() {
+            let va = pl.vertices[i];
+            let vb = pl.vertices[(i + 1) % pl.len()];
+            let s = Seg::from_bulge(va.pos(), vb.pos(), va.bulge);
+            let poly: Vec<Point> = if s.is_arc() {
+                let mut o = arc_points(&s, s.r + d, 1e-6);
+                let inner = (s.r - d).max(0.0);
+                if inner == 0.0 {
+                    o.push(s.c);
+                } else {
+                    let mut q = arc_points(&s, inner, 1e-6);
+                    q.reverse();
+                    o.extend(q);
+                }
+                o
+            } else {
+                let nn = (s.b - s.a).unit().perp() * d;
+                vec![s.a + nn, s.b + nn, s.b - nn, s.a - nn]
+            };
+            out.push(ccw(poly.iter().map(|q| (q.x, q.y)).collect()));
+            out.push(
+                (0..disk)
+                    .map(|j| {
+                        let ang = j as f64 / disk as f64 * std::f64::consts::TAU;
+                        (va.x + d * ang.cos(), va.y + d * ang.sin())
+                    })
+                    .collect(),
+            );
+        }
+    }
+    out
 }
 
-/// What a rasterised check of a tool path found.
-#[derive(Debug)]
-pub struct Coverage {
-    /// Cells the tool can reach (some disc of radius r inside the pocket holds them) that
-    /// the path never swept, with a cell where it happened.
-    pub uncut: usize,
-    pub first_uncut: Option<Point>,
-    /// Points of cutting moves closer than r - tol to a wall or an island, or outside.
-    pub gouges: usize,
-    pub first_gouge: Option<Point>,
-    pub cells: usize,
-}
-
-/// Rasterises the pocket `region` at `h` mm and checks the path's cutting moves at depth
-/// `z`: every cell the tool could reach must be swept by the tool's disc (radius `r`),
-/// and no cutting move may bring the tool within `r - tol` of a wall or an island.
-pub fn check_coverage(
-    region: &Region,
-    tp: &Toolpath,
-    r: f64,
-    z: f64,
-    h: f64,
-    tol: f64,
-) -> Coverage {
-    let b = region.bounds();
-    let nx = ((b.width() / h).ceil() as usize) + 1;
-    let ny = ((b.height() / h).ceil() as usize) + 1;
-    let cell = |i: usize, j: usize| {
-        Point::new(
-            b.min.x + (i as f64 + 0.5) * h,
-            b.min.y + (j as f64 + 0.5) * h,
-        )
-    };
-    let walls = |p: Point| {
+/// The area of the region offset by `d`, computed by Clipper2 independently of the
+/// kernel: the band of points within |d| of the boundaries (see `band`) united with the
+/// region to grow it or cut from it to shrink it. Clipper2's own `inflate` spaces its round
+/// joins at |d|/500, too coarse to compare areas at our tolerance.
+pub fn clipper_area(boundaries: &[Polyline], d: f64) -> f64 {
+    use clipper2::{FillRule, Paths};
+    let flat: Vec<Vec<(f64, f64)>> = boundaries.iter().map(|b| flatten(b, 1e-6)).collect();
+    let band: Paths<Fine> = band(boundaries, d.abs()).into();
+    let region: Paths<Fine> = flat.into();
+    let out = if d > 0.0 {
         region
-            .boundaries()
-            .map(|w| w.distance_to(p))
-            .fold(f64::INFINITY, f64::min)
+            .to_clipper_subject()
+            .add_clip(band)
+            .union(FillRule::NonZero)
+    } else {
+        region
+            .to_clipper_subject()
+            .add_clip(band)
+            .difference(FillRule::NonZero)
     };
-    // distance to the walls for every cell inside the pocket (NaN outside)
-    let mut wd = vec![f64::NAN; nx * ny];
-    for j in 0..ny {
-        for i in 0..nx {
-            let p = cell(i, j);
-            if region.contains(p) {
-                wd[j * nx + i] = walls(p);
-            }
-        }
+    out.unwrap().signed_area()
+}
+
+pub fn total_area(ps: &[Polyline]) -> f64 {
+    ps.iter().map(|p| p.area()).sum()
+}
+
+pub fn total_length(ps: &[Polyline]) -> f64 {
+    ps.iter().map(|p| p.length()).sum()
+}
+
+pub fn region_paths(rs: &[Region]) -> Vec<Polyline> {
+    rs.iter()
+        .flat_map(|r| r.boundaries().cloned().collect::<Vec<_>>())
+        .collect()
+}
+
+/// Asserts the offset property and that the result does not cross itself.
+pub fn assert_offset(input: &[Polyline], output: &[Polyline], d: f64, tol: f64) -> Report {
+    let r = check_offset(input, output, d, tol);
+    assert!(
+        r.within(tol),
+        "offset by {d} deviates: {r:?}\ninput: {input:?}\noutput: {output:?}"
+    );
+    if let Some((path, at)) = first_crossing(output, tol) {
+        panic!("output path {path} crosses itself at {at:?}\ninput: {input:?}\noutput: {output:?}");
     }
-    // sweep: chords of the cutting moves at depth z
-    let mut swept = vec![false; nx * ny];
-    let mut gouges = 0;
-    let mut first_gouge = None;
-    let mut chords: Vec<(P3, P3)> = Vec::new();
-    tp.walk(P3::default(), |from, m, to| {
-        let cutting = matches!(m, Move::Linear { .. } | Move::Arc { .. });
-        if !cutting || from.z < z - 1e-9 || to.z < z - 1e-9 {
-            return;
-        }
-        let mut one = Toolpath::new("");
-        one.push(m.clone());
-        let pts = one.sample(from, h);
-        for w in pts.windows(2) {
-            chords.push((w[0], w[1]));
-        }
-    });
-    for &(a, c) in &chords {
-        // gouge check on every cutting move below the stock top
-        if a.z < 0.0 || c.z < 0.0 {
-            for p in [a.xy(), c.xy()] {
-                if !region.contains(p) || walls(p) < r - tol {
-                    gouges += 1;
-                    first_gouge.get_or_insert(p);
-                }
-            }
-        }
-        if (a.z - z).abs() > 1e-9 || (c.z - z).abs() > 1e-9 {
-            continue;
-        }
-        let seg = Segment::Line {
-            a: a.xy(),
-            b: c.xy(),
-        };
-        let sb = seg.bounds();
-        let i0 = (((sb.min.x - r - b.min.x) / h).floor().max(0.0)) as usize;
-        let j0 = (((sb.min.y - r - b.min.y) / h).floor().max(0.0)) as usize;
-        let i1 = ((((sb.max.x + r - b.min.x) / h).ceil()) as usize).min(nx - 1);
-        let j1 = ((((sb.max.y + r - b.min.y) / h).ceil()) as usize).min(ny - 1);
-        for j in j0..=j1 {
-            for i in i0..=i1 {
-                if !swept[j * nx + i] && seg.distance_to(cell(i, j)) <= r {
-                    swept[j * nx + i] = true;
-                }
-            }
-        }
+    r
+}
+
+/// Asserts our area agrees with Clipper2's within tolerance × perimeter (plus Clipper's
+/// own arc approximation).
+pub fn assert_area(input: &[Polyline], output: &[Polyline], d: f64, tol: f64) {
+    let ours = total_area(output);
+    let theirs = clipper_area(input, d);
+    let slack = tol * total_length(output).max(total_length(input)) + 1e-9 * (1.0 + ours.abs());
+    assert!(
+        (ours - theirs).abs() <= slack,
+        "area {ours} vs clipper {theirs} (slack {slack})\ninput: {input:?}\noutput: {output:?}"
+    );
+}
+
+/// A star polygon (counter-clockwise) with radii from `radii`, evenly spread angles.
+pub fn star(center: Point, radii: &[f64]) -> Polyline {
+    let n = radii.len();
+    let pts: Vec<Point> = radii
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            center + Point::new(a.cos(), a.sin()) * *r
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+/// A star with some sides bulged (bulges small enough that the star stays simple).
+pub fn star_with_arcs(center: Point, radii: &[f64], bulges: &[f64]) -> Polyline {
+    let mut p = star(center, radii);
+    for (v, b) in p.vertices.iter_mut().zip(bulges) {
+        v.bulge = *b;
     }
-    // uncut cells: inside, not swept, yet reachable by a tool disc that fits
-    let mut uncut = 0;
-    let mut first_uncut = None;
-    let mut cells = 0;
-    let reach = ((r / h).ceil()) as isize;
-    for j in 0..ny {
-        for i in 0..nx {
-            let d = wd[j * nx + i];
-            if d.is_nan() {
-                continue;
-            }
-            cells += 1;
-            if swept[j * nx + i] {
-                continue;
-            }
-            // a centre cell within r - h whose disc (r + h for the grid) stays inside
-            let mut reachable = false;
-            'search: for dj in -reach..=reach {
-                for di in -reach..=reach {
-                    let (ci, cj) = (i as isize + di, j as isize + dj);
-                    if ci < 0 || cj < 0 || ci >= nx as isize || cj >= ny as isize {
-                        continue;
-                    }
-                    let k = cj as usize * nx + ci as usize;
-                    let cd = wd[k];
-                    if !cd.is_nan()
-                        && cd >= r + h
-                        && cell(ci as usize, cj as usize).dist(cell(i, j)) <= r - h
-                    {
-                        reachable = true;
-                        break 'search;
-                    }
-                }
-            }
-            if reachable {
-                uncut += 1;
-                first_uncut.get_or_insert(cell(i, j));
-            }
-        }
-    }
-    Coverage {
-        uncut,
-        first_uncut,
-        gouges,
-        first_gouge,
-        cells,
-    }
+    p
+}
+
+pub fn v(x: f64, y: f64, b: f64) -> Vertex {
+    Vertex::new(x, y, b)
 }
