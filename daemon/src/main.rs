@@ -19,6 +19,7 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
+#[allow(clippy::large_enum_variant)] // parsed once at start-up
 enum Command {
     /// The embedded default: a daemon with a simulated GRBL machine streams a sample job.
     Demo(cmd::demo::DemoArgs),

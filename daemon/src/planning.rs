@@ -4,7 +4,7 @@
 use anyhow::Context;
 use machlink_protocols::gcode::{self, Dialect, GcodeOptions};
 use machlink_protocols::Program;
-use offset_core::ops::{profile, ProfileParams, Side};
+use offset_core::ops::{pocket, profile, PocketParams, ProfileParams, Side, Stepover};
 use offset_core::{Shape, Tool, Toolpath};
 use serde::{Deserialize, Serialize};
 
@@ -75,6 +75,45 @@ pub struct PlanParams {
     /// Geometric tolerance of every approximation, mm.
     #[arg(long, default_value_t = 0.001)]
     pub tolerance: f64,
+    /// Pocket: distance between neighbouring passes, in mm (1.2) or as a percentage of the
+    /// tool diameter (40%); at most the diameter.
+    #[arg(long, default_value = "40%", value_parser = parse_stepover)]
+    #[serde(default = "default_stepover")]
+    pub stepover: Stepover,
+    /// Profile: holding tabs per closed loop, evenly spaced (0: none).
+    #[arg(long, default_value_t = 0)]
+    #[serde(default)]
+    pub tabs: usize,
+    /// Profile: width of the material each tab leaves, mm.
+    #[arg(long, default_value_t = 3.0)]
+    #[serde(default)]
+    pub tab_width: f64,
+    /// Profile: height of the tabs above the bottom of the cut, mm.
+    #[arg(long, default_value_t = 0.5)]
+    #[serde(default)]
+    pub tab_height: f64,
+    /// Profile: radius of the tangent lead-in arc onto each closed loop, on the side away
+    /// from the part, mm (0: plunge on the loop).
+    #[arg(long, default_value_t = 0.0)]
+    #[serde(default)]
+    pub lead_in: f64,
+    /// Profile: radius of the tangent lead-out arc, mm (default: the lead-in radius).
+    #[arg(long)]
+    #[serde(default)]
+    pub lead_out: Option<f64>,
+    /// DXF: read only the entities on this layer (repeat for several; default: all layers).
+    #[arg(long)]
+    #[serde(default)]
+    pub layer: Vec<String>,
+}
+
+fn default_stepover() -> Stepover {
+    Stepover::Percent(40.0)
+}
+
+/// Parses a step-over: `1.2` (mm) or `40%` (of the tool diameter).
+fn parse_stepover(s: &str) -> Result<Stepover, String> {
+    s.parse()
 }
 
 /// Plans the tool path of `params.op` on `shape`.
@@ -96,10 +135,29 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
                 climb: !params.conventional,
                 spindle_rpm: params.spindle,
                 tolerance: params.tolerance,
+                lead_in: params.lead_in,
+                lead_out: params.lead_out.unwrap_or(params.lead_in),
+                tabs: params.tabs,
+                tab_width: params.tab_width,
+                tab_height: params.tab_height,
             };
             Ok(profile(shape, &p).context("cannot plan the profile")?)
         }
-        Op::Pocket => anyhow::bail!("the pocket operation is not built yet"),
+        Op::Pocket => {
+            let p = PocketParams {
+                tool: Tool::flat(params.tool_diameter),
+                stepover: params.stepover,
+                depth: params.depth,
+                stepdown: params.stepdown,
+                feed: params.feed,
+                plunge_feed: params.plunge_feed,
+                safe_z: params.safe_z,
+                climb: !params.conventional,
+                spindle_rpm: params.spindle,
+                tolerance: params.tolerance,
+            };
+            Ok(pocket(shape, &p).context("cannot plan the pocket")?)
+        }
         Op::Stitch => anyhow::bail!("the stitch operation is not built yet"),
     }
 }
@@ -119,7 +177,27 @@ pub fn post(tp: &Toolpath, post: Post) -> anyhow::Result<Program> {
     gcode::post(tp, &opts).context("cannot write the G-code")
 }
 
+/// Reads a shape file from disk with the layers and tolerance of `params`; the readers'
+/// warnings (open contours, gaps, crossings, skipped entities) go to stderr.
+pub fn read_shape_for(path: &std::path::Path, params: &PlanParams) -> anyhow::Result<Shape> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let file = path.display().to_string();
+    let (shape, warnings) = offset_core::io::read_shape_with(
+        &bytes,
+        &file,
+        &offset_core::io::ReadOptions {
+            layers: params.layer.clone(),
+            tolerance: params.tolerance,
+        },
+    )?;
+    for w in warnings {
+        eprintln!("machlink: warning: {file}: {w}");
+    }
+    Ok(shape)
+}
+
 /// Reads a shape file from disk, naming the file in every error.
+#[allow(dead_code)] // the plain reader, for callers without plan options
 pub fn read_shape(path: &std::path::Path) -> anyhow::Result<Shape> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     Ok(offset_core::io::read_shape(

@@ -5,11 +5,14 @@
 //! tool paths and stitch paths, and the Toolpath IR those operations hand to the posts.
 //! It does no I/O beyond parsing bytes handed to it, and needs no async runtime.
 
+pub mod biarc;
 pub mod check;
+pub mod flatten;
 pub mod geom;
 pub mod io;
 pub mod offset;
 pub mod ops;
+pub mod preview;
 pub mod toolpath;
 
 pub use geom::{Bounds, Point, Polyline, Region, Segment, Shape, Vertex};

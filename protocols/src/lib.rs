@@ -5,6 +5,7 @@
 
 pub mod gcode;
 pub mod grbl;
+pub mod gcode_read;
 pub mod link;
 pub mod program;
 pub mod serial;

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct PlanCmdArgs {
-    /// The shape file (.json geometry).
+    /// The shape file: .json geometry, .dxf or .svg.
     pub file: PathBuf,
     #[command(flatten)]
     pub params: PlanParams,
@@ -21,7 +21,7 @@ pub struct PlanCmdArgs {
 }
 
 pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
-    let shape = planning::read_shape(&a.file)?;
+    let shape = planning::read_shape_for(&a.file, &a.params)?;
     let tp = planning::plan_toolpath(&shape, &a.params)?;
     let program = planning::post(&tp, a.post)?;
     let text = match &program {

@@ -1,7 +1,9 @@
 //! Operations: turn shapes into tool paths (profile, and later pocket, 3D) and stitch paths.
 
+pub mod pocket;
 pub mod profile;
 
+pub use pocket::{pocket, pocket_with, PocketParams, Stepover};
 pub use profile::{profile, ProfileParams, Side};
 
 use crate::offset::OffsetError;

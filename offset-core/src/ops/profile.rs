@@ -1,8 +1,8 @@
-//! Profile: cut along a shape's outline with the tool outside, inside or on the line.
+//! Profile: cut along a shape's outline with the tool outside, inside or on the line, with lead-in/lead-out arcs and holding tabs.
 
 use super::{pass_depths, OpError};
 use crate::geom::Shape;
-use crate::geom::{Polyline, Segment};
+use crate::geom::{Point, Polyline, Segment};
 use crate::offset::{offset_region, OffsetOptions};
 use crate::toolpath::{Move, Tool, Toolpath, P3};
 use serde::{Deserialize, Serialize};
@@ -40,6 +40,23 @@ pub struct ProfileParams {
     /// Spindle speed, rpm (0 leaves the spindle alone).
     pub spindle_rpm: f64,
     pub tolerance: f64,
+    /// Radius of the tangent lead-in arc onto each closed loop, mm (0: plunge on the loop).
+    /// The arc lies on the side away from the material that stays.
+    #[serde(default)]
+    pub lead_in: f64,
+    /// Radius of the tangent lead-out arc off each closed loop, mm (0: none).
+    #[serde(default)]
+    pub lead_out: f64,
+    /// Holding tabs per closed loop (0: none), evenly spaced along it.
+    #[serde(default)]
+    pub tabs: usize,
+    /// Width of the material each tab leaves, mm (the tool rises over this plus its diameter).
+    #[serde(default)]
+    pub tab_width: f64,
+    /// Height of the tabs above the bottom of the cut, mm: passes deeper than
+    /// depth - height rise to it over each tab.
+    #[serde(default)]
+    pub tab_height: f64,
 }
 
 impl Default for ProfileParams {
@@ -55,6 +72,11 @@ impl Default for ProfileParams {
             climb: true,
             spindle_rpm: 12000.0,
             tolerance: 1e-3,
+            lead_in: 0.0,
+            lead_out: 0.0,
+            tabs: 0,
+            tab_width: 0.0,
+            tab_height: 0.0,
         }
     }
 }
@@ -85,6 +107,29 @@ impl ProfileParams {
             return Err(OpError::BadParam(format!(
                 "the safe Z must be above the stock (> 0), got {}",
                 self.safe_z
+            )));
+        }
+        for (v, what) in [
+            (self.lead_in, "the lead-in radius"),
+            (self.lead_out, "the lead-out radius"),
+            (self.tab_width, "the tab width"),
+            (self.tab_height, "the tab height"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(OpError::BadParam(format!(
+                    "{what} must be 0 or more, got {v}"
+                )));
+            }
+        }
+        if self.tabs > 0 && (self.tab_width <= 0.0 || self.tab_height <= 0.0) {
+            return Err(OpError::BadParam(
+                "tabs need a width and a height above 0".into(),
+            ));
+        }
+        if self.tabs > 0 && self.tab_height >= self.depth {
+            return Err(OpError::BadParam(format!(
+                "a tab height of {} mm would not cut below the stock top at depth {} mm",
+                self.tab_height, self.depth
             )));
         }
         Ok(())
@@ -144,21 +189,22 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         tp.push(Move::Spindle { rpm: p.spindle_rpm });
     }
     let depths = pass_depths(p.depth, p.stepdown);
+    let tab_z = -p.depth + p.tab_height;
     for (pl, material_inside) in loops {
         let pl = oriented(pl, material_inside, p.climb);
         let start = pl.vertices[0].pos();
-        tp.push(Move::Rapid {
-            to: P3::at_z(start, p.safe_z),
-        });
-        for &z in &depths {
-            tp.push(Move::Linear {
-                to: P3::at_z(start, z),
-                feed: p.plunge_feed,
+        if !pl.closed {
+            tp.push(Move::Rapid {
+                to: P3::at_z(start, p.safe_z),
             });
-            for seg in pl.segments() {
-                tp.push(cut(seg, z, p.feed));
-            }
-            if !pl.closed {
+            for &z in &depths {
+                tp.push(Move::Linear {
+                    to: P3::at_z(start, z),
+                    feed: p.plunge_feed,
+                });
+                for seg in pl.segments() {
+                    tp.push(cut(seg, z, p.feed));
+                }
                 // back to the start at the safe height for the next pass of an open path
                 tp.push(Move::Rapid {
                     to: P3::at_z(pl.vertices[pl.len() - 1].pos(), p.safe_z),
@@ -167,15 +213,169 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                     to: P3::at_z(start, p.safe_z),
                 });
             }
+            continue;
         }
-        tp.push(Move::Rapid {
-            to: P3::at_z(pl.segments().last().map_or(start, |s| s.end()), p.safe_z),
-        });
+        // the side free of material: left of travel when the material is on the right
+        let free_left = pl.is_ccw() != material_inside;
+        let t_start = pl.segment(0).tangent_at(0.0);
+        let t_end = pl.segment(pl.segment_count() - 1).tangent_at(1.0);
+        let lead_in =
+            (p.lead_in > 0.0).then(|| lead_arc(start, t_start, p.lead_in, free_left, true));
+        let lead_out =
+            (p.lead_out > 0.0).then(|| lead_arc(start, t_end, p.lead_out, free_left, false));
+        let tabs = if p.tabs > 0 {
+            tab_spans(pl.length(), p.tabs, p.tab_width + p.tool.diameter)
+        } else {
+            Vec::new()
+        };
+        // without leads the tool steps down in place at the loop's start
+        let in_place = lead_in.is_none() && lead_out.is_none();
+        for (k, &z) in depths.iter().enumerate() {
+            let entry = lead_in.map_or(start, |(a, _, _)| a);
+            if k == 0 || !in_place {
+                tp.push(Move::Rapid {
+                    to: P3::at_z(entry, p.safe_z),
+                });
+            }
+            tp.push(Move::Linear {
+                to: P3::at_z(entry, z),
+                feed: p.plunge_feed,
+            });
+            if let Some((_, center, ccw)) = lead_in {
+                tp.push(Move::Arc {
+                    to: P3::at_z(start, z),
+                    center,
+                    ccw,
+                    feed: p.feed,
+                });
+            }
+            if z < tab_z - 1e-9 && !tabs.is_empty() {
+                cut_with_tabs(&mut tp, &pl, &tabs, z, tab_z, p);
+            } else {
+                for seg in pl.segments() {
+                    tp.push(cut(seg, z, p.feed));
+                }
+            }
+            let mut exit = start;
+            if let Some((b, center, ccw)) = lead_out {
+                tp.push(Move::Arc {
+                    to: P3::at_z(b, z),
+                    center,
+                    ccw,
+                    feed: p.feed,
+                });
+                exit = b;
+            }
+            if !in_place || k + 1 == depths.len() {
+                tp.push(Move::Rapid {
+                    to: P3::at_z(exit, p.safe_z),
+                });
+            }
+        }
     }
     if p.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
     Ok(tp)
+}
+
+/// A quarter-circle lead of radius `r` touching the loop at `s` with tangent `t`, on the
+/// free side. A lead-in returns (its start, centre, ccw) and ends at `s`; a lead-out
+/// returns (its end, centre, ccw) and starts at `s`.
+fn lead_arc(s: Point, t: Point, r: f64, free_left: bool, entering: bool) -> (Point, Point, bool) {
+    let n = if free_left { t.perp() } else { -t.perp() };
+    let center = s + n * r;
+    let far = if entering {
+        center - t * r
+    } else {
+        center + t * r
+    };
+    (far, center, free_left)
+}
+
+/// Where the tabs sit along a loop of length `len`: `count` stretches of `width`,
+/// centred at evenly spaced lengths (a tab never wider than its share of the loop).
+fn tab_spans(len: f64, count: usize, width: f64) -> Vec<(f64, f64)> {
+    let share = len / count as f64;
+    let w = width.min(share * 0.5);
+    (0..count)
+        .map(|k| {
+            let mid = share * (k as f64 + 0.5);
+            (mid - w / 2.0, mid + w / 2.0)
+        })
+        .collect()
+}
+
+/// The part of segment `s` between lengths `l0` and `l1` along it (0 ≤ l0 < l1 ≤ length).
+fn sub_segment(s: Segment, l0: f64, l1: f64) -> Segment {
+    let len = s.length();
+    let (t0, t1) = (l0 / len, l1 / len);
+    let (a, b) = (s.point_at(t0), s.point_at(t1));
+    match s {
+        Segment::Line { .. } => Segment::Line { a, b },
+        Segment::Arc {
+            center,
+            radius,
+            ccw,
+            ..
+        } => Segment::Arc {
+            a,
+            b,
+            center,
+            radius,
+            ccw,
+        },
+    }
+}
+
+/// One closed pass at `z` that rises to `tab_z` over every tab span.
+fn cut_with_tabs(
+    tp: &mut Toolpath,
+    pl: &Polyline,
+    tabs: &[(f64, f64)],
+    z: f64,
+    tab_z: f64,
+    p: &ProfileParams,
+) {
+    // break points along the loop, and whether the stretch after each is a tab
+    let mut at = 0.0;
+    let mut on_tab = false;
+    for seg in pl.segments() {
+        let len = seg.length();
+        let mut cuts: Vec<f64> = tabs
+            .iter()
+            .flat_map(|&(a, b)| [a, b])
+            .filter(|&l| l > at && l < at + len)
+            .map(|l| l - at)
+            .collect();
+        cuts.push(len);
+        let mut from = 0.0;
+        for c in cuts {
+            if c - from > 1e-9 {
+                let piece = sub_segment(seg, from, c);
+                let mid = at + 0.5 * (from + c);
+                let tab = tabs.iter().any(|&(a, b)| mid > a && mid < b);
+                if tab != on_tab {
+                    let here = piece.start();
+                    tp.push(Move::Linear {
+                        to: P3::at_z(here, if tab { tab_z } else { z }),
+                        feed: p.plunge_feed,
+                    });
+                    on_tab = tab;
+                }
+                tp.push(cut(piece, if tab { tab_z } else { z }, p.feed));
+            }
+            from = c;
+        }
+        at += len;
+    }
+    if on_tab {
+        let end = pl.vertices[0].pos();
+        tp.push(Move::Linear {
+            to: P3::at_z(end, z),
+            feed: p.plunge_feed,
+        });
+    }
 }
 
 /// One segment of a loop as a cutting move at height `z`.
@@ -249,5 +449,90 @@ mod tests {
             profile(&Shape::new(vec![sq]), &p),
             Err(OpError::BadParam(_))
         ));
+    }
+
+    #[test]
+    fn lead_arcs_are_tangent_and_stay_off_the_part() {
+        let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(20.0, 20.0));
+        for climb in [true, false] {
+            let p = ProfileParams {
+                side: Side::On,
+                lead_in: 3.0,
+                lead_out: 2.0,
+                climb,
+                ..Default::default()
+            };
+            let tp = profile(&Shape::new(vec![sq.clone()]), &p).unwrap();
+            let arcs: Vec<(P3, P3, Point)> = {
+                let mut v = Vec::new();
+                tp.walk(P3::default(), |from, m, to| {
+                    if let Move::Arc { center, .. } = m {
+                        v.push((from, to, *center));
+                    }
+                });
+                v
+            };
+            assert_eq!(arcs.len(), 2);
+            for (from, to, c) in arcs {
+                // quarter circles of the lead radius, touching the square at its corner start,
+                // and never inside the part (the material of an On profile of a closed
+                // outline is taken to be inside it)
+                let r = from.xy().dist(c);
+                assert!((r - to.xy().dist(c)).abs() < 1e-9);
+                assert!((from.xy().dist(to.xy()) - r * 2f64.sqrt()).abs() < 1e-9);
+                let seg = crate::toolpath::arc_segment(from.xy(), to.xy(), c, {
+                    let mut ccw = false;
+                    tp.walk(P3::default(), |_, m, _| {
+                        if let Move::Arc { center, ccw: w, .. } = m {
+                            if *center == c {
+                                ccw = *w;
+                            }
+                        }
+                    });
+                    ccw
+                });
+                for k in 1..10 {
+                    let q = seg.point_at(k as f64 / 10.0);
+                    assert!(!sq.contains(q), "lead point {q:?} inside the part");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn tabs_rise_on_the_last_passes_only() {
+        let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(40.0, 40.0));
+        let p = ProfileParams {
+            side: Side::On,
+            depth: 3.0,
+            stepdown: 1.0,
+            tabs: 4,
+            tab_width: 2.0,
+            tab_height: 1.5,
+            ..Default::default()
+        };
+        let tp = profile(&Shape::new(vec![sq]), &p).unwrap();
+        // raised length per depth: the passes at -2 and -3 lie below the tab top at -1.5
+        let mut raised = std::collections::BTreeMap::<i64, f64>::new();
+        let mut rises = 0;
+        tp.walk(P3::default(), |from, m, to| {
+            if matches!(m, Move::Linear { .. })
+                && (from.z + 1.5).abs() < 1e-9
+                && (to.z + 1.5).abs() < 1e-9
+            {
+                *raised.entry(0).or_default() += from.dist(to);
+            }
+            if matches!(m, Move::Linear { .. })
+                && from.xy().dist(to.xy()) < 1e-12
+                && (to.z + 1.5).abs() < 1e-9
+                && from.z < to.z
+            {
+                rises += 1;
+            }
+        });
+        assert_eq!(rises, 8, "four tabs on each of two passes");
+        // each tab: its width plus the tool diameter (3 mm)
+        assert!((raised[&0] - 8.0 * 5.0).abs() < 1e-9, "{raised:?}");
+        assert!((tp.bounds().unwrap().min.z + 3.0).abs() < 1e-12);
     }
 }

@@ -1,0 +1,189 @@
+//! SVG import (via usvg): paths and basic shapes with their transforms, in mm from the document's size and viewBox, +Y up.
+//!
+//! usvg resolves styles, `use`, transforms and the viewBox, and turns basic shapes and
+//! elliptical arcs into cubic Béziers; we flatten the curves within half the tolerance and
+//! fit the points with biarcs within the other half, so a circle in the file comes back as
+//! arcs. Lengths: usvg works in CSS pixels (96 per inch), so a document with
+//! `width="100mm"` is 100 mm wide here. Y is flipped about the document's height.
+//! Subpaths that end where they start are closed; open subpaths, crossings and gaps are
+//! warnings, as in the DXF reader. Text and images are skipped.
+
+use super::chain::{chain, self_intersections};
+use super::ImportError;
+use crate::biarc::{fit_points, BiarcOptions};
+use crate::flatten;
+use crate::geom::{Point, Polyline, Shape, Vertex};
+
+/// mm per CSS pixel.
+const MM_PER_PX: f64 = 25.4 / 96.0;
+
+/// A drawing read from SVG, with what the reader noticed.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SvgDrawing {
+    pub shape: Shape,
+    pub warnings: Vec<String>,
+}
+
+/// Reads an SVG file with a tolerance of 0.001 mm.
+pub fn read(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
+    read_with(bytes, file, 1e-3).map(|d| d.shape)
+}
+
+/// Reads an SVG file; curves are approximated within `tolerance` mm.
+pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing, ImportError> {
+    let tol = if tolerance.is_finite() && tolerance > 0.0 {
+        tolerance
+    } else {
+        1e-3
+    };
+    let opt = usvg::Options::default();
+    let tree = usvg::Tree::from_data(bytes, &opt)
+        .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
+    let height = tree.size().height() as f64;
+    let mut pieces = Vec::new();
+    let mut warnings = Vec::new();
+    collect(tree.root(), height, tol, &mut pieces, &mut warnings);
+    let paths = chain(pieces, tol, &mut warnings);
+    for (i, p) in paths.iter().enumerate() {
+        if p.closed {
+            for x in self_intersections(p, 3) {
+                warnings.push(format!(
+                    "contour {i} crosses itself near ({:.4}, {:.4}) mm",
+                    x.x, x.y
+                ));
+            }
+        }
+    }
+    Ok(SvgDrawing {
+        shape: Shape::new(paths),
+        warnings,
+    })
+}
+
+fn collect(
+    g: &usvg::Group,
+    height: f64,
+    tol: f64,
+    out: &mut Vec<Polyline>,
+    warnings: &mut Vec<String>,
+) {
+    for node in g.children() {
+        match node {
+            usvg::Node::Group(g) => collect(g, height, tol, out, warnings),
+            usvg::Node::Path(p) => path(p, height, tol, out),
+            usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
+            #[allow(unreachable_patterns)]
+            _ => warnings.push(format!("text {} skipped", node.id())),
+        }
+    }
+}
+
+fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
+    let ts = p.abs_transform();
+    let to_mm = |q: usvg::tiny_skia_path::Point| {
+        let mut q = q;
+        ts.map_point(&mut q);
+        Point::new(q.x as f64 * MM_PER_PX, (height - q.y as f64) * MM_PER_PX)
+    };
+    let fit = BiarcOptions {
+        tolerance: tol / 2.0,
+        ..Default::default()
+    };
+    let mut cur: Vec<Vertex> = Vec::new();
+    let mut last = Point::default();
+    let finish = |cur: &mut Vec<Vertex>, closed: bool, out: &mut Vec<Polyline>| {
+        let mut vs = std::mem::take(cur);
+        if vs.len() < 2 {
+            return;
+        }
+        let first = vs[0].pos();
+        let end = vs[vs.len() - 1].pos();
+        let closed = closed || first.dist(end) <= tol;
+        if closed && first.dist(end) <= tol {
+            vs.pop();
+        } else if let Some(v) = vs.last_mut() {
+            v.bulge = 0.0;
+        }
+        if vs.len() >= 2
+            && vs
+                .iter()
+                .all(|v| v.pos().is_finite() && v.bulge.is_finite())
+        {
+            out.push(Polyline::new(vs, closed));
+        }
+    };
+    let curve = |cur: &mut Vec<Vertex>, pts: Vec<Point>| {
+        let f = fit_points(&pts, false, &fit);
+        cur.pop();
+        cur.extend_from_slice(&f.vertices);
+    };
+    use usvg::tiny_skia_path::PathSegment;
+    for seg in p.data().segments() {
+        match seg {
+            PathSegment::MoveTo(q) => {
+                finish(&mut cur, false, out);
+                last = to_mm(q);
+                cur.push(Vertex::line(last));
+            }
+            PathSegment::LineTo(q) => {
+                last = to_mm(q);
+                cur.push(Vertex::line(last));
+            }
+            PathSegment::QuadTo(a, b) => {
+                let (a, b) = (to_mm(a), to_mm(b));
+                curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0));
+                last = b;
+            }
+            PathSegment::CubicTo(a, b, c) => {
+                let (a, b, c) = (to_mm(a), to_mm(b), to_mm(c));
+                curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0));
+                last = c;
+            }
+            PathSegment::Close => {
+                let start = cur.first().map(|v| v.pos());
+                finish(&mut cur, true, out);
+                if let Some(s) = start {
+                    last = s;
+                }
+            }
+        }
+    }
+    finish(&mut cur, false, out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn circle_and_rect_in_mm_with_y_up() {
+        let src = br#"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="50mm" viewBox="0 0 200 100">
+            <rect x="0" y="0" width="20" height="10" fill="black"/>
+            <g transform="translate(100,50)"><circle r="20" fill="black"/></g></svg>"#;
+        let s = read(src, "t.svg").unwrap();
+        assert_eq!(s.paths.len(), 2);
+        let rect = s.paths.iter().find(|p| p.len() == 4).unwrap();
+        let b = rect.bounds();
+        // viewBox units are half millimetres; the rectangle sits at the top left, y up
+        assert!(
+            (b.min.x - 0.0).abs() < 1e-3 && (b.max.x - 10.0).abs() < 1e-3,
+            "{b:?}"
+        );
+        assert!(
+            (b.max.y - 50.0).abs() < 1e-3 && (b.min.y - 45.0).abs() < 1e-3,
+            "{b:?}"
+        );
+        let circle = s.paths.iter().find(|p| p.len() != 4).unwrap();
+        // a circle of radius 10 mm about (50, 25) mm, as arcs; usvg hands it over as four
+        // cubics, which are themselves off the circle by up to 2.7e-4 × r
+        for seg in circle.segments() {
+            for t in [0.0, 0.3, 0.7] {
+                let d = seg.point_at(t).dist(Point::new(50.0, 25.0));
+                assert!((d - 10.0).abs() < 2.7e-3 + 1e-3, "{d}");
+            }
+        }
+        assert!(circle
+            .segments()
+            .all(|s| matches!(s, crate::geom::Segment::Arc { .. })));
+    }
+}

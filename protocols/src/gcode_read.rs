@@ -1,0 +1,180 @@
+//! A small G-code reader for previews: G0/G1/G2/G3 (XY plane, I/J centres or R), G20/G21, G90/G91, into the Toolpath IR.
+
+use offset_core::geom::Point;
+use offset_core::toolpath::{Move, Toolpath, P3};
+
+/// Why a program could not be read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("line {line}: {message}")]
+pub struct ReadError {
+    pub line: usize,
+    pub message: String,
+}
+
+/// Reads G-code text into moves. Words other than motion, units and distance modes are
+/// ignored (spindle, coolant, tool changes, comments); the machine starts at the origin.
+pub fn read(text: &str) -> Result<Toolpath, ReadError> {
+    let mut tp = Toolpath::new("program");
+    let mut pos = P3::default();
+    let mut motion = 0u8;
+    let mut scale = 1.0;
+    let mut absolute = true;
+    let mut feed = 0.0;
+    for (n, raw) in text.lines().enumerate() {
+        let line = n + 1;
+        let err = |message: String| ReadError { line, message };
+        // strip ( … ) and ; comments
+        let mut clean = String::new();
+        let mut depth = 0;
+        for ch in raw.chars() {
+            match ch {
+                '(' => depth += 1,
+                ')' if depth > 0 => depth -= 1,
+                ';' if depth == 0 => break,
+                _ if depth == 0 => clean.push(ch.to_ascii_uppercase()),
+                _ => {}
+            }
+        }
+        let chars: Vec<char> = clean.chars().filter(|c| !c.is_whitespace()).collect();
+        let mut words: Vec<(char, f64)> = Vec::new();
+        let mut i = 0;
+        while i < chars.len() {
+            let letter = chars[i];
+            if letter == '%' {
+                i += 1;
+                continue;
+            }
+            if !letter.is_ascii_alphabetic() {
+                return Err(err(format!("expected a word letter, found '{letter}'")));
+            }
+            i += 1;
+            let start = i;
+            while i < chars.len() && (chars[i].is_ascii_digit() || "+-.".contains(chars[i])) {
+                i += 1;
+            }
+            let num: String = chars[start..i].iter().collect();
+            if letter == '$' {
+                break;
+            }
+            let v: f64 = num
+                .parse()
+                .map_err(|_| err(format!("word {letter} has no number (\"{num}\")")))?;
+            words.push((letter, v));
+        }
+        let mut target: [Option<f64>; 3] = [None; 3];
+        let (mut ci, mut cj, mut cr) = (None, None, None);
+        let mut moved = false;
+        for &(l, v) in &words {
+            match l {
+                'G' => match v {
+                    v if v == 0.0 || v == 1.0 || v == 2.0 || v == 3.0 => {
+                        motion = v as u8;
+                        moved = true;
+                    }
+                    20.0 => scale = 25.4,
+                    21.0 => scale = 1.0,
+                    90.0 => absolute = true,
+                    91.0 => absolute = false,
+                    _ => {}
+                },
+                'X' => target[0] = Some(v),
+                'Y' => target[1] = Some(v),
+                'Z' => target[2] = Some(v),
+                'I' => ci = Some(v * scale),
+                'J' => cj = Some(v * scale),
+                'R' => cr = Some(v * scale),
+                'F' => feed = v * scale,
+                _ => {}
+            }
+        }
+        if target.iter().all(|t| t.is_none()) {
+            let _ = moved;
+            continue;
+        }
+        let cur = [pos.x, pos.y, pos.z];
+        let mut to = [0.0; 3];
+        for k in 0..3 {
+            to[k] = match target[k] {
+                Some(v) if absolute => v * scale,
+                Some(v) => cur[k] + v * scale,
+                None => cur[k],
+            };
+        }
+        let to = P3::new(to[0], to[1], to[2]);
+        if !(to.x.is_finite() && to.y.is_finite() && to.z.is_finite()) {
+            return Err(err("a coordinate is not a finite number".into()));
+        }
+        let m = match motion {
+            0 => Move::Rapid { to },
+            1 => Move::Linear { to, feed },
+            _ => {
+                let ccw = motion == 3;
+                let center = match (ci, cj, cr) {
+                    (_, _, Some(r)) => {
+                        radius_center(pos.xy(), to.xy(), r, ccw).ok_or_else(|| {
+                            err(format!("arc radius {r} is too small for its end points"))
+                        })?
+                    }
+                    (i, j, None) if i.is_some() || j.is_some() => {
+                        Point::new(pos.x + i.unwrap_or(0.0), pos.y + j.unwrap_or(0.0))
+                    }
+                    _ => return Err(err("an arc needs I/J or R".into())),
+                };
+                Move::Arc {
+                    to,
+                    center,
+                    ccw,
+                    feed,
+                }
+            }
+        };
+        tp.push(m);
+        pos = to;
+    }
+    Ok(tp)
+}
+
+/// The centre of the arc of radius `r` from `a` to `b` (negative r: the long way round).
+fn radius_center(a: Point, b: Point, r: f64, ccw: bool) -> Option<Point> {
+    let chord = b - a;
+    let c = chord.len();
+    if c == 0.0 || r.abs() * 2.0 < c * (1.0 - 1e-9) {
+        return None;
+    }
+    let h = (r * r - c * c / 4.0).max(0.0).sqrt();
+    let mid = a.lerp(b, 0.5);
+    let left = chord.unit().perp();
+    // a short ccw arc has its centre on the left of the chord
+    let on_left = ccw == (r > 0.0);
+    Some(if on_left {
+        mid + left * h
+    } else {
+        mid - left * h
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_motion_units_and_arcs() {
+        let tp = read("G21 G90\nG0 X10 Y0 Z5 (go)\nG1 Z-1 F300\nG3 X-10 Y0 I-10 J0\nG20\nG91 G1 X1 ; inch\nG2 X1 Y1 R1").unwrap();
+        assert_eq!(tp.moves.len(), 5);
+        match &tp.moves[2] {
+            Move::Arc {
+                center, ccw, to, ..
+            } => {
+                assert!(*ccw && center.dist(Point::default()) < 1e-12 && to.x == -10.0)
+            }
+            m => panic!("{m:?}"),
+        }
+        match &tp.moves[3] {
+            Move::Linear { to, .. } => assert!((to.x - 15.4).abs() < 1e-12),
+            m => panic!("{m:?}"),
+        }
+        let e = read("G1 X1\nG1 Xabc").unwrap_err();
+        assert_eq!(e.line, 2);
+        assert!(read("G2 X5 Y0").unwrap_err().message.contains("I/J or R"));
+    }
+}
