@@ -9,6 +9,7 @@ pub mod geom;
 pub mod io;
 pub mod offset;
 pub mod ops;
+pub mod stitch;
 pub mod toolpath;
 
 pub use geom::{Bounds, Point, Polyline, Region, Segment, Shape, Vertex};
