@@ -6,6 +6,7 @@
 pub mod gcode;
 pub mod link;
 pub mod program;
+pub mod sewing;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 pub use program::Program;

@@ -81,7 +81,7 @@ impl Default for StitchParams {
 pub enum StitchError {
     #[error("invalid stitch parameter: {0}")]
     BadParam(String),
-    #[error("cannot offset path {path} by {distance} mm for a row: {source}")]
+    #[error("cannot offset path {path} by {distance} mm for a row")]
     Offset {
         path: usize,
         distance: f64,
