@@ -4,8 +4,10 @@
 //! acknowledged, so the daemon can journal progress and resume exactly where it stopped.
 
 pub mod gcode;
+pub mod grbl;
 pub mod link;
 pub mod program;
+pub mod serial;
 pub mod sewing;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};

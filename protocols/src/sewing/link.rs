@@ -81,14 +81,7 @@ impl SewingLink {
 
     /// Opens a serial port (or pty) at `baud`.
     pub fn open(port: &str, baud: u32, timing: SewingTiming) -> Result<Self, LinkError> {
-        use tokio_serial::SerialPortBuilderExt;
-        let s = tokio_serial::new(port, baud)
-            .open_native_async()
-            .map_err(|e| LinkError::Open {
-                port: port.to_string(),
-                source: std::io::Error::other(e.to_string()),
-            })?;
-        Ok(SewingLink::new(s, timing))
+        Ok(SewingLink::new(crate::serial::open(port, baud)?, timing))
     }
 
     /// Sends one request and waits for its answer, sending it again (same sequence number)

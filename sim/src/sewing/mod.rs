@@ -9,6 +9,7 @@
 //! the machine's non-volatile memory). Colour changes and stops are passed over (a
 //! single-needle pattern sewer).
 
+pub mod cli;
 pub mod pty;
 
 use machlink_protocols::sewing::wire::{
