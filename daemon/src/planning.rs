@@ -27,6 +27,10 @@ pub enum Post {
     Grbl,
     Linuxcnc,
     Generic,
+    /// Tajima DST embroidery file (stitch operation).
+    Dst,
+    /// Janome JEF embroidery file (stitch operation).
+    Jef,
 }
 
 /// Side of the outline for a profile (mirrors offset_core's Side for the command line).
@@ -105,6 +109,33 @@ pub struct PlanParams {
     #[arg(long)]
     #[serde(default)]
     pub layer: Vec<String>,
+    /// Stitch: nominal stitch length, mm (1 to 12.7); each run between corners gets equal stitches.
+    #[arg(long, default_value_t = 2.5)]
+    pub stitch_length: f64,
+    /// Stitch: rows to sew as offsets from each curve, mm, comma separated (0 = on the curve;
+    /// closed curves: negative inside, positive outside; open curves: positive left).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        default_value = "0"
+    )]
+    pub rows: Vec<f64>,
+    /// Stitch: bean stitch (each stitch sewn forward, back, forward).
+    #[arg(long)]
+    pub bean: bool,
+    /// Stitch: tie-in and tie-off stitches at the start and end of each seam.
+    #[arg(long)]
+    pub tie: bool,
+    /// Stitch: a turn sharper than this many degrees is a corner and gets a needle drop on it.
+    #[arg(long, default_value_t = 20.0)]
+    pub corner_angle: f64,
+    /// Stitch: round the corners of offset rows instead of keeping them sharp.
+    #[arg(long)]
+    pub round_corners: bool,
+    /// Stitch: how far a stitch may stray from its curve, mm (at least 0.1).
+    #[arg(long, default_value_t = 0.2)]
+    pub stitch_tolerance: f64,
 }
 
 fn default_stepover() -> Stepover {
@@ -158,16 +189,35 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
             };
             Ok(pocket(shape, &p).context("cannot plan the pocket")?)
         }
-        Op::Stitch => anyhow::bail!("the stitch operation is not built yet"),
+        Op::Stitch => {
+            let p = offset_core::stitch::StitchParams {
+                stitch_length: params.stitch_length,
+                rows: params.rows.clone(),
+                bean: params.bean,
+                tie: params.tie,
+                corner_angle: params.corner_angle,
+                round_corners: params.round_corners,
+                tolerance: params.stitch_tolerance,
+                ..Default::default()
+            };
+            Ok(offset_core::stitch::stitch(shape, &p).context("cannot plan the stitches")?)
+        }
     }
 }
 
 /// Turns a tool path into the program for `post`.
 pub fn post(tp: &Toolpath, post: Post) -> anyhow::Result<Program> {
+    use machlink_protocols::sewing::{self, RecordLimits};
     let dialect = match post {
         Post::Grbl => Dialect::Grbl,
         Post::Linuxcnc => Dialect::Linuxcnc,
         Post::Generic => Dialect::Generic,
+        Post::Dst => {
+            return sewing::post(tp, RecordLimits::DST).context("cannot write the DST stitches")
+        }
+        Post::Jef => {
+            return sewing::post(tp, RecordLimits::JEF).context("cannot write the JEF stitches")
+        }
     };
     #[allow(clippy::needless_update)] // the post grows options; they keep their defaults here
     let opts = GcodeOptions {

@@ -13,6 +13,7 @@ pub mod io;
 pub mod offset;
 pub mod ops;
 pub mod preview;
+pub mod stitch;
 pub mod toolpath;
 
 pub use geom::{Bounds, Point, Polyline, Region, Segment, Shape, Vertex};

@@ -9,6 +9,7 @@ pub mod gcode_read;
 pub mod link;
 pub mod program;
 pub mod serial;
+pub mod sewing;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 pub use program::Program;

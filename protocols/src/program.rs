@@ -9,6 +9,8 @@ use serde::{Deserialize, Serialize};
 pub enum Program {
     /// G-code lines, without line endings, comments or bytes >= 0x80.
     Gcode(Vec<String>),
+    /// Stitch records for a pattern sewing machine (absolute, 0.1 mm): one unit per record.
+    Stitches(Vec<crate::sewing::StitchRecord>),
 }
 
 impl Program {
@@ -16,6 +18,7 @@ impl Program {
     pub fn len(&self) -> usize {
         match self {
             Program::Gcode(lines) => lines.len(),
+            Program::Stitches(records) => records.len(),
         }
     }
     pub fn is_empty(&self) -> bool {
@@ -25,12 +28,17 @@ impl Program {
     pub fn kind(&self) -> &'static str {
         match self {
             Program::Gcode(_) => "gcode",
+            Program::Stitches(_) => "stitches",
         }
     }
     /// Unit `i` as text, for messages (a G-code line as it is).
     pub fn describe_unit(&self, i: usize) -> String {
         match self {
             Program::Gcode(lines) => lines.get(i).cloned().unwrap_or_default(),
+            Program::Stitches(records) => records
+                .get(i)
+                .map(|r| format!("{:?} at ({:.1}, {:.1}) mm", r.kind, r.mm().x, r.mm().y))
+                .unwrap_or_default(),
         }
     }
 }

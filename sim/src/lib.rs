@@ -4,3 +4,4 @@
 
 pub mod grbl;
 pub mod pty;
+pub mod sewing;

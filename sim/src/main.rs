@@ -20,6 +20,8 @@ struct Cli {
 enum Device {
     /// A GRBL 1.1 controller on a pseudo-terminal.
     Grbl(GrblArgs),
+    /// A pattern sewing machine (pattern transfer protocol) on a pseudo-terminal.
+    Sewing(machlink_sim::sewing::cli::SewingArgs),
 }
 
 #[derive(Args)]
@@ -107,6 +109,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.device {
         Device::Grbl(a) => run_grbl(a),
+        Device::Sewing(a) => machlink_sim::sewing::cli::run(a),
     };
     if let Err(e) = result {
         eprintln!("machlink-sim: {e:#}");

@@ -25,7 +25,8 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     let tp = planning::plan_toolpath(&shape, &a.params)?;
     let program = planning::post(&tp, a.post)?;
     let text = match &program {
-        Program::Gcode(lines) => lines.join("\n") + "\n",
+        Program::Gcode(lines) => (lines.join("\n") + "\n").into_bytes(),
+        Program::Stitches(records) => stitch_file(records, a.post, &a.file)?,
     };
     std::fs::write(&a.output, text)
         .with_context(|| format!("cannot write {}", a.output.display()))?;
@@ -36,4 +37,21 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
         program.kind()
     );
     Ok(())
+}
+
+/// A stitch program as the embroidery file `post` names (DST unless JEF is asked for).
+fn stitch_file(
+    records: &[machlink_protocols::sewing::StitchRecord],
+    post: Post,
+    source: &std::path::Path,
+) -> anyhow::Result<Vec<u8>> {
+    use machlink_protocols::sewing::{dst, jef};
+    let label = source
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    Ok(match post {
+        Post::Jef => jef::write(records, &Default::default())?,
+        _ => dst::write(records, &label)?,
+    })
 }
