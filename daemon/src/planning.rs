@@ -27,6 +27,8 @@ pub enum Post {
     Grbl,
     Linuxcnc,
     Generic,
+    /// Motion blocks for a Modbus ring buffer (docs/modbus.md).
+    Modbus,
 }
 
 /// Side of the outline for a profile (mirrors offset_core's Side for the command line).
@@ -107,6 +109,9 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
 /// Turns a tool path into the program for `post`.
 pub fn post(tp: &Toolpath, post: Post) -> anyhow::Result<Program> {
     let dialect = match post {
+        Post::Modbus => {
+            return machlink_protocols::modbus::post(tp).context("cannot make Modbus motion blocks")
+        }
         Post::Grbl => Dialect::Grbl,
         Post::Linuxcnc => Dialect::Linuxcnc,
         Post::Generic => Dialect::Generic,

@@ -5,6 +5,7 @@
 
 pub mod gcode;
 pub mod link;
+pub mod modbus;
 pub mod program;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};

@@ -9,6 +9,8 @@ use serde::{Deserialize, Serialize};
 pub enum Program {
     /// G-code lines, without line endings, comments or bytes >= 0x80.
     Gcode(Vec<String>),
+    /// Motion blocks for a Modbus ring buffer; block `i` travels as sequence `i + 1`.
+    Modbus(Vec<crate::modbus::MotionBlock>),
 }
 
 impl Program {
@@ -16,6 +18,7 @@ impl Program {
     pub fn len(&self) -> usize {
         match self {
             Program::Gcode(lines) => lines.len(),
+            Program::Modbus(blocks) => blocks.len(),
         }
     }
     pub fn is_empty(&self) -> bool {
@@ -25,12 +28,14 @@ impl Program {
     pub fn kind(&self) -> &'static str {
         match self {
             Program::Gcode(_) => "gcode",
+            Program::Modbus(_) => "modbus",
         }
     }
     /// Unit `i` as text, for messages (a G-code line as it is).
     pub fn describe_unit(&self, i: usize) -> String {
         match self {
             Program::Gcode(lines) => lines.get(i).cloned().unwrap_or_default(),
+            Program::Modbus(blocks) => blocks.get(i).map(|b| b.to_string()).unwrap_or_default(),
         }
     }
 }

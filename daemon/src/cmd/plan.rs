@@ -26,6 +26,7 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     let program = planning::post(&tp, a.post)?;
     let text = match &program {
         Program::Gcode(lines) => lines.join("\n") + "\n",
+        Program::Modbus(blocks) => blocks.iter().map(|b| format!("{b}\n")).collect(),
     };
     std::fs::write(&a.output, text)
         .with_context(|| format!("cannot write {}", a.output.display()))?;
