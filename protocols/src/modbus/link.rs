@@ -401,13 +401,11 @@ impl ModbusLink {
             .map(|_| ())
     }
 
+    /// Writes the command register. FC16 rather than FC6: the register reads back 0 once
+    /// the device acted, and some devices (pymodbus among them) echo that 0 in an FC6 reply.
     async fn command(&mut self, c: Command) -> Result<(), ModbusError> {
-        self.exchange(Request::WriteSingleRegister(
-            self.s.base_address + reg::COMMAND,
-            c as u16,
-        ))
-        .await
-        .map(|_| ())
+        self.write(self.s.base_address + reg::COMMAND, vec![c as u16])
+            .await
     }
 
     async fn write_seq(&mut self, seq: u32) -> Result<(), ModbusError> {
