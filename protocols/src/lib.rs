@@ -4,9 +4,11 @@
 //! acknowledged, so the daemon can journal progress and resume exactly where it stopped.
 
 pub mod gcode;
+pub mod grbl;
 pub mod link;
 pub mod modbus;
 pub mod program;
+pub mod serial;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 pub use program::Program;

@@ -2,4 +2,6 @@
 //! over TCP or RTU, a pattern sewing machine, CANopen drives), with a motion model in
 //! simulated time, fault injection, and a trace of what they executed for tests to read.
 
+pub mod grbl;
 pub mod modbus;
+pub mod pty;

@@ -26,7 +26,7 @@ pub struct ModbusArgs {
     /// Word order of 32-bit values: high-first or low-first.
     #[arg(long, default_value = "high-first")]
     pub word_order: WordOrder,
-    /// Machine time runs this many times faster than wall time (0: execute at once).
+    /// Simulated seconds per wall second for motion ("inf" or 0: execute every block at once).
     #[arg(long, default_value_t = 1.0)]
     pub time_scale: f64,
     /// Rapid rate, mm/min.
@@ -110,8 +110,8 @@ pub async fn run(args: ModbusArgs) -> anyhow::Result<()> {
     if cfg.capacity == 0 {
         anyhow::bail!("--capacity must be at least 1");
     }
-    if !(cfg.time_scale >= 0.0 && cfg.time_scale.is_finite()) {
-        anyhow::bail!("--time-scale must be a number >= 0");
+    if cfg.time_scale.is_nan() || cfg.time_scale < 0.0 {
+        anyhow::bail!("--time-scale must be a number >= 0 (or inf)");
     }
     let sim = match (&args.tcp, &args.pty) {
         (Some(addr), _) => {

@@ -53,7 +53,7 @@ pub struct SimConfig {
     /// Ring capacity in blocks.
     pub capacity: u16,
     pub word_order: WordOrder,
-    /// Machine time runs this many times faster than wall time; 0 executes blocks at once.
+    /// Simulated seconds per wall second; 0 or infinity executes blocks at once.
     pub time_scale: f64,
     /// Rapid rate, mm/min.
     pub rapid_feed: f64,
@@ -417,7 +417,7 @@ async fn execute(shared: Arc<Shared>) {
             shared.wake.notified().await;
             continue;
         };
-        if shared.cfg.time_scale > 0.0 {
+        if shared.cfg.time_scale > 0.0 && shared.cfg.time_scale.is_finite() {
             let t = shared.motion_time(from, &block) / shared.cfg.time_scale;
             clock = clock.max(Instant::now()) + Duration::from_secs_f64(t);
             // Sleep only when a millisecond or more is due: the average pace stays exact.
