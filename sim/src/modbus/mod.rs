@@ -97,6 +97,8 @@ pub struct SimStats {
     pub late: u64,
     pub exceptions: u64,
     pub disconnects: u64,
+    /// Bytes of every request and reply frame on the wire (MBAP or address + CRC included).
+    pub wire_bytes: u64,
 }
 
 struct Device {
@@ -348,7 +350,12 @@ impl Shared {
         Some(Duration::from_secs_f64(chars * 10.0 / baud))
     }
 
-    async fn pace(&self, req: &Request<'_>, resp: Option<&Result<Response, ExceptionCode>>) {
+    async fn pace(
+        &self,
+        req: &Request<'_>,
+        resp: Option<&Result<Response, ExceptionCode>>,
+        rtu: bool,
+    ) {
         let req_pdu = match req {
             Request::ReadHoldingRegisters(..) | Request::WriteSingleRegister(..) => 5,
             Request::WriteMultipleRegisters(_, w) => 6 + 2 * w.len(),
@@ -360,6 +367,17 @@ impl Shared {
             Some(Ok(Response::ReadHoldingRegisters(v))) => 2 + 2 * v.len(),
             Some(Ok(_)) => 5,
         };
+        // RTU: address + CRC; TCP: the 7-byte MBAP header.
+        let frame = |pdu: usize| {
+            if pdu == 0 {
+                0
+            } else if rtu {
+                pdu + 3
+            } else {
+                pdu + 7
+            }
+        };
+        lock(&self.stats).wire_bytes += (frame(req_pdu) + frame(resp_pdu)) as u64;
         let Some(t) = self.line_time(req_pdu, resp_pdu) else {
             return;
         };
@@ -498,7 +516,7 @@ impl Service for DeviceService {
             if let Some(&(_, code)) = faults.exceptions.iter().find(|e| e.0 == n) {
                 lock(&shared.stats).exceptions += 1;
                 let r = Err(ExceptionCode::new(code));
-                shared.pace(&req.request, Some(&r)).await;
+                shared.pace(&req.request, Some(&r), rtu).await;
                 return r.map(Some);
             }
             if faults.disconnects.contains(&n) {
@@ -518,14 +536,14 @@ impl Service for DeviceService {
             let r = shared.apply(&req.request);
             if faults.drop_replies.contains(&n) {
                 lock(&shared.stats).dropped += 1;
-                shared.pace(&req.request, None).await;
+                shared.pace(&req.request, None, rtu).await;
                 return Ok(None);
             }
             if faults.late_replies.contains(&n) {
                 lock(&shared.stats).late += 1;
                 tokio::time::sleep(faults.late_by).await;
             }
-            shared.pace(&req.request, Some(&r)).await;
+            shared.pace(&req.request, Some(&r), rtu).await;
             r.map(Some)
         })
     }
