@@ -290,6 +290,9 @@ pub fn plan(
 pub fn post_for(machine: &MachineConfig) -> Post {
     match machine.link {
         crate::config::LinkConfig::Grbl(_) | crate::config::LinkConfig::SimGrbl(_) => Post::Grbl,
+        crate::config::LinkConfig::ModbusTcp(_) | crate::config::LinkConfig::ModbusRtu(_) => {
+            Post::Modbus
+        }
     }
 }
 

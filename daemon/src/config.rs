@@ -86,6 +86,12 @@ pub enum LinkConfig {
     /// A GRBL simulator the daemon starts itself on a pseudo-terminal.
     #[serde(rename = "sim-grbl")]
     SimGrbl(SimGrblLinkConfig),
+    /// A PLC or drive taking motion blocks over Modbus TCP.
+    #[serde(rename = "modbus-tcp")]
+    ModbusTcp(ModbusTcpLinkConfig),
+    /// A PLC or drive taking motion blocks over Modbus RTU on a serial port.
+    #[serde(rename = "modbus-rtu")]
+    ModbusRtu(ModbusRtuLinkConfig),
 }
 
 impl LinkConfig {
@@ -94,6 +100,8 @@ impl LinkConfig {
         match self {
             LinkConfig::Grbl(_) => "grbl",
             LinkConfig::SimGrbl(_) => "sim-grbl",
+            LinkConfig::ModbusTcp(_) => "modbus-tcp",
+            LinkConfig::ModbusRtu(_) => "modbus-rtu",
         }
     }
 
@@ -102,6 +110,8 @@ impl LinkConfig {
         let mut keys = BTreeSet::new();
         keys.extend(struct_fields::<GrblLinkConfig>());
         keys.extend(struct_fields::<SimGrblLinkConfig>());
+        keys.extend(struct_fields::<ModbusTcpLinkConfig>());
+        keys.extend(struct_fields::<ModbusRtuLinkConfig>());
         keys
     }
 }
@@ -142,6 +152,123 @@ pub struct SimGrblLinkConfig {
 
 fn default_time_scale() -> f64 {
     1.0
+}
+
+/// `link = "modbus-tcp"`: motion blocks into a device's ring over Modbus TCP (docs/modbus.md).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusTcpLinkConfig {
+    /// The device's host name or address.
+    pub host: String,
+    #[serde(default = "default_modbus_port")]
+    pub port: u16,
+    /// Unit id (1 unless a gateway routes by it).
+    #[serde(default = "default_unit")]
+    pub unit: u8,
+    /// Address of header register 0.
+    #[serde(default)]
+    pub base_address: u16,
+    /// "high-first" (default) or "low-first" for 32-bit values.
+    #[serde(default)]
+    pub word_order: machlink_protocols::modbus::WordOrder,
+    /// The most registers per write (1 to 123; many drives take 10 or 12).
+    #[serde(default = "default_max_write")]
+    pub max_write_registers: u16,
+    /// How long one request may wait for its reply, ms.
+    #[serde(default = "default_modbus_timeout")]
+    pub timeout_ms: u64,
+    /// How often the device is polled while the ring is full, ms.
+    #[serde(default = "default_poll")]
+    pub poll_ms: u64,
+    /// Failed attempts in a row (with backoff) before the job fails.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+}
+
+/// `link = "modbus-rtu"`: motion blocks into a device's ring over Modbus RTU (docs/modbus.md).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusRtuLinkConfig {
+    /// The serial port, e.g. /dev/ttyUSB0.
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// "none" (default), "even" or "odd".
+    #[serde(default)]
+    pub parity: machlink_protocols::modbus::Parity,
+    /// The device's slave address, 1 to 247.
+    #[serde(default = "default_unit")]
+    pub unit: u8,
+    #[serde(default)]
+    pub base_address: u16,
+    #[serde(default)]
+    pub word_order: machlink_protocols::modbus::WordOrder,
+    #[serde(default = "default_max_write")]
+    pub max_write_registers: u16,
+    #[serde(default = "default_modbus_timeout")]
+    pub timeout_ms: u64,
+    #[serde(default = "default_poll")]
+    pub poll_ms: u64,
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    /// After a timeout, how long the line must be silent before the next request, ms.
+    #[serde(default = "default_modbus_timeout")]
+    pub quiet_ms: u64,
+}
+
+fn default_modbus_port() -> u16 {
+    502
+}
+fn default_unit() -> u8 {
+    1
+}
+fn default_max_write() -> u16 {
+    123
+}
+fn default_modbus_timeout() -> u64 {
+    500
+}
+fn default_poll() -> u64 {
+    20
+}
+fn default_retries() -> u32 {
+    8
+}
+
+impl ModbusTcpLinkConfig {
+    /// The link's settings.
+    pub fn settings(&self) -> machlink_protocols::modbus::ModbusSettings {
+        let mut s = machlink_protocols::modbus::ModbusSettings::tcp(&self.host, self.port);
+        s.unit_id = self.unit;
+        s.base_address = self.base_address;
+        s.word_order = self.word_order;
+        s.max_write_registers = self.max_write_registers;
+        s.timeout = Duration::from_millis(self.timeout_ms);
+        s.poll_interval = Duration::from_millis(self.poll_ms);
+        s.max_retries = self.retries;
+        s
+    }
+}
+
+impl ModbusRtuLinkConfig {
+    /// The link's settings.
+    pub fn settings(&self) -> machlink_protocols::modbus::ModbusSettings {
+        let mut s = machlink_protocols::modbus::ModbusSettings::rtu(&self.port, self.baud);
+        s.transport = machlink_protocols::modbus::Transport::Rtu {
+            path: self.port.clone(),
+            baud: self.baud,
+            parity: self.parity,
+        };
+        s.unit_id = self.unit;
+        s.base_address = self.base_address;
+        s.word_order = self.word_order;
+        s.max_write_registers = self.max_write_registers;
+        s.timeout = Duration::from_millis(self.timeout_ms);
+        s.poll_interval = Duration::from_millis(self.poll_ms);
+        s.max_retries = self.retries;
+        s.rtu_quiet = Duration::from_millis(self.quiet_ms);
+        s
+    }
 }
 
 /// A box the tool must stay inside, in work coordinates, mm.
@@ -317,6 +444,8 @@ impl MachineConfig {
             LinkConfig::SimGrbl(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
                 format!("time_scale must be a positive number, got {}", s.time_scale),
             ),
+            LinkConfig::ModbusTcp(m) => m.settings().validate().map_err(|e| e.to_string()),
+            LinkConfig::ModbusRtu(m) => m.settings().validate().map_err(|e| e.to_string()),
             _ => Ok(()),
         }
     }

@@ -77,6 +77,16 @@ impl Daemon {
                     opener.sim_ports.insert(m.name.clone(), h.port());
                     sims.insert(m.name.clone(), h);
                 }
+                LinkConfig::ModbusTcp(_) => {}
+                LinkConfig::ModbusRtu(r) => {
+                    if !std::path::Path::new(&r.port).exists() {
+                        tracing::warn!(
+                            "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
+                            m.name,
+                            r.port
+                        );
+                    }
+                }
                 LinkConfig::Grbl(g) => {
                     if !std::path::Path::new(&g.port).exists() {
                         tracing::warn!(

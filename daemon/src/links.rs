@@ -41,12 +41,25 @@ impl LinkOpener for ConfigOpener {
                 GrblOptions::default(),
                 true,
             ),
+            LinkConfig::ModbusTcp(m) => return open_modbus(m.settings()),
+            LinkConfig::ModbusRtu(m) => return open_modbus(m.settings()),
         };
         Box::pin(async move {
             let link = GrblLink::open(&port, opts).await?;
             Ok(Box::new(GrblMachine { link, unlock }) as Box<dyn Link>)
         })
     }
+}
+
+/// A Modbus motion-block link (TCP or RTU); it connects on its first request.
+fn open_modbus(
+    settings: machlink_protocols::modbus::ModbusSettings,
+) -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>> {
+    Box::pin(async move {
+        let link =
+            machlink_protocols::modbus::ModbusLink::new(settings).map_err(LinkError::from)?;
+        Ok(Box::new(link) as Box<dyn Link>)
+    })
 }
 
 /// A GRBL link that, with `unlock`, clears an alarm lock left by an earlier job (`$X`)

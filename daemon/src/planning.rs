@@ -31,6 +31,8 @@ pub enum Post {
     Dst,
     /// Janome JEF embroidery file (stitch operation).
     Jef,
+    /// Motion blocks for a Modbus ring buffer (docs/modbus.md).
+    Modbus,
 }
 
 /// Side of the outline for a profile (mirrors offset_core's Side for the command line).
@@ -209,6 +211,9 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
 pub fn post(tp: &Toolpath, post: Post) -> anyhow::Result<Program> {
     use machlink_protocols::sewing::{self, RecordLimits};
     let dialect = match post {
+        Post::Modbus => {
+            return machlink_protocols::modbus::post(tp).context("cannot make Modbus motion blocks")
+        }
         Post::Grbl => Dialect::Grbl,
         Post::Linuxcnc => Dialect::Linuxcnc,
         Post::Generic => Dialect::Generic,

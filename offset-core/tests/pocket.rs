@@ -4,10 +4,10 @@
 
 mod pocket_support;
 
-use pocket_support::{check_coverage, clipper_offset};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, OpError, PocketParams, Stepover};
 use offset_core::toolpath::{Move, Tool, P3};
+use pocket_support::{check_coverage, clipper_offset};
 
 fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polyline {
     Polyline::rect(Point::new(x0, y0), Point::new(x1, y1))

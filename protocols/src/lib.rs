@@ -4,9 +4,10 @@
 //! acknowledged, so the daemon can journal progress and resume exactly where it stopped.
 
 pub mod gcode;
-pub mod grbl;
 pub mod gcode_read;
+pub mod grbl;
 pub mod link;
+pub mod modbus;
 pub mod program;
 pub mod serial;
 pub mod sewing;

@@ -11,6 +11,8 @@ pub enum Program {
     Gcode(Vec<String>),
     /// Stitch records for a pattern sewing machine (absolute, 0.1 mm): one unit per record.
     Stitches(Vec<crate::sewing::StitchRecord>),
+    /// Motion blocks for a Modbus ring buffer; block `i` travels as sequence `i + 1`.
+    Modbus(Vec<crate::modbus::MotionBlock>),
 }
 
 impl Program {
@@ -19,6 +21,7 @@ impl Program {
         match self {
             Program::Gcode(lines) => lines.len(),
             Program::Stitches(records) => records.len(),
+            Program::Modbus(blocks) => blocks.len(),
         }
     }
     pub fn is_empty(&self) -> bool {
@@ -29,6 +32,7 @@ impl Program {
         match self {
             Program::Gcode(_) => "gcode",
             Program::Stitches(_) => "stitches",
+            Program::Modbus(_) => "modbus",
         }
     }
     /// Unit `i` as text, for messages (a G-code line as it is).
@@ -39,6 +43,7 @@ impl Program {
                 .get(i)
                 .map(|r| format!("{:?} at ({:.1}, {:.1}) mm", r.kind, r.mm().x, r.mm().y))
                 .unwrap_or_default(),
+            Program::Modbus(blocks) => blocks.get(i).map(|b| b.to_string()).unwrap_or_default(),
         }
     }
 }

@@ -3,5 +3,6 @@
 //! simulated time, fault injection, and a trace of what they executed for tests to read.
 
 pub mod grbl;
+pub mod modbus;
 pub mod pty;
 pub mod sewing;

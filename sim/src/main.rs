@@ -22,6 +22,8 @@ enum Device {
     Grbl(GrblArgs),
     /// A pattern sewing machine (pattern transfer protocol) on a pseudo-terminal.
     Sewing(machlink_sim::sewing::cli::SewingArgs),
+    /// A Modbus motion-block device (PLC or drive) on TCP or on a pty (RTU).
+    Modbus(machlink_sim::modbus::cli::ModbusArgs),
 }
 
 #[derive(Args)]
@@ -110,6 +112,9 @@ fn main() {
     let result = match cli.device {
         Device::Grbl(a) => run_grbl(a),
         Device::Sewing(a) => machlink_sim::sewing::cli::run(a),
+        Device::Modbus(a) => tokio::runtime::Runtime::new()
+            .context("cannot start the async runtime")
+            .and_then(|rt| rt.block_on(machlink_sim::modbus::cli::run(a))),
     };
     if let Err(e) = result {
         eprintln!("machlink-sim: {e:#}");

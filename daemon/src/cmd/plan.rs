@@ -27,6 +27,11 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     let text = match &program {
         Program::Gcode(lines) => (lines.join("\n") + "\n").into_bytes(),
         Program::Stitches(records) => stitch_file(records, a.post, &a.file)?,
+        Program::Modbus(blocks) => blocks
+            .iter()
+            .map(|b| format!("{b}\n"))
+            .collect::<String>()
+            .into_bytes(),
     };
     std::fs::write(&a.output, text)
         .with_context(|| format!("cannot write {}", a.output.display()))?;

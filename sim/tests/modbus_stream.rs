@@ -1,0 +1,276 @@
+//! The Modbus link against the simulated device, over TCP and over RTU on a pty: long jobs
+//! under injected faults arrive complete, in order, each block executed exactly once; and
+//! exceptions and device faults stop the job with errors that name the register or code.
+
+use machlink_protocols::modbus::{post_blocks, ModbusLink, ModbusSettings, MotionBlock, WordOrder};
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
+use offset_core::{Move, Point, Toolpath, P3};
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+
+/// A job of `n` moves: a zig-zag of short lines with an arc every tenth move.
+fn job(n: usize) -> Vec<MotionBlock> {
+    let mut tp = Toolpath::new("test zig-zag");
+    tp.push(Move::Rapid {
+        to: P3::new(0.0, 0.0, 2.0),
+    });
+    let mut x = 0.0;
+    for i in 1..n {
+        let y = if i % 2 == 0 { 0.0 } else { 0.5 };
+        let to = P3::new(x + 0.1, y, -0.5);
+        if i % 10 == 0 {
+            tp.push(Move::Arc {
+                to,
+                center: Point::new(x + 0.05, (y + 0.25) % 0.5),
+                ccw: i % 20 == 0,
+                feed: 600.0,
+            });
+        } else {
+            tp.push(Move::Linear { to, feed: 600.0 });
+        }
+        x += 0.1;
+    }
+    post_blocks(&tp).expect("the job fits 32-bit micrometres")
+}
+
+fn fast(mut s: ModbusSettings) -> ModbusSettings {
+    s.timeout = Duration::from_millis(100);
+    s.poll_interval = Duration::from_millis(5);
+    s.backoff_initial = Duration::from_millis(10);
+    s.backoff_max = Duration::from_millis(200);
+    s.rtu_quiet = Duration::from_millis(100);
+    s
+}
+
+async fn stream(
+    link: &mut ModbusLink,
+    blocks: Vec<MotionBlock>,
+) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
+    let program = Program::Modbus(blocks);
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (_ctl, ctl_rx) = watch::channel(Control::Run);
+    let r = tokio::time::timeout(
+        Duration::from_secs(60),
+        link.stream(&program, 0, tx, ctl_rx),
+    )
+    .await
+    .expect("the stream finishes within a minute");
+    let mut events = Vec::new();
+    while let Ok(e) = rx.try_recv() {
+        events.push(e);
+    }
+    (r, events)
+}
+
+/// Every block of the job executed once, in order, and the acknowledgements only grew.
+fn assert_exactly_once(sim: &ModbusSim, blocks: &[MotionBlock], events: &[LinkEvent]) {
+    let trace = sim.trace();
+    assert_eq!(
+        trace.len(),
+        blocks.len(),
+        "executed {} of {} blocks",
+        trace.len(),
+        blocks.len()
+    );
+    for (i, (e, b)) in trace.iter().zip(blocks).enumerate() {
+        assert_eq!(e.seq as usize, i + 1, "block {i} executed out of order");
+        assert_eq!(&e.block, b, "block {i} arrived changed");
+    }
+    let acks: Vec<usize> = events
+        .iter()
+        .filter_map(|e| match e {
+            LinkEvent::Acked { unit } => Some(*unit),
+            _ => None,
+        })
+        .collect();
+    assert!(
+        acks.windows(2).all(|w| w[0] < w[1]),
+        "acks went back: {acks:?}"
+    );
+    assert_eq!(acks.last(), Some(&(blocks.len() - 1)));
+}
+
+fn faulty() -> Faults {
+    Faults {
+        drop_replies: vec![30, 300, 700],
+        late_replies: vec![80, 450],
+        late_by: Duration::from_millis(150),
+        exceptions: vec![(150, 0x06)],
+        disconnects: vec![220],
+        silence: Duration::from_millis(150),
+        fault_at_block: None,
+    }
+}
+
+fn sim_config(faults: Faults) -> SimConfig {
+    SimConfig {
+        capacity: 48,
+        time_scale: 400.0,
+        faults,
+        ..SimConfig::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tcp_job_of_5000_blocks_survives_drops_late_replies_busy_and_a_hang_up() {
+    let sim = ModbusSim::spawn_tcp(sim_config(faulty()), "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut s = fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()));
+    s.max_write_registers = 100;
+    let mut link = ModbusLink::new(s).unwrap();
+    let blocks = job(5000);
+    let (r, events) = stream(&mut link, blocks.clone()).await;
+    assert_eq!(r.unwrap(), StreamEnd::Completed);
+    assert_exactly_once(&sim, &blocks, &events);
+    let st = sim.stats();
+    assert_eq!(
+        (st.dropped, st.late, st.exceptions, st.disconnects),
+        (3, 2, 1, 1),
+        "{st:?}"
+    );
+    assert!(
+        st.connections >= 5,
+        "every lost reply costs a new connection: {st:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_job_of_5000_blocks_survives_drops_late_replies_busy_and_a_dead_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("modbus-rtu");
+    let mut cfg = sim_config(faulty());
+    cfg.word_order = WordOrder::LowFirst;
+    cfg.unit_id = 7;
+    cfg.base_address = 1000;
+    let sim = ModbusSim::spawn_pty(cfg, Some(&path)).await.unwrap();
+    let mut s = fast(ModbusSettings::rtu(path.to_str().unwrap(), 115_200));
+    s.word_order = WordOrder::LowFirst;
+    s.unit_id = 7;
+    s.base_address = 1000;
+    s.max_write_registers = 12;
+    let mut link = ModbusLink::new(s).unwrap();
+    let blocks = job(5000);
+    let (r, events) = stream(&mut link, blocks.clone()).await;
+    assert_eq!(r.unwrap(), StreamEnd::Completed);
+    assert_exactly_once(&sim, &blocks, &events);
+    let st = sim.stats();
+    assert_eq!(
+        (st.dropped, st.late, st.exceptions, st.disconnects),
+        (3, 2, 1, 1),
+        "{st:?}"
+    );
+}
+
+#[tokio::test]
+async fn an_exception_names_the_register_and_the_code() {
+    // Request 6 is the first block write (status, write seq, sync, status; status, blocks).
+    let faults = Faults {
+        exceptions: vec![(6, 0x02)],
+        ..Faults::default()
+    };
+    let sim = ModbusSim::spawn_tcp(sim_config(faults), "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut link =
+        ModbusLink::new(fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()))).unwrap();
+    let (r, _) = stream(&mut link, job(100)).await;
+    let msg = r.unwrap_err().to_string();
+    assert!(
+        msg.contains("exception 0x02 Illegal Data Address")
+            && msg.contains("holding registers 32..=154 (ring slot 0 to ring slot 7)"),
+        "{msg}"
+    );
+    assert!(sim.trace().is_empty());
+}
+
+#[tokio::test]
+async fn a_device_fault_stops_the_job_with_its_code_and_block() {
+    let faults = Faults {
+        fault_at_block: Some((250, 0x0107)),
+        ..Faults::default()
+    };
+    let sim = ModbusSim::spawn_tcp(sim_config(faults), "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut link =
+        ModbusLink::new(fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()))).unwrap();
+    let blocks = job(1000);
+    let (r, events) = stream(&mut link, blocks.clone()).await;
+    let e = r.unwrap_err();
+    assert!(matches!(e, LinkError::Alarm(_)), "{e:?}");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("faulted with code 0x0107") && msg.contains("at block 250"),
+        "{msg}"
+    );
+    let trace = sim.trace();
+    assert_eq!(trace.len(), 249);
+    let last_ack = events.iter().rev().find_map(|e| match e {
+        LinkEvent::Acked { unit } => Some(*unit),
+        _ => None,
+    });
+    assert_eq!(
+        last_ack,
+        Some(248),
+        "the journal ends at the last executed block"
+    );
+}
+
+#[tokio::test]
+async fn hold_pauses_and_cancel_stops_with_what_was_executed() {
+    let sim = ModbusSim::spawn_tcp(
+        SimConfig {
+            time_scale: 20.0,
+            ..SimConfig::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    let mut link =
+        ModbusLink::new(fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()))).unwrap();
+    let program = Program::Modbus(job(2000));
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (ctl, ctl_rx) = watch::channel(Control::Run);
+    let run = tokio::spawn(async move {
+        let r = link.stream(&program, 0, tx, ctl_rx).await;
+        (r, link)
+    });
+    // Wait for progress, hold, and check the device stops executing.
+    while !matches!(rx.recv().await, Some(LinkEvent::Acked { unit }) if unit >= 20) {}
+    ctl.send(Control::Hold).unwrap();
+    loop {
+        match rx.recv().await {
+            Some(LinkEvent::Status(s)) if s.state == "Hold" => break,
+            Some(_) => {}
+            None => panic!("the stream ended while holding"),
+        }
+    }
+    let held = sim.trace().len();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert!(
+        sim.trace().len() <= held + 1,
+        "blocks executed during a hold"
+    );
+    ctl.send(Control::Run).unwrap();
+    while !matches!(rx.recv().await, Some(LinkEvent::Acked { unit }) if unit >= held + 20) {}
+    ctl.send(Control::Cancel).unwrap();
+    let (r, _link) = run.await.unwrap();
+    let StreamEnd::Cancelled { acked } = r.unwrap() else {
+        panic!("a cancel ends the stream as cancelled")
+    };
+    let executed = sim.trace().len();
+    assert_eq!(
+        acked, executed,
+        "what was acknowledged is what was executed"
+    );
+    assert!(executed < 2000);
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    assert_eq!(
+        sim.trace().len(),
+        executed,
+        "the device kept moving after the stop"
+    );
+}
