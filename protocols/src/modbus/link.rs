@@ -756,9 +756,15 @@ impl ModbusLink {
             worked = true;
         }
         if !worked {
+            // Wake early for the operator; a dropped control sender just leaves the poll.
+            let operator = async {
+                if control.changed().await.is_err() {
+                    std::future::pending::<()>().await
+                }
+            };
             tokio::select! {
                 _ = tokio::time::sleep(self.s.poll_interval) => {}
-                _ = control.changed() => {}
+                _ = operator => {}
             }
         }
         Ok(None)
