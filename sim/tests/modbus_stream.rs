@@ -186,7 +186,7 @@ async fn an_exception_names_the_register_and_the_code() {
 }
 
 #[tokio::test]
-async fn a_device_fault_stops_the_job_with_its_code_and_block() {
+async fn a_device_fault_stops_the_job_with_its_code_and_block_and_a_resume_finishes_it() {
     let faults = Faults {
         fault_at_block: Some((250, 0x0107)),
         ..Faults::default()
@@ -216,6 +216,26 @@ async fn a_device_fault_stops_the_job_with_its_code_and_block() {
         Some(248),
         "the journal ends at the last executed block"
     );
+
+    // A new stream refuses to start over a standing fault, naming it.
+    let program = Program::Modbus(blocks.clone());
+    let (tx, _rx) = mpsc::unbounded_channel();
+    let (_ctl, ctl_rx) = watch::channel(Control::Run);
+    let e = link
+        .stream(&program, 249, tx.clone(), ctl_rx.clone())
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("in fault 0x0107"), "{e}");
+    // Cleared, the job resumes after the last acknowledged block and finishes exactly once.
+    link.clear_fault().await.unwrap();
+    let end = link.stream(&program, 249, tx, ctl_rx).await.unwrap();
+    assert_eq!(end, StreamEnd::Completed);
+    let trace = sim.trace();
+    assert_eq!(trace.len(), blocks.len());
+    assert!(trace
+        .iter()
+        .enumerate()
+        .all(|(i, e)| e.seq as usize == i + 1 && e.block == blocks[i]));
 }
 
 #[tokio::test]
