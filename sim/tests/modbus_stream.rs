@@ -186,7 +186,7 @@ async fn an_exception_names_the_register_and_the_code() {
 }
 
 #[tokio::test]
-async fn a_device_fault_stops_the_job_with_its_code_and_block() {
+async fn a_device_fault_stops_the_job_with_its_code_and_block_and_a_resume_finishes_it() {
     let faults = Faults {
         fault_at_block: Some((250, 0x0107)),
         ..Faults::default()
@@ -216,6 +216,26 @@ async fn a_device_fault_stops_the_job_with_its_code_and_block() {
         Some(248),
         "the journal ends at the last executed block"
     );
+
+    // A new stream refuses to start over a standing fault, naming it.
+    let program = Program::Modbus(blocks.clone());
+    let (tx, _rx) = mpsc::unbounded_channel();
+    let (_ctl, ctl_rx) = watch::channel(Control::Run);
+    let e = link
+        .stream(&program, 249, tx.clone(), ctl_rx.clone())
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("in fault 0x0107"), "{e}");
+    // Cleared, the job resumes after the last acknowledged block and finishes exactly once.
+    link.clear_fault().await.unwrap();
+    let end = link.stream(&program, 249, tx, ctl_rx).await.unwrap();
+    assert_eq!(end, StreamEnd::Completed);
+    let trace = sim.trace();
+    assert_eq!(trace.len(), blocks.len());
+    assert!(trace
+        .iter()
+        .enumerate()
+        .all(|(i, e)| e.seq as usize == i + 1 && e.block == blocks[i]));
 }
 
 #[tokio::test]
@@ -273,4 +293,85 @@ async fn hold_pauses_and_cancel_stops_with_what_was_executed() {
         executed,
         "the device kept moving after the stop"
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fault_every_few_requests_with_blocks_split_across_writes_still_delivers_exactly_once() {
+    // Ring of 8, 10 registers per write: every block straddles two writes, so lost replies
+    // leave half-written slots that the resynchronisation must find and rewrite.
+    let mut faults = Faults {
+        late_by: Duration::from_millis(120),
+        silence: Duration::from_millis(120),
+        ..Faults::default()
+    };
+    for n in (20..1500).step_by(37) {
+        match (n / 37) % 4 {
+            0 => faults.drop_replies.push(n),
+            1 => faults.late_replies.push(n),
+            2 => faults.exceptions.push((n, 0x06)),
+            _ => faults.disconnects.push(n),
+        }
+    }
+    let cfg = SimConfig {
+        capacity: 8,
+        time_scale: 0.0,
+        faults,
+        ..SimConfig::default()
+    };
+    let sim = ModbusSim::spawn_tcp(cfg, "127.0.0.1:0".parse().unwrap())
+        .await
+        .unwrap();
+    let mut s = fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()));
+    s.max_write_registers = 10;
+    s.max_retries = 20;
+    let mut link = ModbusLink::new(s).unwrap();
+    let blocks = job(400);
+    let (r, events) = stream(&mut link, blocks.clone()).await;
+    assert_eq!(r.unwrap(), StreamEnd::Completed);
+    assert_exactly_once(&sim, &blocks, &events);
+    let st = sim.stats();
+    assert!(
+        st.dropped + st.late + st.exceptions + st.disconnects >= 20,
+        "{st:?}"
+    );
+}
+
+#[tokio::test]
+async fn a_device_that_never_answers_gives_up_after_the_retry_limit_naming_the_request() {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let mute = tokio::spawn(async move {
+        let mut held = Vec::new();
+        while let Ok((sock, _)) = listener.accept().await {
+            held.push(sock); // accept, read nothing, answer nothing
+        }
+    });
+    let mut s = fast(ModbusSettings::tcp("127.0.0.1", port));
+    s.timeout = Duration::from_millis(50);
+    s.max_retries = 3;
+    let mut link = ModbusLink::new(s).unwrap();
+    let (r, events) = stream(&mut link, job(10)).await;
+    let msg = r.unwrap_err().to_string();
+    assert!(
+        msg.contains("after 4 failed attempts in a row")
+            && msg.contains("did not answer the read of holding registers 0..=15"),
+        "{msg}"
+    );
+    let retries = events
+        .iter()
+        .filter(|e| matches!(e, LinkEvent::Message(m) if m.starts_with("retrying")))
+        .count();
+    assert_eq!(retries, 3, "the operator hears of each retry");
+    mute.abort();
+}
+
+#[test]
+fn settings_outside_the_protocol_are_refused_by_name() {
+    let mut s = ModbusSettings::tcp("127.0.0.1", 502);
+    s.max_write_registers = 124;
+    let e = ModbusLink::new(s).err().unwrap().to_string();
+    assert!(e.contains("max_write_registers is 124"), "{e}");
+    let mut s = ModbusSettings::rtu("/dev/ttyUSB0", 19_200);
+    s.unit_id = 0;
+    assert!(ModbusLink::new(s).is_err());
 }

@@ -414,6 +414,12 @@ impl ModbusLink {
             .await
     }
 
+    /// Clears a device fault (command 5): the device goes idle and drops unexecuted blocks,
+    /// so a resume from the last acknowledged unit continues the job.
+    pub async fn clear_fault(&mut self) -> Result<(), ModbusError> {
+        self.command(Command::ClearFault).await
+    }
+
     /// Reads the header and checks that it is the map this link speaks.
     pub async fn read_status(&mut self) -> Result<Status, ModbusError> {
         let r = self.read(self.s.base_address, STATUS_REGISTERS).await?;
@@ -668,7 +674,15 @@ impl ModbusLink {
                 }
                 (p.written, p.committed, p.touched, p.acked) = (from, from, from, from);
             } else if s.state == DeviceState::Fault as u16 {
-                self.observe(&s, blocks, p, events)?;
+                return Err(ModbusError::Protocol {
+                    target: self.target.clone(),
+                    message: format!(
+                        "the device is in fault 0x{:04X} ({}) from before this job; clear it at the machine (command register {} = 5) and resume",
+                        s.fault,
+                        fault_name(s.fault),
+                        self.s.base_address + reg::COMMAND
+                    ),
+                });
             } else {
                 // Still running this program from an earlier stream: take over where it is.
                 if s.consumed_seq < from || s.write_seq > total {
@@ -756,9 +770,15 @@ impl ModbusLink {
             worked = true;
         }
         if !worked {
+            // Wake early for the operator; a dropped control sender just leaves the poll.
+            let operator = async {
+                if control.changed().await.is_err() {
+                    std::future::pending::<()>().await
+                }
+            };
             tokio::select! {
                 _ = tokio::time::sleep(self.s.poll_interval) => {}
-                _ = control.changed() => {}
+                _ = operator => {}
             }
         }
         Ok(None)

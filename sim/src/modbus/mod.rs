@@ -41,7 +41,8 @@ pub struct Faults {
     /// RTU: the device goes deaf for `silence` (the request is lost), as if the cable were pulled.
     pub disconnects: Vec<u64>,
     pub silence: Duration,
-    /// The device faults with this code when it reaches this block sequence (not executed).
+    /// The device faults with this code when it first reaches this block sequence (the block
+    /// is not executed; after a clear fault and a resume it runs normally).
     pub fault_at_block: Option<(u32, u16)>,
 }
 
@@ -116,6 +117,7 @@ struct Shared {
     wake: Notify,
     stats: Mutex<SimStats>,
     request_no: AtomicU64,
+    fault_fired: AtomicBool,
     silent_until: Mutex<Option<Instant>>,
     line_free_at: Mutex<Instant>,
 }
@@ -166,6 +168,7 @@ impl Shared {
             wake: Notify::new(),
             stats: Mutex::new(SimStats::default()),
             request_no: AtomicU64::new(0),
+            fault_fired: AtomicBool::new(false),
             silent_until: Mutex::new(None),
             line_free_at: Mutex::new(Instant::now()),
         })
@@ -413,7 +416,10 @@ async fn execute(shared: Arc<Shared>) {
                         dev.set_fault(fault::SEQUENCE);
                         None
                     }
-                    Ok(_) if shared.cfg.faults.fault_at_block.is_some_and(|f| f.0 == seq) => {
+                    Ok(_)
+                        if shared.cfg.faults.fault_at_block.is_some_and(|f| f.0 == seq)
+                            && !shared.fault_fired.swap(true, Ordering::SeqCst) =>
+                    {
                         let code = shared.cfg.faults.fault_at_block.map_or(0, |f| f.1);
                         dev.set_fault(code);
                         None
