@@ -1,8 +1,10 @@
-//! Biarc fitting: a sampled circle comes back as arcs of its radius, and every fitted curve
+//! Biarc fitting: a sampled circle comes back as arcs of its radius (and, offset by the
+//! kernel, as arcs of the offset radius), and every fitted curve
 //! stays within the tolerance of its input and is tangent-continuous where the input is smooth.
 
 use offset_core::biarc::{fit_points, fit_polyline, BiarcOptions};
 use offset_core::geom::{Point, Polyline, Segment};
+use offset_core::offset::{offset_polyline, OffsetOptions};
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
@@ -47,6 +49,18 @@ fn a_sampled_circle_fits_back_to_arcs_of_its_radius() {
                 fitted.segment_count()
             );
             assert!(fitted.segment_count() <= 4);
+            // the pipeline for offsets: fit the points first, then offset the arcs exactly
+            let grown = offset_polyline(
+                &fitted,
+                50.0,
+                &OffsetOptions {
+                    tolerance: tol,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            assert_eq!(grown.len(), 1);
+            arcs_of(&grown[0], 350.0);
             // and the same through fit_polyline, which reports the saving
             let (_, rep) = fit_polyline(&Polyline::from_points(&pts, true), &opts);
             assert_eq!(rep.segments_in, n);

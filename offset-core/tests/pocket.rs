@@ -4,10 +4,10 @@
 
 mod pocket_support;
 
-use pocket_support::{check_coverage, clipper_offset};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, OpError, PocketParams, Stepover};
 use offset_core::toolpath::{Move, Tool, P3};
+use pocket_support::{check_coverage, clipper_offset};
 
 fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polyline {
     Polyline::rect(Point::new(x0, y0), Point::new(x1, y1))
@@ -108,6 +108,17 @@ fn pockets_with_islands_are_covered_without_gouging_clipper_offsets() {
         check("splitting", &splitting(), &p, false);
         check("vanishing", &vanishing(), &p, false);
         check("l-shape", &l_shape(), &p, false);
+    }
+}
+
+#[test]
+fn pockets_with_islands_are_covered_without_gouging_kernel_offsets() {
+    for so in [Stepover::Percent(40.0), Stepover::Percent(90.0)] {
+        let p = params(so);
+        check("merging", &merging(), &p, true);
+        check("splitting", &splitting(), &p, true);
+        check("vanishing", &vanishing(), &p, true);
+        check("l-shape", &l_shape(), &p, true);
     }
 }
 
