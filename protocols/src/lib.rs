@@ -5,8 +5,10 @@
 
 pub mod gcode;
 pub mod gcode_read;
+pub mod grbl;
 pub mod link;
 pub mod program;
+pub mod serial;
 
 pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 pub use program::Program;

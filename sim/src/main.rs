@@ -1,6 +1,115 @@
 //! `machlink-sim`: run a simulated device on a pty or a TCP port.
 
+use anyhow::Context;
+use clap::{Args, Parser, Subcommand};
+use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "machlink-sim",
+    version,
+    about = "Simulated machines for machlink"
+)]
+struct Cli {
+    #[command(subcommand)]
+    device: Device,
+}
+
+#[derive(Subcommand)]
+enum Device {
+    /// A GRBL 1.1 controller on a pseudo-terminal.
+    Grbl(GrblArgs),
+}
+
+#[derive(Args)]
+struct GrblArgs {
+    /// Make this path a symbolic link to the simulator's pty (an existing link is replaced).
+    #[arg(long)]
+    pty: PathBuf,
+    /// Simulated seconds per wall second for motion ("inf" finishes every move at once).
+    #[arg(long, default_value_t = 1.0)]
+    time_scale: f64,
+    /// Pace bytes both ways as a UART at this baud rate would (10 bits per byte).
+    #[arg(long)]
+    baud: Option<u32>,
+    /// Answer error:CODE to the LINE-th G-code line received (1-based), e.g. 120:20.
+    #[arg(long, value_name = "LINE:CODE", value_parser = parse_fault)]
+    error_at: Vec<(u64, u8)>,
+    /// Raise ALARM:CODE on the LINE-th G-code line received (1-based), e.g. 300:1.
+    #[arg(long, value_name = "LINE:CODE", value_parser = parse_fault)]
+    alarm_at: Vec<(u64, u8)>,
+    /// Receive buffer size in bytes.
+    #[arg(long, default_value_t = 128)]
+    rx_buffer: usize,
+    /// Planner size in blocks.
+    #[arg(long, default_value_t = 15)]
+    planner_blocks: usize,
+}
+
+fn parse_fault(s: &str) -> Result<(u64, u8), String> {
+    let (l, c) = s
+        .split_once(':')
+        .ok_or_else(|| format!("{s:?} is not LINE:CODE, e.g. 120:20"))?;
+    let line: u64 = l
+        .trim()
+        .parse()
+        .map_err(|_| format!("line {l:?} in {s:?} is not a whole number"))?;
+    if line == 0 {
+        return Err(format!("line numbers count from 1, {s:?} names line 0"));
+    }
+    let code: u8 = c
+        .trim()
+        .parse()
+        .map_err(|_| format!("code {c:?} in {s:?} is not a number from 0 to 255"))?;
+    Ok((line, code))
+}
+
+fn run_grbl(a: GrblArgs) -> anyhow::Result<()> {
+    let mut faults: Vec<GrblFault> = a
+        .error_at
+        .iter()
+        .map(|&(line, code)| GrblFault::ErrorAtLine { line, code })
+        .collect();
+    faults.extend(
+        a.alarm_at
+            .iter()
+            .map(|&(line, code)| GrblFault::AlarmAtLine { line, code }),
+    );
+    let cfg = GrblSimConfig {
+        time_scale: a.time_scale,
+        baud: a.baud,
+        rx_buffer: a.rx_buffer,
+        planner_blocks: a.planner_blocks,
+        faults,
+        ..Default::default()
+    };
+    let sim = GrblSim::spawn_pty(cfg).context("cannot start the simulated GRBL")?;
+    machlink_sim::pty::symlink_replacing(&sim.port(), &a.pty).with_context(|| {
+        format!(
+            "cannot link {} to the simulator's pty {}",
+            a.pty.display(),
+            sim.port().display()
+        )
+    })?;
+    println!("{}", a.pty.display());
+    eprintln!(
+        "machlink-sim: GRBL 1.1h on {} (pty {}); stop with Ctrl-C",
+        a.pty.display(),
+        sim.port().display()
+    );
+    loop {
+        std::thread::park();
+    }
+}
+
 fn main() {
-    eprintln!("machlink-sim: no devices yet");
-    std::process::exit(2);
+    let cli = Cli::parse();
+    let result = match cli.device {
+        Device::Grbl(a) => run_grbl(a),
+    };
+    if let Err(e) = result {
+        eprintln!("machlink-sim: {e:#}");
+        std::process::exit(1);
+    }
 }

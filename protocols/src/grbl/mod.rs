@@ -1,0 +1,736 @@
+//! The GRBL link: streams G-code to a GRBL 1.1 controller with character counting.
+//!
+//! GRBL acknowledges each line with `ok` or `error:N` once it has planned (or rejected) it,
+//! and holds unparsed bytes in a small receive buffer (128 bytes) that silently drops bytes
+//! when it overflows. The link therefore keeps the sum of the lengths of unacknowledged
+//! lines (newline included) within that buffer: "character counting". Real-time bytes
+//! (`?` `!` `~` 0x18 and the overrides) bypass the buffer on the controller and are sent
+//! out of band here too. Status is polled with `?` at most five times a second.
+
+pub mod codes;
+pub mod reply;
+
+use crate::link::{Control, Link, LinkError, LinkEvent, StreamEnd};
+use crate::program::Program;
+use codes::{describe_alarm, describe_error};
+use futures::future::BoxFuture;
+use reply::{classify, parse_opt, Reply, StatusReport};
+use std::collections::VecDeque;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{mpsc, watch};
+use tokio::time::Instant;
+
+/// Real-time command bytes of GRBL 1.1.
+pub mod realtime {
+    pub const STATUS: u8 = b'?';
+    pub const FEED_HOLD: u8 = b'!';
+    pub const CYCLE_START: u8 = b'~';
+    pub const SOFT_RESET: u8 = 0x18;
+    /// Feed override: back to 100 %.
+    pub const FEED_OV_RESET: u8 = 0x90;
+    pub const FEED_OV_PLUS_10: u8 = 0x91;
+    pub const FEED_OV_MINUS_10: u8 = 0x92;
+    pub const FEED_OV_PLUS_1: u8 = 0x93;
+    pub const FEED_OV_MINUS_1: u8 = 0x94;
+    /// Whether `b` is acted on by GRBL the moment it arrives, wherever it is in a line.
+    pub fn is_realtime(b: u8) -> bool {
+        matches!(b, b'?' | b'!' | b'~' | 0x18) || b >= 0x80
+    }
+}
+
+/// The slowest status poll GRBL's docs recommend not to exceed: 5 Hz.
+pub const MIN_STATUS_INTERVAL: Duration = Duration::from_millis(200);
+/// The receive buffer assumed when `$I` does not report one (GRBL 1.1 on an ATmega328p).
+pub const DEFAULT_WINDOW: usize = 128;
+
+/// How to talk to a GRBL controller.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GrblOptions {
+    /// Serial speed (GRBL 1.1 ships at 115200).
+    pub baud: u32,
+    /// Run the whole program once in check mode (`$C`) before the real run, so a bad line
+    /// is found before anything moves.
+    pub check_first: bool,
+    /// Time between `?` status polls; never less than 200 ms (5 Hz).
+    pub status_interval: Duration,
+    /// How long the controller may stay silent (no reply of any kind, status polls
+    /// included) before the link gives up.
+    pub ack_timeout: Duration,
+    /// How long to wait for the start-up banner and `$I` when connecting or resetting.
+    pub connect_timeout: Duration,
+}
+
+impl Default for GrblOptions {
+    fn default() -> Self {
+        GrblOptions {
+            baud: 115_200,
+            check_first: false,
+            status_interval: MIN_STATUS_INTERVAL,
+            ack_timeout: Duration::from_secs(20),
+            connect_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+type Incoming = Result<String, std::io::Error>;
+
+/// A connection to one GRBL controller.
+pub struct GrblLink {
+    writer: Box<dyn AsyncWrite + Unpin + Send>,
+    lines: mpsc::UnboundedReceiver<Incoming>,
+    reader: tokio::task::JoinHandle<()>,
+    opts: GrblOptions,
+    window: usize,
+    planner_blocks: Option<usize>,
+    wco: Option<[f64; 3]>,
+    banner: String,
+}
+
+impl Drop for GrblLink {
+    fn drop(&mut self) {
+        self.reader.abort();
+    }
+}
+
+/// How one pass over the program ended.
+enum PassEnd {
+    Done,
+    Cancelled { acked: usize },
+}
+
+async fn read_lines<R: AsyncRead + Unpin>(mut r: R, tx: mpsc::UnboundedSender<Incoming>) {
+    let mut buf = [0u8; 1024];
+    let mut line: Vec<u8> = Vec::new();
+    loop {
+        match r.read(&mut buf).await {
+            Ok(0) => return,
+            Ok(n) => {
+                for &b in &buf[..n] {
+                    if b == b'\n' || b == b'\r' {
+                        if !line.is_empty() {
+                            let text = String::from_utf8_lossy(&line).into_owned();
+                            line.clear();
+                            if tx.send(Ok(text)).is_err() {
+                                return;
+                            }
+                        }
+                    } else {
+                        line.push(b);
+                    }
+                }
+            }
+            Err(e) => {
+                let _ = tx.send(Err(e));
+                return;
+            }
+        }
+    }
+}
+
+impl GrblLink {
+    /// Opens the serial port, waits for GRBL's banner (sending a soft reset when none
+    /// comes) and asks `$I` for the receive buffer size.
+    pub async fn open(port: &str, opts: GrblOptions) -> Result<GrblLink, LinkError> {
+        let stream = crate::serial::open(port, opts.baud)?;
+        Self::from_stream(stream, opts).await
+    }
+
+    /// Same as `open` over any byte stream (a pty, a TCP bridge, a test double).
+    pub async fn from_stream<S>(io: S, opts: GrblOptions) -> Result<GrblLink, LinkError>
+    where
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+    {
+        let (r, w) = tokio::io::split(io);
+        let (tx, rx) = mpsc::unbounded_channel();
+        let reader = tokio::spawn(read_lines(r, tx));
+        let mut link = GrblLink {
+            writer: Box::new(w),
+            lines: rx,
+            reader,
+            opts,
+            window: DEFAULT_WINDOW,
+            planner_blocks: None,
+            wco: None,
+            banner: String::new(),
+        };
+        link.connect().await?;
+        Ok(link)
+    }
+
+    /// The controller's receive buffer in bytes: the most unacknowledged bytes in flight.
+    pub fn window(&self) -> usize {
+        self.window
+    }
+
+    /// The planner size `$I` reported, if it did.
+    pub fn planner_blocks(&self) -> Option<usize> {
+        self.planner_blocks
+    }
+
+    /// The banner the controller last greeted with, e.g. `Grbl 1.1h ['$' for help]`.
+    pub fn banner(&self) -> &str {
+        &self.banner
+    }
+
+    async fn connect(&mut self) -> Result<(), LinkError> {
+        let total = self.opts.connect_timeout;
+        let first = (total / 4).min(Duration::from_secs(1));
+        let start = Instant::now();
+        if !self.wait_banner(start + first).await? {
+            self.write(&[realtime::SOFT_RESET]).await?;
+            if !self.wait_banner(start + total).await? {
+                return Err(LinkError::Protocol(format!(
+                    "no GRBL start-up banner within {total:?}, even after a soft reset"
+                )));
+            }
+        }
+        let info = self.send_setting("$I").await?;
+        if let Some((blocks, rx)) = info.lines().find_map(parse_opt) {
+            if rx < 2 {
+                return Err(LinkError::Protocol(format!(
+                    "$I reports a receive buffer of {rx} bytes, too small to stream"
+                )));
+            }
+            self.window = rx;
+            self.planner_blocks = Some(blocks);
+        }
+        Ok(())
+    }
+
+    async fn write(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
+        self.writer.write_all(bytes).await?;
+        self.writer.flush().await?;
+        Ok(())
+    }
+
+    /// The next line from the controller, or None at `deadline`.
+    async fn next_line(&mut self, deadline: Instant) -> Result<Option<String>, LinkError> {
+        match tokio::time::timeout_at(deadline, self.lines.recv()).await {
+            Err(_) => Ok(None),
+            Ok(item) => take(item).map(Some),
+        }
+    }
+
+    /// Waits for the start-up banner until `deadline`; false when it did not come.
+    async fn wait_banner(&mut self, deadline: Instant) -> Result<bool, LinkError> {
+        while let Some(line) = self.next_line(deadline).await? {
+            if let Reply::Banner(b) = classify(&line) {
+                self.banner = b;
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// Sends a system line (`$x=…`, `$X`, `$C`, `$$`, `$I`, …) or a single G-code line and
+    /// waits for its `ok`; returns what the controller printed before the `ok`, one line
+    /// per line. Never counted in the streaming window (call it between streams).
+    pub async fn send_setting(&mut self, line: &str) -> Result<String, LinkError> {
+        check_line(line, 0, usize::MAX)?;
+        let mut out = line.as_bytes().to_vec();
+        out.push(b'\n');
+        self.write(&out).await?;
+        let mut printed: Vec<String> = Vec::new();
+        let deadline = Instant::now() + self.opts.ack_timeout;
+        loop {
+            let Some(reply) = self.next_line(deadline).await? else {
+                return Err(LinkError::Timeout(self.opts.ack_timeout));
+            };
+            match classify(&reply) {
+                Reply::Ok => return Ok(printed.join("\n")),
+                Reply::Error(code) => {
+                    return Err(LinkError::Rejected {
+                        unit: 0,
+                        text: line.to_string(),
+                        reason: describe_error(code),
+                    })
+                }
+                Reply::Alarm(code) => {
+                    return Err(LinkError::Alarm(format!(
+                        "{} while sending {line}",
+                        describe_alarm(code)
+                    )))
+                }
+                Reply::Status(s) => {
+                    if s.wco.is_some() {
+                        self.wco = s.wco;
+                    }
+                }
+                Reply::Banner(b) => {
+                    self.banner = b.clone();
+                    printed.push(b);
+                }
+                Reply::Bracket(t) | Reply::Other(t) => printed.push(t),
+            }
+        }
+    }
+
+    /// Asks for one status report and waits for it.
+    pub async fn query_status(&mut self) -> Result<StatusReport, LinkError> {
+        self.write(&[realtime::STATUS]).await?;
+        let deadline = Instant::now() + self.opts.ack_timeout;
+        loop {
+            let Some(line) = self.next_line(deadline).await? else {
+                return Err(LinkError::Timeout(self.opts.ack_timeout));
+            };
+            if let Reply::Status(s) = classify(&line) {
+                if s.wco.is_some() {
+                    self.wco = s.wco;
+                }
+                return Ok(s);
+            }
+        }
+    }
+
+    /// Sends one real-time byte (feed overrides 0x90–0x9D, `!`, `~`, …) out of band.
+    pub async fn send_realtime(&mut self, byte: u8) -> Result<(), LinkError> {
+        if !realtime::is_realtime(byte) {
+            return Err(LinkError::Protocol(format!(
+                "0x{byte:02x} is not a GRBL real-time command"
+            )));
+        }
+        self.write(&[byte]).await
+    }
+
+    /// Empties the controller: a feed hold first when it may be moving (so the reset
+    /// does not cost position), then a soft reset, which drops everything buffered and
+    /// planned; waits for the banner.
+    async fn recover(&mut self, hold_first: bool) -> Result<(), LinkError> {
+        let deadline = Instant::now() + self.opts.connect_timeout;
+        if hold_first {
+            self.write(&[realtime::FEED_HOLD]).await?;
+            'settle: loop {
+                self.write(&[realtime::STATUS]).await?;
+                let poll_end = (Instant::now() + Duration::from_millis(100)).min(deadline);
+                while let Some(line) = self.next_line(poll_end).await? {
+                    if let Reply::Status(s) = classify(&line) {
+                        let settled = match s.state.as_str() {
+                            "Hold" => s.substate != Some(1),
+                            "Run" | "Jog" | "Home" => false,
+                            _ => true,
+                        };
+                        if settled {
+                            break 'settle;
+                        }
+                    }
+                }
+                if Instant::now() >= deadline {
+                    break;
+                }
+            }
+        }
+        self.write(&[realtime::SOFT_RESET]).await?;
+        if !self
+            .wait_banner(Instant::now() + self.opts.connect_timeout)
+            .await?
+        {
+            return Err(LinkError::Timeout(self.opts.connect_timeout));
+        }
+        Ok(())
+    }
+
+    /// Leaves check mode if the controller is still in it (after a reset in check mode).
+    async fn leave_check_mode(&mut self) -> Result<(), LinkError> {
+        if self.query_status().await?.state == "Check" {
+            self.send_setting("$C").await?;
+            self.wait_banner(Instant::now() + self.opts.connect_timeout)
+                .await?;
+        }
+        Ok(())
+    }
+
+    async fn stream_gcode(
+        &mut self,
+        lines: &[String],
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        mut control: watch::Receiver<Control>,
+    ) -> Result<StreamEnd, LinkError> {
+        for (i, l) in lines.iter().enumerate() {
+            check_line(l, i, self.window)?;
+        }
+        let from = from.min(lines.len());
+        let preamble = modal_preamble(&lines[..from]);
+        if self.opts.check_first && from < lines.len() {
+            self.send_setting("$C").await?;
+            for p in &preamble {
+                self.send_setting(p).await?;
+            }
+            let _ = events.send(LinkEvent::Message(
+                "checking the program in GRBL's check mode ($C) before running it".into(),
+            ));
+            match self
+                .run_pass(lines, from, &events, &mut control, true)
+                .await
+            {
+                Ok(PassEnd::Done) => {
+                    self.send_setting("$C").await?;
+                    self.wait_banner(Instant::now() + self.opts.connect_timeout)
+                        .await?;
+                }
+                Ok(PassEnd::Cancelled { .. }) => {
+                    self.leave_check_mode().await?;
+                    return Ok(StreamEnd::Cancelled { acked: from });
+                }
+                Err(e) => {
+                    if let Err(e2) = self.leave_check_mode().await {
+                        tracing::warn!("could not leave check mode after a failed check: {e2}");
+                    }
+                    return Err(match e {
+                        LinkError::Rejected { unit, text, reason } => LinkError::Rejected {
+                            unit,
+                            text,
+                            reason: format!("{reason}; found in check mode, nothing moved"),
+                        },
+                        other => other,
+                    });
+                }
+            }
+        }
+        for p in &preamble {
+            self.send_setting(p).await?;
+        }
+        match self
+            .run_pass(lines, from, &events, &mut control, false)
+            .await?
+        {
+            PassEnd::Done => Ok(StreamEnd::Completed),
+            PassEnd::Cancelled { acked } => Ok(StreamEnd::Cancelled { acked }),
+        }
+    }
+
+    /// Streams `lines[from..]` with character counting until every line is acknowledged
+    /// and (outside check mode) the machine reports Idle with an empty planner.
+    async fn run_pass(
+        &mut self,
+        lines: &[String],
+        from: usize,
+        events: &mpsc::UnboundedSender<LinkEvent>,
+        control: &mut watch::Receiver<Control>,
+        check: bool,
+    ) -> Result<PassEnd, LinkError> {
+        let n = lines.len();
+        let mut next = from;
+        let mut inflight: VecDeque<(usize, usize)> = VecDeque::new();
+        let mut used = 0usize;
+        let mut held = false;
+        let mut machine_paused = false;
+        let mut control_open = true;
+        let mut idle_seen = 0u32;
+        let mut poll = tokio::time::interval(self.opts.status_interval.max(MIN_STATUS_INTERVAL));
+        poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        // a poll in flight: when it was sent and whether every line was acknowledged then
+        let mut poll_out: Option<(Instant, bool)> = None;
+        let mut last_heard = Instant::now();
+
+        let initial = *control.borrow_and_update();
+        match initial {
+            Control::Cancel => return Ok(PassEnd::Cancelled { acked: from }),
+            Control::Hold => {
+                self.write(&[realtime::FEED_HOLD]).await?;
+                held = true;
+            }
+            Control::Run => {}
+        }
+
+        loop {
+            let mut out = Vec::new();
+            while next < n {
+                let len = lines[next].len() + 1;
+                if used + len > self.window {
+                    break;
+                }
+                out.extend_from_slice(lines[next].as_bytes());
+                out.push(b'\n');
+                inflight.push_back((next, len));
+                used += len;
+                next += 1;
+            }
+            if !out.is_empty() {
+                self.write(&out).await?;
+            }
+            let all_acked = next == n && inflight.is_empty();
+            if all_acked && check {
+                return Ok(PassEnd::Done);
+            }
+            if all_acked && poll_out.is_none() {
+                self.write(&[realtime::STATUS]).await?;
+                poll_out = Some((Instant::now(), true));
+            }
+            let acked_count = next - inflight.len();
+            tokio::select! {
+                item = self.lines.recv() => {
+                    let line = take(item)?;
+                    last_heard = Instant::now();
+                    match classify(&line) {
+                        Reply::Ok => {
+                            let Some((unit, len)) = inflight.pop_front() else {
+                                tracing::warn!("GRBL sent an ok with no line outstanding");
+                                continue;
+                            };
+                            used -= len;
+                            if !check {
+                                let _ = events.send(LinkEvent::Acked { unit });
+                            }
+                        }
+                        Reply::Error(code) => {
+                            let Some(&(unit, _)) = inflight.front() else {
+                                return Err(LinkError::Protocol(format!(
+                                    "GRBL sent error:{code} with no line outstanding"
+                                )));
+                            };
+                            if let Err(e) = self.recover(true).await {
+                                tracing::warn!("could not empty the controller after error:{code}: {e}");
+                            }
+                            return Err(LinkError::Rejected {
+                                unit,
+                                text: lines[unit].clone(),
+                                reason: describe_error(code),
+                            });
+                        }
+                        Reply::Alarm(code) => {
+                            let k = inflight.front().map(|u| u.0).unwrap_or(acked_count.saturating_sub(1));
+                            if let Err(e) = self.recover(false).await {
+                                tracing::warn!("could not reset the controller after ALARM:{code}: {e}");
+                            }
+                            let text = lines.get(k).map(String::as_str).unwrap_or("");
+                            return Err(LinkError::Alarm(format!(
+                                "{} while running line {}: {text}",
+                                describe_alarm(code),
+                                k + 1
+                            )));
+                        }
+                        Reply::Status(s) => {
+                            let confirms = poll_out.take().map(|(_, c)| c).unwrap_or(false);
+                            if s.wco.is_some() {
+                                self.wco = s.wco;
+                            }
+                            let _ = events.send(LinkEvent::Status(s.to_status(self.wco)));
+                            if s.state == "Hold" && !held && !machine_paused {
+                                machine_paused = true;
+                                let _ = events.send(LinkEvent::Message(
+                                    "the machine paused itself (program stop or its own hold button); resume to go on".into(),
+                                ));
+                            }
+                            if s.state != "Hold" {
+                                machine_paused = false;
+                            }
+                            if confirms && s.state == "Idle" {
+                                let planner_empty = match (s.buffer, self.planner_blocks) {
+                                    (Some((free, _)), Some(total)) => free as usize >= total,
+                                    _ => false,
+                                };
+                                idle_seen += 1;
+                                if planner_empty || idle_seen >= 2 {
+                                    return Ok(PassEnd::Done);
+                                }
+                            } else {
+                                idle_seen = 0;
+                            }
+                        }
+                        Reply::Banner(b) => {
+                            return Err(LinkError::Protocol(format!(
+                                "the controller reset itself ({b}) with {} of {} lines acknowledged",
+                                acked_count,
+                                n
+                            )));
+                        }
+                        Reply::Bracket(m) => {
+                            if m.starts_with("[MSG:") {
+                                let _ = events.send(LinkEvent::Message(m));
+                            }
+                        }
+                        Reply::Other(_) => {}
+                    }
+                }
+                _ = poll.tick() => {
+                    let stale = poll_out.is_some_and(|(t, _)| t.elapsed() > Duration::from_secs(2));
+                    if poll_out.is_none() || stale {
+                        self.write(&[realtime::STATUS]).await?;
+                        poll_out = Some((Instant::now(), all_acked));
+                    }
+                }
+                changed = control.changed(), if control_open => {
+                    if changed.is_err() {
+                        control_open = false;
+                        continue;
+                    }
+                    let c = *control.borrow_and_update();
+                    match c {
+                        Control::Hold => {
+                            self.write(&[realtime::FEED_HOLD]).await?;
+                            held = true;
+                        }
+                        Control::Run => {
+                            if held || machine_paused {
+                                self.write(&[realtime::CYCLE_START]).await?;
+                                held = false;
+                                machine_paused = false;
+                            }
+                        }
+                        Control::Cancel => {
+                            self.recover(true).await?;
+                            return Ok(PassEnd::Cancelled { acked: acked_count });
+                        }
+                    }
+                }
+                _ = tokio::time::sleep_until(last_heard + self.opts.ack_timeout) => {
+                    return Err(LinkError::Timeout(self.opts.ack_timeout));
+                }
+            }
+        }
+    }
+}
+
+fn take(item: Option<Incoming>) -> Result<String, LinkError> {
+    match item {
+        Some(Ok(line)) => Ok(line),
+        Some(Err(e)) => Err(LinkError::Io(e)),
+        None => Err(LinkError::Io(std::io::Error::new(
+            std::io::ErrorKind::UnexpectedEof,
+            "the controller closed the connection",
+        ))),
+    }
+}
+
+/// A line GRBL can take: ASCII, no line breaks, no real-time characters, short enough.
+fn check_line(line: &str, index: usize, window: usize) -> Result<(), LinkError> {
+    let bad = |why: String| LinkError::Rejected {
+        unit: index,
+        text: line.to_string(),
+        reason: why,
+    };
+    if let Some(b) = line
+        .bytes()
+        .find(|&b| realtime::is_realtime(b) || b == b'\n' || b == b'\r')
+    {
+        return Err(bad(format!(
+            "line {} holds byte 0x{b:02x}, which GRBL would act on as a real-time command or line end",
+            index + 1
+        )));
+    }
+    if line.len() + 1 > window {
+        return Err(bad(format!(
+            "line {} is {} bytes, longer than the controller's {window}-byte receive buffer",
+            index + 1,
+            line.len() + 1
+        )));
+    }
+    Ok(())
+}
+
+/// The modal state the lines before a resume point left behind (units, distance mode,
+/// motion mode G0/G1, feed, spindle), as lines to send before resuming: the controller
+/// may have been reset since.
+pub fn modal_preamble(done: &[String]) -> Vec<String> {
+    if done.is_empty() {
+        return Vec::new();
+    }
+    let mut units = "G21";
+    let mut distance = "G90";
+    let mut motion: Option<u32> = None;
+    let mut feed: Option<String> = None;
+    let mut spindle: Option<&str> = None;
+    let mut speed: Option<String> = None;
+    for line in done {
+        for (letter, value) in words(line) {
+            match (letter, value.as_str()) {
+                ('G', v) => match v.parse::<f64>().ok().map(|g| (g * 10.0).round() as i64) {
+                    Some(200) => units = "G20",
+                    Some(210) => units = "G21",
+                    Some(900) => distance = "G90",
+                    Some(910) => distance = "G91",
+                    Some(g @ (0 | 10 | 20 | 30)) => motion = Some(g as u32 / 10),
+                    Some(800) => motion = None,
+                    _ => {}
+                },
+                ('M', v) => match v.parse::<f64>().ok().map(|m| m.round() as i64) {
+                    Some(3) => spindle = Some("M3"),
+                    Some(4) => spindle = Some("M4"),
+                    Some(5) | Some(2) | Some(30) => spindle = Some("M5"),
+                    _ => {}
+                },
+                ('F', v) => feed = Some(v.to_string()),
+                ('S', v) => speed = Some(v.to_string()),
+                _ => {}
+            }
+        }
+    }
+    let mut out = vec![format!("{units} {distance}")];
+    let mut modal = String::new();
+    if let Some(m @ (0 | 1)) = motion {
+        modal.push_str(&format!("G{m}"));
+    }
+    if let Some(f) = feed {
+        if !modal.is_empty() {
+            modal.push(' ');
+        }
+        modal.push_str(&format!("F{f}"));
+    }
+    if !modal.is_empty() {
+        out.push(modal);
+    }
+    if let Some(s) = spindle {
+        match (s, speed) {
+            ("M5", _) => out.push("M5".into()),
+            (s, Some(v)) => out.push(format!("{s} S{v}")),
+            (s, None) => out.push(s.to_string()),
+        }
+    }
+    out
+}
+
+/// The words of a G-code line (letter upper-cased, value as written), comments skipped.
+fn words(line: &str) -> Vec<(char, String)> {
+    let mut out = Vec::new();
+    let mut chars = line.chars().peekable();
+    let mut in_paren = false;
+    while let Some(c) = chars.next() {
+        if in_paren {
+            in_paren = c != ')';
+            continue;
+        }
+        match c {
+            '(' => in_paren = true,
+            ';' => break,
+            c if c.is_ascii_alphabetic() => {
+                let mut v = String::new();
+                while let Some(&d) = chars.peek() {
+                    if d.is_ascii_digit() || d == '.' || d == '-' || d == '+' {
+                        v.push(d);
+                        chars.next();
+                    } else if d == ' ' {
+                        chars.next();
+                    } else {
+                        break;
+                    }
+                }
+                out.push((c.to_ascii_uppercase(), v));
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+impl Link for GrblLink {
+    fn stream<'a>(
+        &'a mut self,
+        program: &'a Program,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        Box::pin(async move {
+            #[allow(unreachable_patterns)]
+            match program {
+                Program::Gcode(lines) => self.stream_gcode(lines, from, events, control).await,
+                other => Err(LinkError::WrongProgram(other.kind())),
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests;

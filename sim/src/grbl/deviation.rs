@@ -1,0 +1,245 @@
+//! How far what a machine cut strayed from the planned tool path.
+
+use super::interp::Motion;
+use super::machine::arc_sweep;
+use super::Executed;
+use offset_core::toolpath::arc_segment;
+use offset_core::{Move, Point, Segment, Toolpath, P3};
+
+/// Spacing of the points sampled along the executed path, mm.
+const SAMPLE_STEP: f64 = 0.05;
+/// At most this many samples per executed move (long moves are sampled more coarsely).
+const MAX_SAMPLES: usize = 2000;
+
+enum Piece {
+    Line(P3, P3),
+    Arc { seg: Segment, z0: f64, z1: f64 },
+}
+
+impl Piece {
+    fn xy_bounds(&self) -> (Point, Point) {
+        match self {
+            Piece::Line(a, b) => (
+                Point::new(a.x.min(b.x), a.y.min(b.y)),
+                Point::new(a.x.max(b.x), a.y.max(b.y)),
+            ),
+            Piece::Arc { seg, .. } => {
+                let b = seg.bounds();
+                (b.min, b.max)
+            }
+        }
+    }
+
+    fn distance(&self, p: P3) -> f64 {
+        match self {
+            Piece::Line(a, b) => {
+                let ab = [b.x - a.x, b.y - a.y, b.z - a.z];
+                let ap = [p.x - a.x, p.y - a.y, p.z - a.z];
+                let l2 = ab[0] * ab[0] + ab[1] * ab[1] + ab[2] * ab[2];
+                let t = if l2 > 0.0 {
+                    ((ap[0] * ab[0] + ap[1] * ab[1] + ap[2] * ab[2]) / l2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                p.dist(P3::new(a.x + ab[0] * t, a.y + ab[1] * t, a.z + ab[2] * t))
+            }
+            Piece::Arc { seg, z0, z1 } if z0 == z1 => {
+                let q = seg.closest_point(p.xy());
+                q.dist(p.xy()).hypot(p.z - z0)
+            }
+            Piece::Arc { seg, z0, z1 } => {
+                // a helix: the nearest point lies near where its height matches the point's
+                // or where its angle does; refine the best of those within half a turn
+                let at = |t: f64| {
+                    let q = seg.point_at(t);
+                    q.dist(p.xy()).hypot(p.z - (z0 + (z1 - z0) * t))
+                };
+                let Segment::Arc { a, center, .. } = *seg else {
+                    return f64::INFINITY;
+                };
+                let sweep = seg.sweep();
+                let mut candidates = vec![0.0, 1.0, ((p.z - z0) / (z1 - z0)).clamp(0.0, 1.0)];
+                let a0 = (a - center).y.atan2((a - center).x);
+                let phi = (p.y - center.y).atan2(p.x - center.x);
+                let tau = std::f64::consts::TAU;
+                let turns = (sweep.abs() / tau).ceil() as i64 + 1;
+                for k in -turns..=turns {
+                    let t = (phi + k as f64 * tau - a0) / sweep;
+                    if (0.0..=1.0).contains(&t) {
+                        candidates.push(t);
+                    }
+                }
+                let (mut best_t, mut best) = (0.0, f64::INFINITY);
+                for t in candidates {
+                    let d = at(t);
+                    if d < best {
+                        (best_t, best) = (t, d);
+                    }
+                }
+                let half = (std::f64::consts::PI / sweep.abs()).min(1.0);
+                let (mut lo, mut hi) = ((best_t - half).max(0.0), (best_t + half).min(1.0));
+                for _ in 0..60 {
+                    let m1 = lo + (hi - lo) / 3.0;
+                    let m2 = hi - (hi - lo) / 3.0;
+                    if at(m1) < at(m2) {
+                        hi = m2;
+                    } else {
+                        lo = m1;
+                    }
+                }
+                best.min(at(0.5 * (lo + hi)))
+            }
+        }
+    }
+}
+
+/// A uniform grid over the planned cuts, for nearest-piece queries.
+struct Grid {
+    min: Point,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    cells: Vec<Vec<usize>>,
+}
+
+impl Grid {
+    fn new(pieces: &[Piece]) -> Grid {
+        let mut lo = Point::new(f64::INFINITY, f64::INFINITY);
+        let mut hi = Point::new(f64::NEG_INFINITY, f64::NEG_INFINITY);
+        for p in pieces {
+            let (a, b) = p.xy_bounds();
+            lo = Point::new(lo.x.min(a.x), lo.y.min(a.y));
+            hi = Point::new(hi.x.max(b.x), hi.y.max(b.y));
+        }
+        let extent = (hi.x - lo.x).max(hi.y - lo.y).max(1e-6);
+        let cell = (extent / 256.0).max(0.25);
+        let nx = ((hi.x - lo.x) / cell) as usize + 1;
+        let ny = ((hi.y - lo.y) / cell) as usize + 1;
+        let mut g = Grid {
+            min: lo,
+            cell,
+            nx,
+            ny,
+            cells: vec![Vec::new(); nx * ny],
+        };
+        for (i, p) in pieces.iter().enumerate() {
+            let (a, b) = p.xy_bounds();
+            let (x0, y0) = g.cell_of(a);
+            let (x1, y1) = g.cell_of(b);
+            for y in y0..=y1 {
+                for x in x0..=x1 {
+                    g.cells[y * nx + x].push(i);
+                }
+            }
+        }
+        g
+    }
+
+    fn cell_of(&self, p: Point) -> (usize, usize) {
+        let x = ((p.x - self.min.x) / self.cell).floor().max(0.0) as usize;
+        let y = ((p.y - self.min.y) / self.cell).floor().max(0.0) as usize;
+        (x.min(self.nx - 1), y.min(self.ny - 1))
+    }
+
+    fn nearest(&self, pieces: &[Piece], p: P3) -> f64 {
+        // a point outside the grid starts from the nearest cell; the bound below still holds
+        let (x, y) = self.cell_of(p.xy());
+        let mut best = f64::INFINITY;
+        let max_ring = self.nx.max(self.ny);
+        for r in 0..=max_ring {
+            let (x0, x1) = (x.saturating_sub(r), (x + r).min(self.nx - 1));
+            let (y0, y1) = (y.saturating_sub(r), (y + r).min(self.ny - 1));
+            for yy in y0..=y1 {
+                for xx in x0..=x1 {
+                    let on_ring = xx + r == x || xx == x + r || yy + r == y || yy == y + r;
+                    if !on_ring {
+                        continue;
+                    }
+                    for &i in &self.cells[yy * self.nx + xx] {
+                        best = best.min(pieces[i].distance(p));
+                    }
+                }
+            }
+            // anything in rings further out is at least this far in plan
+            if best <= r as f64 * self.cell {
+                break;
+            }
+        }
+        best
+    }
+}
+
+/// The worst distance (mm) from a point of the executed cuts (linear and arc moves,
+/// sampled every 0.05 mm but at most 2000 times a move, arcs followed exactly) to the planned cuts. Rapids are left out
+/// on both sides: a controller may take any path between their end points. Infinity
+/// when something was cut but nothing was planned.
+pub fn max_deviation(planned: &Toolpath, executed: &[Executed]) -> f64 {
+    let mut pieces = Vec::new();
+    planned.walk(P3::default(), |from, m, to| match m {
+        Move::Linear { .. } => pieces.push(Piece::Line(from, to)),
+        Move::Arc { center, ccw, .. } => pieces.push(Piece::Arc {
+            seg: arc_segment(from.xy(), to.xy(), *center, *ccw),
+            z0: from.z,
+            z1: to.z,
+        }),
+        _ => {}
+    });
+    let cuts: Vec<&Executed> = executed
+        .iter()
+        .filter(|e| e.motion != Motion::Rapid)
+        .collect();
+    if cuts.is_empty() {
+        return 0.0;
+    }
+    if pieces.is_empty() {
+        return f64::INFINITY;
+    }
+    let grid = Grid::new(&pieces);
+    let mut worst: f64 = 0.0;
+    for e in cuts {
+        for p in sample_executed(e) {
+            worst = worst.max(grid.nearest(&pieces, p));
+        }
+    }
+    worst
+}
+
+/// Points along an executed move, no farther apart than the sample step, ends included.
+pub fn sample_executed(e: &Executed) -> Vec<P3> {
+    let from = P3::new(e.from[0], e.from[1], e.from[2]);
+    let to = P3::new(e.to[0], e.to[1], e.to[2]);
+    match (e.motion, e.center) {
+        (Motion::ArcCw | Motion::ArcCcw, Some(c)) => {
+            let ccw = e.motion == Motion::ArcCcw;
+            let sweep = arc_sweep(e.from, e.to, c, ccw);
+            let r = (e.from[0] - c[0]).hypot(e.from[1] - c[1]);
+            let a0 = (e.from[1] - c[1]).atan2(e.from[0] - c[0]);
+            let n = ((r * sweep.abs()).hypot(to.z - from.z) / SAMPLE_STEP).ceil() as usize;
+            let n = n.clamp(1, MAX_SAMPLES);
+            (0..=n)
+                .map(|i| {
+                    let t = i as f64 / n as f64;
+                    let ang = a0 + sweep * t;
+                    P3::new(
+                        c[0] + r * ang.cos(),
+                        c[1] + r * ang.sin(),
+                        from.z + (to.z - from.z) * t,
+                    )
+                })
+                .collect()
+        }
+        _ => {
+            let n = ((from.dist(to) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
+            (0..=n)
+                .map(|i| {
+                    let t = i as f64 / n as f64;
+                    P3::new(
+                        from.x + (to.x - from.x) * t,
+                        from.y + (to.y - from.y) * t,
+                        from.z + (to.z - from.z) * t,
+                    )
+                })
+                .collect()
+        }
+    }
+}
