@@ -176,3 +176,21 @@ fn bad_parameters_and_a_tool_too_big_are_errors() {
     let e = pocket_with(&Shape::new(vec![]), &p, &off).unwrap_err();
     assert!(e.to_string().contains("closed outlines"), "{e}");
 }
+
+#[test]
+fn passes_that_touch_the_wall_exactly_still_plan_and_cover() {
+    // with a 3 mm tool at 1.2 mm steps, the merged islands' sixth pass meets the wall's
+    // exactly (both 7.5 mm from the walls): a tangent contact the pocket steps around
+    let shape = Shape::new(vec![
+        rect(0.0, 0.0, 60.0, 40.0),
+        Polyline::circle(Point::new(24.0, 20.0), 5.0),
+        Polyline::circle(Point::new(36.0, 20.0), 5.0),
+    ]);
+    let p = PocketParams {
+        tool: Tool::flat(3.0),
+        stepover: Stepover::Percent(40.0),
+        depth: 1.0,
+        ..params(Stepover::Percent(40.0))
+    };
+    check("touching", &shape, &p, true);
+}
