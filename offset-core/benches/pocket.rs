@@ -9,8 +9,8 @@ use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::offset::{offset_region, OffsetOptions};
 use offset_core::ops::pocket::RegionOffset;
 use offset_core::ops::{pocket_with, PocketParams, Stepover};
-use std::cell::Cell;
 use offset_core::toolpath::Tool;
+use std::cell::Cell;
 use std::f64::consts::TAU;
 use std::time::Instant;
 
@@ -63,7 +63,10 @@ fn main() {
     };
     let runs: [(&str, &RegionOffset); 2] = [
         ("offset kernel", &kernel),
-        ("Clipper2 0.6 (round joins, 1 µm grid, regrouped by nesting)", &clipper),
+        (
+            "Clipper2 0.6 (round joins, 1 µm grid, regrouped by nesting)",
+            &clipper,
+        ),
     ];
     for (name, off) in runs {
         spent.set(0.0);
