@@ -122,13 +122,27 @@ impl Grid {
             ny,
             cells: vec![Vec::new(); nx * ny],
         };
+        // each piece goes into the cells its points pass through (sampled every half cell,
+        // so every point of it is within a quarter cell of a registered cell)
         for (i, p) in pieces.iter().enumerate() {
-            let (a, b) = p.xy_bounds();
-            let (x0, y0) = g.cell_of(a);
-            let (x1, y1) = g.cell_of(b);
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    g.cells[y * nx + x].push(i);
+            let step = g.cell / 2.0;
+            let samples: Vec<Point> = match p {
+                Piece::Line(a, b) => {
+                    let n = ((a.xy().dist(b.xy()) / step).ceil() as usize).max(1);
+                    (0..=n)
+                        .map(|k| a.xy().lerp(b.xy(), k as f64 / n as f64))
+                        .collect()
+                }
+                Piece::Arc { seg, .. } => {
+                    let n = ((seg.length() / step).ceil() as usize).max(1);
+                    (0..=n).map(|k| seg.point_at(k as f64 / n as f64)).collect()
+                }
+            };
+            for q in samples {
+                let (x, y) = g.cell_of(q);
+                let c = &mut g.cells[y * nx + x];
+                if c.last() != Some(&i) {
+                    c.push(i);
                 }
             }
         }
@@ -160,8 +174,8 @@ impl Grid {
                     }
                 }
             }
-            // anything in rings further out is at least this far in plan
-            if best <= r as f64 * self.cell {
+            // anything not seen yet is at least this far in plan
+            if best <= (r as f64 - 0.25) * self.cell {
                 break;
             }
         }
