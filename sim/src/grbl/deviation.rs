@@ -297,7 +297,7 @@ mod tests {
             [10.0, 0.0, -2.0],
             Some([0.0, 0.0]),
         );
-        assert!(max_deviation(&tp, &[same.clone()]) < 1e-6);
+        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
         // the helix 0.1 mm larger in radius
         let wide = ex(
             Motion::ArcCcw,
