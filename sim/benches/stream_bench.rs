@@ -6,9 +6,9 @@
 
 use machlink_protocols::gcode::{post, GcodeOptions};
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
-use offset_core::{Move, Point, Toolpath, P3};
 use machlink_protocols::{Control, Link, LinkEvent, Program, StreamEnd};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig};
+use offset_core::{Move, Point, Toolpath, P3};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 
@@ -19,8 +19,13 @@ const LINES: usize = 2000;
 /// helical plunge at each row, the mix a profile or pocket post makes.
 fn program() -> Vec<String> {
     let mut tp = Toolpath::new("bench serpentine");
-    tp.push(Move::Rapid { to: P3::new(0.0, 0.0, 5.0) });
-    tp.push(Move::Linear { to: P3::new(0.0, 0.0, 0.0), feed: 300.0 });
+    tp.push(Move::Rapid {
+        to: P3::new(0.0, 0.0, 5.0),
+    });
+    tp.push(Move::Linear {
+        to: P3::new(0.0, 0.0, 0.0),
+        feed: 300.0,
+    });
     let mut y = 0.0;
     let mut row = 0;
     while tp.moves.len() < LINES {
@@ -29,7 +34,10 @@ fn program() -> Vec<String> {
         for k in 1..=30 {
             let x = x0 + dir * k as f64 * 2.0;
             let z = -0.5 - 0.013 * (k % 7) as f64;
-            tp.push(Move::Linear { to: P3::new(x, y, z), feed: 1200.0 + (k % 3) as f64 * 100.0 });
+            tp.push(Move::Linear {
+                to: P3::new(x, y, z),
+                feed: 1200.0 + (k % 3) as f64 * 100.0,
+            });
         }
         let xe = x0 + dir * 60.0;
         tp.push(Move::Arc {
@@ -85,7 +93,10 @@ async fn main() {
         }
         last
     });
-    let end = link.stream(&program, 0, etx, crx).await.expect("the stream runs");
+    let end = link
+        .stream(&program, 0, etx, crx)
+        .await
+        .expect("the stream runs");
     let done = start.elapsed();
     assert_eq!(end, StreamEnd::Completed);
     let acked = last_ack.await.unwrap().duration_since(start);

@@ -257,3 +257,71 @@ pub fn sample_executed(e: &Executed) -> Vec<P3> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ex(motion: Motion, from: [f64; 3], to: [f64; 3], center: Option<[f64; 2]>) -> Executed {
+        Executed {
+            index: 1,
+            line: String::new(),
+            motion,
+            from,
+            to,
+            center,
+            feed: 100.0,
+        }
+    }
+
+    #[test]
+    fn deviation_measures_offsets_of_lines_arcs_and_helices() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::Rapid {
+            to: P3::new(10.0, 0.0, 0.0),
+        });
+        tp.push(Move::Arc {
+            to: P3::new(10.0, 0.0, -2.0),
+            center: Point::new(0.0, 0.0),
+            ccw: true,
+            feed: 100.0,
+        });
+        tp.push(Move::Linear {
+            to: P3::new(20.0, 0.0, -2.0),
+            feed: 100.0,
+        });
+        // the same helix: no deviation
+        let same = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
+        // the helix 0.1 mm larger in radius
+        let wide = ex(
+            Motion::ArcCcw,
+            [10.1, 0.0, 0.0],
+            [10.1, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!((max_deviation(&tp, &[wide]) - 0.1).abs() < 1e-3);
+        // the helix run flat at the start height: near the end of the turn the helix is
+        // almost 2 mm below, until the flat circle comes back near the helix's start
+        let flat = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, 0.0],
+            Some([0.0, 0.0]),
+        );
+        let d = max_deviation(&tp, &[flat]);
+        assert!(d > 1.9 && d < 2.0, "{d}");
+        // a line 0.3 mm above the planned one
+        let high = ex(Motion::Linear, [10.0, 0.0, -1.7], [20.0, 0.0, -1.7], None);
+        assert!((max_deviation(&tp, &[high]) - 0.3).abs() < 1e-6);
+        // rapids do not count; cuts with nothing planned are infinitely off
+        let rapid = ex(Motion::Rapid, [50.0, 50.0, 5.0], [60.0, 50.0, 5.0], None);
+        assert_eq!(max_deviation(&tp, &[rapid]), 0.0);
+        assert!(max_deviation(&Toolpath::new("empty"), &[same]).is_infinite());
+    }
+}
