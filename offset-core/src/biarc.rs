@@ -8,10 +8,10 @@
 //! collinear within the tolerance and otherwise the equal-tangent-length biarc between the
 //! two points and their tangents. A piece fits when every input point it spans lies within
 //! the tolerance of it and every point sampled on it lies within the tolerance of the input
-//! curve. The input curve between two consecutive points is the arc that leaves the first
-//! along its tangent and ends at the second (the local circular interpolant: a line for
-//! collinear points, the circle itself for points on a circle), so a circle sampled at 100
-//! points comes back as the circle at any tolerance. Neighbouring biarcs share their end
+//! curve. The input curve is the biarc spline through the points with their tangents (a
+//! biarc between every two neighbours: a line for collinear points, the circle itself for
+//! points on a circle), so a circle sampled at 100 points comes back as the circle at any
+//! tolerance, and a single span always fits. Neighbouring biarcs share their end
 //! tangent, so the result is tangent-continuous wherever the input is smooth; consecutive
 //! arcs on one circle are merged.
 
@@ -275,7 +275,84 @@ fn piece(run: &[Point], tans: &[Point], i: usize, j: usize, tol: f64) -> Option<
     {
         return Some(vec![Vertex::line(p0)]);
     }
-    let (t0, t1) = (tans[i], tans[j]);
+    let (s0, s1, joint, b0, b1) = biarc(p0, tans[i], p1, tans[j])?;
+    if j == i + 1 {
+        // one span: the biarc is the input curve itself
+        return Some(vec![
+            Vertex::new(p0.x, p0.y, b0),
+            Vertex::new(joint.x, joint.y, b1),
+        ]);
+    }
+    // both ways within the tolerance
+    let near = |p: Point| s0.distance_to(p).min(s1.distance_to(p)) <= tol;
+    if !run[i..=j].iter().all(|&p| near(p)) {
+        return None;
+    }
+    // the input curve: the biarc through each pair of neighbours with their tangents
+    let spans: Vec<[Segment; 2]> = (i..j)
+        .map(|k| match biarc(run[k], tans[k], run[k + 1], tans[k + 1]) {
+            Some((a, b, ..)) => [a, b],
+            None => {
+                let l = Segment::Line {
+                    a: run[k],
+                    b: run[k + 1],
+                };
+                [l, l]
+            }
+        })
+        .collect();
+    // cumulative chord lengths, to start each search at the span that lies as far along
+    // the input as the sample lies along the biarc
+    let mut cum = Vec::with_capacity(spans.len() + 1);
+    cum.push(0.0);
+    for sp in &spans {
+        cum.push(cum[cum.len() - 1] + sp[0].start().dist(sp[1].end()));
+    }
+    let total_in = cum[cum.len() - 1];
+    let (l0, l1) = (s0.length(), s1.length());
+    // whether some span lies within `limit` of p, searching outward from the guess
+    let within = |p: Point, along: f64, limit: f64| {
+        let target = along / (l0 + l1) * total_in;
+        let g = cum
+            .partition_point(|&c| c < target)
+            .saturating_sub(1)
+            .min(spans.len() - 1);
+        let n = spans.len();
+        let close = |k: usize| spans[k].iter().any(|sg| sg.distance_to(p) <= limit);
+        (0..n).any(|d| (g >= d && close(g - d)) || (d > 0 && g + d < n && close(g + d)))
+    };
+    // sampled, so keep a margin for what lies between the samples
+    let k = 16;
+    for q in 1..k {
+        let t = q as f64 / k as f64;
+        if !within(s0.point_at(t), l0 * t, 0.95 * tol)
+            || !within(s1.point_at(t), l0 + l1 * t, 0.95 * tol)
+        {
+            return None;
+        }
+    }
+    if !within(joint, l0, tol) {
+        return None;
+    }
+    Some(vec![
+        Vertex::new(p0.x, p0.y, b0),
+        Vertex::new(joint.x, joint.y, b1),
+    ])
+}
+
+/// The equal-tangent-length biarc from `p0` (unit tangent `t0`) to `p1` (unit tangent
+/// `t1`): its two arcs, the joint and their bulges; None when there is none within half
+/// turns.
+fn biarc(
+    p0: Point,
+    t0: Point,
+    p1: Point,
+    t1: Point,
+) -> Option<(Segment, Segment, Point, f64, f64)> {
+    let chord = p1 - p0;
+    if chord.len() <= 1e-12 {
+        return None;
+    }
     let t = t0 + t1;
     let vt = chord.dot(t);
     let denom = 2.0 * (1.0 - t0.dot(t1));
@@ -296,42 +373,13 @@ fn piece(run: &[Point], tans: &[Point], i: usize, j: usize, tol: f64) -> Option<
     let joint = q0.lerp(q1, 0.5);
     let b0 = bulge_from_tangent(p0, t0, joint)?;
     let b1 = bulge_from_tangent(joint, (q1 - q0).unit(), p1)?;
-    let s0 = Segment::from_bulge(p0, joint, b0);
-    let s1 = Segment::from_bulge(joint, p1, b1);
-    // both ways within the tolerance
-    let near = |p: Point| s0.distance_to(p).min(s1.distance_to(p)) <= tol;
-    if !run[i..=j].iter().all(|&p| near(p)) {
-        return None;
-    }
-    // the input curve between two points is the arc that leaves the first along its tangent
-    let spans: Vec<Segment> = (i..j)
-        .map(|k| {
-            let b = bulge_from_tangent(run[k], tans[k], run[k + 1]).unwrap_or(0.0);
-            Segment::from_bulge(run[k], run[k + 1], b)
-        })
-        .collect();
-    let to_input = |p: Point| {
-        spans
-            .iter()
-            .map(|s| s.distance_to(p))
-            .fold(f64::INFINITY, f64::min)
-    };
-    // sampled, so keep a margin for what lies between the samples
-    for s in [s0, s1] {
-        let k = 16;
-        for q in 1..k {
-            if to_input(s.point_at(q as f64 / k as f64)) > 0.95 * tol {
-                return None;
-            }
-        }
-    }
-    if to_input(joint) > tol {
-        return None;
-    }
-    Some(vec![
-        Vertex::new(p0.x, p0.y, b0),
-        Vertex::new(joint.x, joint.y, b1),
-    ])
+    Some((
+        Segment::from_bulge(p0, joint, b0),
+        Segment::from_bulge(joint, p1, b1),
+        joint,
+        b0,
+        b1,
+    ))
 }
 
 /// The bulge of the arc that leaves `a` along the unit tangent `t` and ends at `b`;

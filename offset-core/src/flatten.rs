@@ -7,7 +7,7 @@ use std::f64::consts::PI;
 const MAX_DEPTH: u32 = 16;
 
 /// Samples `f` on `[t0, t1]` so that the chords stay within `tol` of the curve: each piece
-/// is split while its midpoint or quarter points lie farther than `tol` from the chord.
+/// is split while its midpoint or quarter points lie farther than 0.9 × `tol` from the chord.
 /// Returns the points after `f(t0)`, ending with `f(t1)`.
 pub fn adaptive(f: &dyn Fn(f64) -> Point, t0: f64, t1: f64, tol: f64, out: &mut Vec<Point>) {
     let tol = if tol.is_finite() && tol > 0.0 {
@@ -40,7 +40,8 @@ fn piece(
 ) {
     let m = 0.5 * (a + b);
     let pm = f(m);
-    let chord_dist = |p: Point| crate::geom::Segment::Line { a: pa, b: pb }.distance_to(p);
+    // checked at three points, so keep a margin for the curve between them
+    let chord_dist = |p: Point| crate::geom::Segment::Line { a: pa, b: pb }.distance_to(p) / 0.9;
     let flat = depth >= MAX_DEPTH
         || out.len() > 1_000_000
         || !pm.is_finite()

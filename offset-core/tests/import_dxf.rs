@@ -46,7 +46,8 @@ fn loose_lines_and_arcs_chain_into_contours() {
         d.shape.paths.len()
     );
     let closed = d.shape.paths.iter().filter(|p| p.closed).count();
-    assert!(closed >= 1, "{:?}", d.warnings);
+    // as drawn: two open chains (a line of bumps, a zigzag), eight closed outlines
+    assert_eq!((d.shape.paths.len(), closed), (10, 8), "{:?}", d.warnings);
     // every open contour is reported with its ends
     let open = d.shape.paths.len() - closed;
     assert_eq!(

@@ -112,6 +112,17 @@ fn pockets_with_islands_are_covered_without_gouging_clipper_offsets() {
 }
 
 #[test]
+fn pockets_with_islands_are_covered_without_gouging_kernel_offsets() {
+    for so in [Stepover::Percent(40.0), Stepover::Percent(90.0)] {
+        let p = params(so);
+        check("merging", &merging(), &p, true);
+        check("splitting", &splitting(), &p, true);
+        check("vanishing", &vanishing(), &p, true);
+        check("l-shape", &l_shape(), &p, true);
+    }
+}
+
+#[test]
 fn merging_islands_become_one_pass_loop() {
     let shape = merging();
     let p = params(Stepover::Percent(40.0));
@@ -164,4 +175,22 @@ fn bad_parameters_and_a_tool_too_big_are_errors() {
     p.stepover = Stepover::Mm(1.0);
     let e = pocket_with(&Shape::new(vec![]), &p, &off).unwrap_err();
     assert!(e.to_string().contains("closed outlines"), "{e}");
+}
+
+#[test]
+fn passes_that_touch_the_wall_exactly_still_plan_and_cover() {
+    // with a 3 mm tool at 1.2 mm steps, the merged islands' sixth pass meets the wall's
+    // exactly (both 7.5 mm from the walls): a tangent contact the pocket steps around
+    let shape = Shape::new(vec![
+        rect(0.0, 0.0, 60.0, 40.0),
+        Polyline::circle(Point::new(24.0, 20.0), 5.0),
+        Polyline::circle(Point::new(36.0, 20.0), 5.0),
+    ]);
+    let p = PocketParams {
+        tool: Tool::flat(3.0),
+        stepover: Stepover::Percent(40.0),
+        depth: 1.0,
+        ..params(Stepover::Percent(40.0))
+    };
+    check("touching", &shape, &p, true);
 }

@@ -4,6 +4,7 @@ pub mod chain;
 pub mod dxf;
 pub mod json;
 pub mod svg;
+pub mod svg_out;
 
 use crate::geom::Shape;
 

@@ -193,9 +193,26 @@ fn build(
         ));
     }
     *budget -= 1;
+    // A pass whose walls exactly touch (an island grown to meet the wall at this step) is
+    // a degenerate region the offset may refuse as self-crossing; then this step is taken
+    // a hair shorter (1e-4 of the step-over), which opens the contact.
     let mut children = Vec::new();
+    let mut touched = false;
     for c in off(&region, -s)? {
-        children.push(build(c, s, r, tol, off, budget)?);
+        match build(c, s, r, tol, off, budget) {
+            Ok(n) => children.push(n),
+            Err(OpError::Offset(OffsetError::SelfIntersecting { .. })) => {
+                touched = true;
+                break;
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if touched {
+        children.clear();
+        for c in off(&region, -s * (1.0 - 1e-4))? {
+            children.push(build(c, s, r, tol, off, budget)?);
+        }
     }
     let mut cleanup = Vec::new();
     if s > r + tol {

@@ -8,6 +8,8 @@ use offset_core::{Move, Point, Segment, Toolpath, P3};
 
 /// Spacing of the points sampled along the executed path, mm.
 const SAMPLE_STEP: f64 = 0.05;
+/// At most this many samples per executed move (long moves are sampled more coarsely).
+const MAX_SAMPLES: usize = 2000;
 
 enum Piece {
     Line(P3, P3),
@@ -41,33 +43,51 @@ impl Piece {
                 };
                 p.dist(P3::new(a.x + ab[0] * t, a.y + ab[1] * t, a.z + ab[2] * t))
             }
-            Piece::Arc { seg, z0, z1 } => {
-                // the closest point in plan, at the helix's height there
+            Piece::Arc { seg, z0, z1 } if z0 == z1 => {
                 let q = seg.closest_point(p.xy());
+                q.dist(p.xy()).hypot(p.z - z0)
+            }
+            Piece::Arc { seg, z0, z1 } => {
+                // a helix: the nearest point lies near where its height matches the point's
+                // or where its angle does; refine the best of those within half a turn
+                let at = |t: f64| {
+                    let q = seg.point_at(t);
+                    q.dist(p.xy()).hypot(p.z - (z0 + (z1 - z0) * t))
+                };
                 let Segment::Arc { a, center, .. } = *seg else {
                     return f64::INFINITY;
                 };
                 let sweep = seg.sweep();
-                let t = if sweep.abs() > 0.0 {
-                    let a0 = (a - center).y.atan2((a - center).x);
-                    let aq = (q - center).y.atan2((q - center).x);
-                    let mut d = aq - a0;
-                    let tau = std::f64::consts::TAU;
-                    if sweep > 0.0 {
-                        while d < 0.0 {
-                            d += tau;
-                        }
-                    } else {
-                        while d > 0.0 {
-                            d -= tau;
-                        }
+                let mut candidates = vec![0.0, 1.0, ((p.z - z0) / (z1 - z0)).clamp(0.0, 1.0)];
+                let a0 = (a - center).y.atan2((a - center).x);
+                let phi = (p.y - center.y).atan2(p.x - center.x);
+                let tau = std::f64::consts::TAU;
+                let turns = (sweep.abs() / tau).ceil() as i64 + 1;
+                for k in -turns..=turns {
+                    let t = (phi + k as f64 * tau - a0) / sweep;
+                    if (0.0..=1.0).contains(&t) {
+                        candidates.push(t);
                     }
-                    (d / sweep).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let z = z0 + (z1 - z0) * t;
-                (q.dist(p.xy())).hypot(p.z - z)
+                }
+                let (mut best_t, mut best) = (0.0, f64::INFINITY);
+                for t in candidates {
+                    let d = at(t);
+                    if d < best {
+                        (best_t, best) = (t, d);
+                    }
+                }
+                let half = (std::f64::consts::PI / sweep.abs()).min(1.0);
+                let (mut lo, mut hi) = ((best_t - half).max(0.0), (best_t + half).min(1.0));
+                for _ in 0..60 {
+                    let m1 = lo + (hi - lo) / 3.0;
+                    let m2 = hi - (hi - lo) / 3.0;
+                    if at(m1) < at(m2) {
+                        hi = m2;
+                    } else {
+                        lo = m1;
+                    }
+                }
+                best.min(at(0.5 * (lo + hi)))
             }
         }
     }
@@ -102,13 +122,27 @@ impl Grid {
             ny,
             cells: vec![Vec::new(); nx * ny],
         };
+        // each piece goes into the cells its points pass through (sampled every half cell,
+        // so every point of it is within a quarter cell of a registered cell)
         for (i, p) in pieces.iter().enumerate() {
-            let (a, b) = p.xy_bounds();
-            let (x0, y0) = g.cell_of(a);
-            let (x1, y1) = g.cell_of(b);
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    g.cells[y * nx + x].push(i);
+            let step = g.cell / 2.0;
+            let samples: Vec<Point> = match p {
+                Piece::Line(a, b) => {
+                    let n = ((a.xy().dist(b.xy()) / step).ceil() as usize).max(1);
+                    (0..=n)
+                        .map(|k| a.xy().lerp(b.xy(), k as f64 / n as f64))
+                        .collect()
+                }
+                Piece::Arc { seg, .. } => {
+                    let n = ((seg.length() / step).ceil() as usize).max(1);
+                    (0..=n).map(|k| seg.point_at(k as f64 / n as f64)).collect()
+                }
+            };
+            for q in samples {
+                let (x, y) = g.cell_of(q);
+                let c = &mut g.cells[y * nx + x];
+                if c.last() != Some(&i) {
+                    c.push(i);
                 }
             }
         }
@@ -140,8 +174,8 @@ impl Grid {
                     }
                 }
             }
-            // anything in rings further out is at least this far in plan
-            if best <= r as f64 * self.cell {
+            // anything not seen yet is at least this far in plan
+            if best <= (r as f64 - 0.25) * self.cell {
                 break;
             }
         }
@@ -150,7 +184,7 @@ impl Grid {
 }
 
 /// The worst distance (mm) from a point of the executed cuts (linear and arc moves,
-/// sampled every 0.05 mm, arcs followed exactly) to the planned cuts. Rapids are left out
+/// sampled every 0.05 mm but at most 2000 times a move, arcs followed exactly) to the planned cuts. Rapids are left out
 /// on both sides: a controller may take any path between their end points. Infinity
 /// when something was cut but nothing was planned.
 pub fn max_deviation(planned: &Toolpath, executed: &[Executed]) -> f64 {
@@ -195,7 +229,7 @@ pub fn sample_executed(e: &Executed) -> Vec<P3> {
             let r = (e.from[0] - c[0]).hypot(e.from[1] - c[1]);
             let a0 = (e.from[1] - c[1]).atan2(e.from[0] - c[0]);
             let n = ((r * sweep.abs()).hypot(to.z - from.z) / SAMPLE_STEP).ceil() as usize;
-            let n = n.clamp(1, 2_000_000);
+            let n = n.clamp(1, MAX_SAMPLES);
             (0..=n)
                 .map(|i| {
                     let t = i as f64 / n as f64;
@@ -209,7 +243,7 @@ pub fn sample_executed(e: &Executed) -> Vec<P3> {
                 .collect()
         }
         _ => {
-            let n = ((from.dist(to) / SAMPLE_STEP).ceil() as usize).clamp(1, 2_000_000);
+            let n = ((from.dist(to) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
             (0..=n)
                 .map(|i| {
                     let t = i as f64 / n as f64;
@@ -221,5 +255,73 @@ pub fn sample_executed(e: &Executed) -> Vec<P3> {
                 })
                 .collect()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ex(motion: Motion, from: [f64; 3], to: [f64; 3], center: Option<[f64; 2]>) -> Executed {
+        Executed {
+            index: 1,
+            line: String::new(),
+            motion,
+            from,
+            to,
+            center,
+            feed: 100.0,
+        }
+    }
+
+    #[test]
+    fn deviation_measures_offsets_of_lines_arcs_and_helices() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::Rapid {
+            to: P3::new(10.0, 0.0, 0.0),
+        });
+        tp.push(Move::Arc {
+            to: P3::new(10.0, 0.0, -2.0),
+            center: Point::new(0.0, 0.0),
+            ccw: true,
+            feed: 100.0,
+        });
+        tp.push(Move::Linear {
+            to: P3::new(20.0, 0.0, -2.0),
+            feed: 100.0,
+        });
+        // the same helix: no deviation
+        let same = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
+        // the helix 0.1 mm larger in radius
+        let wide = ex(
+            Motion::ArcCcw,
+            [10.1, 0.0, 0.0],
+            [10.1, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!((max_deviation(&tp, &[wide]) - 0.1).abs() < 1e-3);
+        // the helix run flat at the start height: near the end of the turn the helix is
+        // almost 2 mm below, until the flat circle comes back near the helix's start
+        let flat = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, 0.0],
+            Some([0.0, 0.0]),
+        );
+        let d = max_deviation(&tp, &[flat]);
+        assert!(d > 1.9 && d < 2.0, "{d}");
+        // a line 0.3 mm above the planned one
+        let high = ex(Motion::Linear, [10.0, 0.0, -1.7], [20.0, 0.0, -1.7], None);
+        assert!((max_deviation(&tp, &[high]) - 0.3).abs() < 1e-6);
+        // rapids do not count; cuts with nothing planned are infinitely off
+        let rapid = ex(Motion::Rapid, [50.0, 50.0, 5.0], [60.0, 50.0, 5.0], None);
+        assert_eq!(max_deviation(&tp, &[rapid]), 0.0);
+        assert!(max_deviation(&Toolpath::new("empty"), &[same]).is_infinite());
     }
 }
