@@ -5,6 +5,7 @@
 //! tool paths and stitch paths, and the Toolpath IR those operations hand to the posts.
 //! It does no I/O beyond parsing bytes handed to it, and needs no async runtime.
 
+pub mod check;
 pub mod geom;
 pub mod io;
 pub mod offset;

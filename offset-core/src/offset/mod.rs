@@ -1,7 +1,15 @@
 //! The offset kernel: grow or shrink closed polylines and regions with islands, and offset
 //! open polylines to one side, by pair-wise interference removal (Choi & Park 1999; Park 2001).
 
-use crate::geom::{Point, Polyline, Region, Shape};
+pub mod index;
+mod joins;
+mod prune;
+mod raw;
+pub mod seg;
+
+use crate::geom::{Point, Polyline, Region, Shape, Vertex};
+use prune::{prune, Chain, InputSet, RawPath};
+use seg::Seg;
 use serde::{Deserialize, Serialize};
 
 /// How a convex corner of the offset is closed.
@@ -54,24 +62,152 @@ pub enum OffsetError {
 
 /// Offsets one polyline: a closed one grows (d > 0) or shrinks (d < 0) as a region with no
 /// islands; an open one moves left (d > 0) or right (d < 0) of its direction of travel.
+///
+/// Closed results keep the input's turning sense for their outer loops (holes that a
+/// growing concave path encloses turn the other way). Open results run the same way as the
+/// input and end where the end points' normals put them (no end caps).
 pub fn offset_polyline(
-    _pl: &Polyline,
-    _distance: f64,
-    _opts: &OffsetOptions,
+    pl: &Polyline,
+    distance: f64,
+    opts: &OffsetOptions,
 ) -> Result<Vec<Polyline>, OffsetError> {
-    Err(OffsetError::NotImplemented)
+    check_args(distance, opts)?;
+    check_finite(pl, 0)?;
+    let eps = geometric_eps(opts.tolerance, &[pl]);
+    let segs = clean(pl, eps);
+    if segs.is_empty() {
+        return Ok(Vec::new());
+    }
+    if pl.closed {
+        let area: f64 = segs.iter().map(|s| s.area2()).sum();
+        let ccw = area >= 0.0;
+        let segs = if ccw { segs } else { reverse(&segs) };
+        check_crossings(&[(&segs, true)], eps)?;
+        if distance == 0.0 {
+            let out = build(segs, true, eps)
+                .map(|p| if ccw { p } else { p.reversed() })
+                .into_iter()
+                .collect();
+            return Ok(out);
+        }
+        let loops = run(&[(segs, true)], &[], -distance, opts, eps);
+        Ok(loops
+            .into_iter()
+            .map(|p| if ccw { p } else { p.reversed() })
+            .collect())
+    } else {
+        check_crossings(&[(&segs, false)], eps)?;
+        if distance == 0.0 {
+            return Ok(build(segs, false, eps).into_iter().collect());
+        }
+        let r = distance.abs();
+        let mut splitters = Vec::new();
+        for c in [segs[0].a, segs[segs.len() - 1].b] {
+            splitters.push(Seg::arc(
+                c,
+                r,
+                c + Point::new(r, 0.0),
+                c - Point::new(r, 0.0),
+                std::f64::consts::PI,
+            ));
+            splitters.push(Seg::arc(
+                c,
+                r,
+                c - Point::new(r, 0.0),
+                c + Point::new(r, 0.0),
+                std::f64::consts::PI,
+            ));
+        }
+        Ok(run(&[(segs, false)], &splitters, distance, opts, eps))
+    }
 }
 
 /// Offsets a region: d > 0 grows the outer and shrinks the islands, d < 0 the reverse. The
 /// result may be several regions (the pocket split) or none (offset away).
 pub fn offset_region(
-    _region: &Region,
-    _distance: f64,
-    _opts: &OffsetOptions,
+    region: &Region,
+    distance: f64,
+    opts: &OffsetOptions,
 ) -> Result<Vec<Region>, OffsetError> {
-    Err(OffsetError::NotImplemented)
+    check_args(distance, opts)?;
+    let all: Vec<&Polyline> = region.boundaries().collect();
+    for (i, p) in all.iter().enumerate() {
+        check_finite(p, i)?;
+    }
+    let eps = geometric_eps(opts.tolerance, &all);
+    // outer counter-clockwise, islands clockwise, whatever the caller handed us
+    let mut loops: Vec<(Vec<Seg>, bool)> = Vec::new();
+    for (i, p) in all.iter().enumerate() {
+        let segs = clean(p, eps);
+        if segs.is_empty() {
+            if i == 0 {
+                return Ok(Vec::new());
+            }
+            continue;
+        }
+        let area: f64 = segs.iter().map(|s| s.area2()).sum();
+        let want_ccw = i == 0;
+        let segs = if (area >= 0.0) == want_ccw {
+            segs
+        } else {
+            reverse(&segs)
+        };
+        loops.push((segs, true));
+    }
+    let views: Vec<(&[Seg], bool)> = loops.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
+    check_crossings(&views, eps)?;
+    let polys: Vec<Polyline> = if distance == 0.0 {
+        loops
+            .into_iter()
+            .filter_map(|(s, c)| build(s, c, eps))
+            .collect()
+    } else {
+        run(&loops, &[], -distance, opts, eps)
+    };
+    Ok(assemble(polys))
 }
 
+/// Sorts loops into regions: counter-clockwise loops are outers, clockwise ones islands of
+/// the smallest outer around them. An island with no outer around it is what is left of an
+/// island whose offset swallowed the outer's (Park 2001): it goes.
+fn assemble(polys: Vec<Polyline>) -> Vec<Region> {
+    let mut outers: Vec<(Polyline, f64, crate::geom::Bounds)> = Vec::new();
+    let mut islands = Vec::new();
+    for p in polys {
+        let a = p.area();
+        if a > 0.0 {
+            let b = p.bounds();
+            outers.push((p, a, b));
+        } else {
+            islands.push(p);
+        }
+    }
+    let mut regions: Vec<Region> = outers
+        .iter()
+        .map(|(p, _, _)| Region {
+            outer: p.clone(),
+            islands: Vec::new(),
+        })
+        .collect();
+    for isl in islands {
+        let probe = Seg::from_bulge(
+            isl.vertices[0].pos(),
+            isl.vertices[1 % isl.len()].pos(),
+            isl.vertices[0].bulge,
+        )
+        .point_at(0.5);
+        let mut best: Option<(usize, f64)> = None;
+        for (k, (o, a, b)) in outers.iter().enumerate() {
+            if b.contains(probe) && best.is_none_or(|(_, ba)| *a < ba) && o.contains(probe) {
+                best = Some((k, *a));
+            }
+        }
+        if let Some((k, _)) = best {
+            regions[k].islands.push(isl);
+        }
+    }
+    regions
+}
 /// Offsets a whole shape: its closed paths as nested regions, its open paths to one side.
 pub fn offset_shape(
     shape: &Shape,
@@ -89,4 +225,270 @@ pub fn offset_shape(
         out.extend(offset_polyline(p, distance, opts)?);
     }
     Ok(Shape::new(out))
+}
+
+fn check_args(distance: f64, opts: &OffsetOptions) -> Result<(), OffsetError> {
+    if !distance.is_finite() {
+        return Err(OffsetError::BadDistance(distance));
+    }
+    if !(opts.tolerance.is_finite() && opts.tolerance > 0.0) {
+        return Err(OffsetError::BadTolerance(opts.tolerance));
+    }
+    Ok(())
+}
+
+fn check_finite(pl: &Polyline, path: usize) -> Result<(), OffsetError> {
+    match pl
+        .vertices
+        .iter()
+        .position(|v| !(v.x.is_finite() && v.y.is_finite() && v.bulge.is_finite()))
+    {
+        Some(vertex) => Err(OffsetError::NotFinite { path, vertex }),
+        None => Ok(()),
+    }
+}
+
+/// The kernel's geometric epsilon: a ten-thousandth of the tolerance, but never below what
+/// doubles can resolve at the shape's coordinates.
+fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
+    let mut m: f64 = 1.0;
+    for p in paths {
+        for v in &p.vertices {
+            m = m.max(v.x.abs()).max(v.y.abs());
+        }
+    }
+    (tol * 1e-4).max(m * 1e-14)
+}
+
+/// The path's segments with the ones shorter than `eps` left out (their ends merged).
+fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
+    let n = pl.vertices.len();
+    let mut pts: Vec<Vertex> = Vec::with_capacity(n);
+    for v in &pl.vertices {
+        if let Some(last) = pts.last_mut() {
+            if last.pos().dist(v.pos()) <= eps {
+                continue;
+            }
+        }
+        pts.push(*v);
+    }
+    if pl.closed {
+        while pts.len() > 1 && pts[pts.len() - 1].pos().dist(pts[0].pos()) <= eps {
+            pts.pop();
+        }
+    }
+    let segs_n = match pts.len() {
+        0 | 1 => 0,
+        k if pl.closed => k,
+        k => k - 1,
+    };
+    (0..segs_n)
+        .map(|i| {
+            let a = pts[i];
+            let b = pts[(i + 1) % pts.len()];
+            Seg::from_bulge(a.pos(), b.pos(), a.bulge)
+        })
+        .collect()
+}
+
+fn reverse(segs: &[Seg]) -> Vec<Seg> {
+    segs.iter().rev().map(|s| s.reversed()).collect()
+}
+
+/// Rejects input paths that cross themselves or each other, naming the path and the point.
+/// Neighbouring segments may meet only at their shared vertex (a spike that runs back along
+/// itself is allowed: it offsets as a 180° turn).
+fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError> {
+    let mut all: Vec<Seg> = Vec::new();
+    let mut owner: Vec<(usize, usize)> = Vec::new();
+    for (pi, (segs, _)) in paths.iter().enumerate() {
+        for (k, s) in segs.iter().enumerate() {
+            all.push(*s);
+            owner.push((pi, k));
+        }
+    }
+    let boxes: Vec<index::BBox> = all
+        .iter()
+        .map(|s| {
+            let b = s.bbox();
+            [b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]
+        })
+        .collect();
+    let idx = index::BoxIndex::new(&boxes);
+    let adjacent = |i: usize, j: usize| -> bool {
+        let (pi, ki) = owner[i];
+        let (pj, kj) = owner[j];
+        if pi != pj {
+            return false;
+        }
+        let (segs, closed) = paths[pi];
+        let m = segs.len();
+        kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
+    };
+    let mut err = None;
+    for i in 0..all.len() {
+        idx.query(&boxes[i], |j| {
+            if j <= i {
+                return true;
+            }
+            let (si, sj) = (&all[i], &all[j]);
+            let h = seg::intersect(si, sj, eps);
+            let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
+            if (adj_ij || adj_ji) && !si.is_arc() && !sj.is_arc() {
+                // lines sharing a vertex: only a spike can overlap, and a spike is allowed
+                let d1 = si.b - si.a;
+                let d2 = sj.b - sj.a;
+                if d1.cross(d2).abs() <= eps * d1.len().max(d2.len()) {
+                    return true;
+                }
+            }
+            for (p, _, _) in h.iter() {
+                if adj_ij && p.dist(si.b) <= eps * 4.0 {
+                    continue;
+                }
+                if adj_ji && p.dist(si.a) <= eps * 4.0 {
+                    continue;
+                }
+                err = Some(OffsetError::SelfIntersecting {
+                    path: owner[i].0,
+                    at: p,
+                });
+                return false;
+            }
+            true
+        });
+        if let Some(e) = err {
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
+/// The first place where `paths` cross themselves or each other, as (path, point); the
+/// rule of the offset's input check (neighbours meet only at their shared vertex).
+pub fn first_crossing(paths: &[Polyline], tolerance: f64) -> Option<(usize, Point)> {
+    let refs: Vec<&Polyline> = paths.iter().collect();
+    let eps = geometric_eps(tolerance, &refs);
+    let cleaned: Vec<(Vec<Seg>, bool)> = paths.iter().map(|p| (clean(p, eps), p.closed)).collect();
+    let views: Vec<(&[Seg], bool)> = cleaned.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
+    match check_crossings(&views, eps) {
+        Err(OffsetError::SelfIntersecting { path, at }) => Some((path, at)),
+        _ => None,
+    }
+}
+
+/// Raw offsets of every path by `o` to the left, the global prune, then polylines.
+fn run(
+    paths: &[(Vec<Seg>, bool)],
+    splitters: &[Seg],
+    o: f64,
+    opts: &OffsetOptions,
+    eps: f64,
+) -> Vec<Polyline> {
+    let raws: Vec<RawPath> = paths
+        .iter()
+        .map(|(segs, closed)| RawPath {
+            segs: raw::raw_offset(segs, *closed, o, eps),
+            closed: *closed,
+        })
+        .collect();
+    let input = InputSet::new(paths.iter().flat_map(|(s, _)| s.iter().copied()).collect());
+    let valid_eps = (opts.tolerance * 0.01).max(eps * 10.0);
+    let chains = prune(&raws, splitters, &input, o.abs(), eps, valid_eps);
+    let mut out = Vec::with_capacity(chains.len());
+    for Chain {
+        segs,
+        whole_join,
+        closed,
+    } in chains
+    {
+        let segs = joins::apply(segs, &whole_join, opts);
+        if let Some(p) = build(segs, closed, eps) {
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
+/// co-circular arcs merged, loops with no area (a region offset to a line) dropped.
+fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Polyline> {
+    let tiny = eps * 1e-2;
+    let mut out: Vec<Seg> = Vec::with_capacity(segs.len());
+    for s in segs {
+        if s.length() <= tiny {
+            continue;
+        }
+        if let Some(last) = out.last_mut() {
+            if let Some(m) = merge(last, &s, eps) {
+                *last = m;
+                continue;
+            }
+        }
+        out.push(s);
+    }
+    if closed {
+        while out.len() > 2 {
+            let (first, last) = (out[0], out[out.len() - 1]);
+            match merge(&last, &first, eps) {
+                Some(m) => {
+                    out.pop();
+                    out[0] = m;
+                }
+                None => break,
+            }
+        }
+        let len: f64 = out.iter().map(|s| s.length()).sum();
+        let area: f64 = out.iter().map(|s| s.area2()).sum::<f64>() * 0.5;
+        if out.len() < 2 || area.abs() <= eps * len {
+            return None;
+        }
+    } else if out.is_empty() {
+        return None;
+    }
+    let mut vs: Vec<Vertex> = out
+        .iter()
+        .map(|s| Vertex::new(s.a.x, s.a.y, s.bulge()))
+        .collect();
+    if !closed {
+        let e = out[out.len() - 1].b;
+        vs.push(Vertex::new(e.x, e.y, 0.0));
+    }
+    Some(Polyline::new(vs, closed))
+}
+
+/// `s1` followed by `s2` as one segment, when they lie on one line or one arc.
+fn merge(s1: &Seg, s2: &Seg, eps: f64) -> Option<Seg> {
+    if s1.is_arc() != s2.is_arc() {
+        return None;
+    }
+    if !s1.is_arc() {
+        let d = s2.b - s1.a;
+        let l = d.len();
+        if l <= eps {
+            return None;
+        }
+        // the shared point must lie on the line from s1.a to s2.b, between them
+        let off = d.cross(s1.b - s1.a).abs() / l;
+        let t = (s1.b - s1.a).dot(d) / (l * l);
+        if off <= eps * 0.1 && t > 0.0 && t < 1.0 {
+            return Some(Seg::line(s1.a, s2.b));
+        }
+        return None;
+    }
+    if s1.c.dist(s2.c) <= eps * 0.1
+        && (s1.r - s2.r).abs() <= eps * 0.1
+        && s1.sw * s2.sw > 0.0
+        && (s1.sw + s2.sw).abs() <= 1.5 * std::f64::consts::PI
+    {
+        return Some(Seg {
+            a: s1.a,
+            b: s2.b,
+            c: s1.c,
+            r: s1.r,
+            sa: s1.sa,
+            sw: s1.sw + s2.sw,
+        });
+    }
+    None
 }

@@ -1,0 +1,284 @@
+//! A static packed R-tree of boxes (Hilbert-sorted leaves, 16 per node): box queries and
+//! nearest-distance searches in O(log n) each, built in O(n log n).
+
+use std::cmp::Ordering;
+use std::collections::BinaryHeap;
+
+const NODE: usize = 16;
+
+/// Boxes are [min x, min y, max x, max y].
+pub type BBox = [f64; 4];
+
+/// The tree: level 0 holds the items' boxes in Hilbert order, each level above one box per
+/// group of `NODE` boxes below it.
+#[derive(Clone, Debug, Default)]
+pub struct BoxIndex {
+    boxes: Vec<BBox>,
+    /// for level-0 slots: the item's index
+    items: Vec<u32>,
+    /// start of each level in `boxes`; the last level holds the root
+    levels: Vec<usize>,
+}
+
+fn hilbert(mut x: u32, mut y: u32) -> u32 {
+    // 16-bit Hilbert index (after "Fast Hilbert curve generation", public domain formulation)
+    let mut a = x ^ y;
+    let mut b = 0xFFFF ^ a;
+    let mut c = 0xFFFF ^ (x | y);
+    let mut d = x & (y ^ 0xFFFF);
+    let mut aa = a | (b >> 1);
+    let mut bb = (a >> 1) ^ a;
+    let mut cc = ((c >> 1) ^ (b & (d >> 1))) ^ c;
+    let mut dd = ((a & (c >> 1)) ^ (d >> 1)) ^ d;
+    a = aa;
+    b = bb;
+    c = cc;
+    d = dd;
+    aa = (a & (a >> 2)) ^ (b & (b >> 2));
+    bb = (a & (b >> 2)) ^ (b & ((a ^ b) >> 2));
+    cc ^= (a & (c >> 2)) ^ (b & (d >> 2));
+    dd ^= (b & (c >> 2)) ^ ((a ^ b) & (d >> 2));
+    a = aa;
+    b = bb;
+    c = cc;
+    d = dd;
+    aa = (a & (a >> 4)) ^ (b & (b >> 4));
+    bb = (a & (b >> 4)) ^ (b & ((a ^ b) >> 4));
+    cc ^= (a & (c >> 4)) ^ (b & (d >> 4));
+    dd ^= (b & (c >> 4)) ^ ((a ^ b) & (d >> 4));
+    a = aa;
+    b = bb;
+    c = cc;
+    d = dd;
+    cc ^= (a & (c >> 8)) ^ (b & (d >> 8));
+    dd ^= (b & (c >> 8)) ^ ((a ^ b) & (d >> 8));
+    a = cc ^ (cc >> 1);
+    b = dd ^ (dd >> 1);
+    let mut i0 = x ^ y;
+    let mut i1 = b | (0xFFFF ^ (i0 | a));
+    i0 = (i0 | (i0 << 8)) & 0x00FF00FF;
+    i0 = (i0 | (i0 << 4)) & 0x0F0F0F0F;
+    i0 = (i0 | (i0 << 2)) & 0x33333333;
+    i0 = (i0 | (i0 << 1)) & 0x55555555;
+    i1 = (i1 | (i1 << 8)) & 0x00FF00FF;
+    i1 = (i1 | (i1 << 4)) & 0x0F0F0F0F;
+    i1 = (i1 | (i1 << 2)) & 0x33333333;
+    i1 = (i1 | (i1 << 1)) & 0x55555555;
+    x = i0;
+    y = i1;
+    (y << 1) | x
+}
+
+fn union(a: &BBox, b: &BBox) -> BBox {
+    [
+        a[0].min(b[0]),
+        a[1].min(b[1]),
+        a[2].max(b[2]),
+        a[3].max(b[3]),
+    ]
+}
+
+/// Squared distance from (x, y) to the box (0 inside).
+fn box_dist2(b: &BBox, x: f64, y: f64) -> f64 {
+    let dx = (b[0] - x).max(0.0).max(x - b[2]);
+    let dy = (b[1] - y).max(0.0).max(y - b[3]);
+    dx * dx + dy * dy
+}
+
+impl BoxIndex {
+    pub fn new(item_boxes: &[BBox]) -> BoxIndex {
+        let n = item_boxes.len();
+        if n == 0 {
+            return BoxIndex::default();
+        }
+        let mut all = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for b in item_boxes {
+            all = union(&all, b);
+        }
+        let w = (all[2] - all[0]).max(f64::MIN_POSITIVE);
+        let h = (all[3] - all[1]).max(f64::MIN_POSITIVE);
+        let mut keyed: Vec<(u32, u32)> = item_boxes
+            .iter()
+            .enumerate()
+            .map(|(i, b)| {
+                let cx = ((b[0] + b[2]) * 0.5 - all[0]) / w * 65535.0;
+                let cy = ((b[1] + b[3]) * 0.5 - all[1]) / h * 65535.0;
+                let cx = if cx.is_finite() { cx as u32 } else { 0 };
+                let cy = if cy.is_finite() { cy as u32 } else { 0 };
+                (hilbert(cx.min(65535), cy.min(65535)), i as u32)
+            })
+            .collect();
+        keyed.sort_unstable();
+        let items: Vec<u32> = keyed.iter().map(|k| k.1).collect();
+        let mut boxes: Vec<BBox> = items.iter().map(|&i| item_boxes[i as usize]).collect();
+        let mut levels = vec![0usize];
+        let mut start = 0;
+        let mut count = n;
+        while count > 1 {
+            let end = start + count;
+            let mut k = start;
+            while k < end {
+                let stop = (k + NODE).min(end);
+                let mut b = boxes[k];
+                for bx in &boxes[k + 1..stop] {
+                    b = union(&b, bx);
+                }
+                boxes.push(b);
+                k = stop;
+            }
+            start = end;
+            count = boxes.len() - start;
+            levels.push(start);
+        }
+        BoxIndex {
+            boxes,
+            items,
+            levels,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// Calls `f(item)` for every item whose box overlaps `q`; `f` returns false to stop.
+    pub fn query(&self, q: &BBox, mut f: impl FnMut(usize) -> bool) {
+        if self.items.is_empty() {
+            return;
+        }
+        let top = self.levels.len() - 1;
+        // (level, slot)
+        let mut stack: Vec<(usize, usize)> = vec![(top, self.levels[top])];
+        while let Some((lvl, slot)) = stack.pop() {
+            let b = &self.boxes[slot];
+            if b[0] > q[2] || b[2] < q[0] || b[1] > q[3] || b[3] < q[1] {
+                continue;
+            }
+            if lvl == 0 {
+                if !f(self.items[slot] as usize) {
+                    return;
+                }
+                continue;
+            }
+            let child_lvl_start = self.levels[lvl - 1];
+            let child_lvl_end = self.levels[lvl];
+            let first = child_lvl_start + (slot - self.levels[lvl]) * NODE;
+            let last = (first + NODE).min(child_lvl_end);
+            for c in first..last {
+                stack.push((lvl - 1, c));
+            }
+        }
+    }
+
+    /// The nearest items to (x, y) by `dist(item)` (an exact distance no smaller than the
+    /// box distance), best first; stops when `f(item, distance)` returns false or when no
+    /// box is nearer than `max`.
+    pub fn nearest(
+        &self,
+        x: f64,
+        y: f64,
+        max: f64,
+        mut dist: impl FnMut(usize) -> f64,
+        mut f: impl FnMut(usize, f64) -> bool,
+    ) {
+        #[derive(PartialEq)]
+        struct E(f64, usize, usize, bool); // distance, level, slot, exact item
+        impl Eq for E {}
+        impl PartialOrd for E {
+            fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+                Some(self.cmp(o))
+            }
+        }
+        impl Ord for E {
+            fn cmp(&self, o: &Self) -> Ordering {
+                o.0.partial_cmp(&self.0).unwrap_or(Ordering::Equal)
+            }
+        }
+        if self.items.is_empty() {
+            return;
+        }
+        let top = self.levels.len() - 1;
+        let mut heap = BinaryHeap::new();
+        heap.push(E(0.0, top, self.levels[top], false));
+        while let Some(E(d, lvl, slot, exact)) = heap.pop() {
+            if d > max {
+                return;
+            }
+            if exact {
+                if !f(self.items[slot] as usize, d) {
+                    return;
+                }
+                continue;
+            }
+            if lvl == 0 {
+                let dd = dist(self.items[slot] as usize);
+                heap.push(E(dd, 0, slot, true));
+                continue;
+            }
+            let cs = self.levels[lvl - 1];
+            let ce = self.levels[lvl];
+            let first = cs + (slot - self.levels[lvl]) * NODE;
+            let last = (first + NODE).min(ce);
+            for c in first..last {
+                let bd = box_dist2(&self.boxes[c], x, y).sqrt();
+                if bd <= max {
+                    heap.push(E(bd, lvl - 1, c, false));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn queries_find_exactly_the_overlapping_boxes() {
+        let mut boxes = Vec::new();
+        for i in 0..1000 {
+            let x = (i % 37) as f64 * 3.0;
+            let y = (i / 37) as f64 * 2.0;
+            boxes.push([x, y, x + 1.5, y + 1.0]);
+        }
+        let idx = BoxIndex::new(&boxes);
+        let q = [10.0, 10.0, 30.0, 20.0];
+        let mut got = Vec::new();
+        idx.query(&q, |i| {
+            got.push(i);
+            true
+        });
+        got.sort();
+        let want: Vec<usize> = (0..boxes.len())
+            .filter(|&i| {
+                let b = boxes[i];
+                !(b[0] > q[2] || b[2] < q[0] || b[1] > q[3] || b[3] < q[1])
+            })
+            .collect();
+        assert_eq!(got, want);
+        let mut best = None;
+        idx.nearest(
+            50.2,
+            7.3,
+            f64::INFINITY,
+            |i| box_dist2(&boxes[i], 50.2, 7.3).sqrt(),
+            |i, d| {
+                best = Some((i, d));
+                false
+            },
+        );
+        let brute = (0..boxes.len())
+            .map(|i| box_dist2(&boxes[i], 50.2, 7.3).sqrt())
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(best.unwrap().1, brute);
+    }
+}

@@ -1,0 +1,396 @@
+//! The global stage: find every intersection among the raw offset curves with the R-tree,
+//! split them there, drop each run that comes nearer the input than |d| (minus a hair), and
+//! stitch the surviving runs end to end into the offset's paths.
+
+use super::index::{BBox, BoxIndex};
+use super::raw::{Origin, RawSeg};
+use super::seg::{intersect, Seg};
+use crate::geom::Point;
+use std::collections::HashMap;
+
+/// The input segments with their R-tree, for distance questions.
+pub struct InputSet {
+    pub segs: Vec<Seg>,
+    index: BoxIndex,
+}
+
+impl InputSet {
+    pub fn new(segs: Vec<Seg>) -> InputSet {
+        let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
+        InputSet {
+            index: BoxIndex::new(&boxes),
+            segs,
+        }
+    }
+
+    /// Whether some input segment comes nearer `p` than `thr`.
+    pub fn any_closer(&self, p: Point, thr: f64) -> bool {
+        if thr <= 0.0 {
+            return false;
+        }
+        let q = [p.x - thr, p.y - thr, p.x + thr, p.y + thr];
+        let mut found = false;
+        self.index.query(&q, |i| {
+            if self.segs[i].dist(p) < thr {
+                found = true;
+                return false;
+            }
+            true
+        });
+        found
+    }
+}
+
+/// One raw offset curve.
+pub struct RawPath {
+    pub segs: Vec<RawSeg>,
+    pub closed: bool,
+}
+
+/// A stitched piece of the result.
+pub struct Chain {
+    pub segs: Vec<Seg>,
+    /// per segment: it is a whole round join (one a miter or chamfer may replace)
+    pub whole_join: Vec<bool>,
+    pub closed: bool,
+}
+
+fn grow(b: BBox, e: f64) -> BBox {
+    [b[0] - e, b[1] - e, b[2] + e, b[3] + e]
+}
+
+/// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
+/// about an open path's ends). `dist` is |o|; `eps` the geometric tolerance; runs whose
+/// sample comes nearer the input than `dist - valid_eps` are dropped.
+pub fn prune(
+    paths: &[RawPath],
+    splitters: &[Seg],
+    input: &InputSet,
+    dist: f64,
+    eps: f64,
+    valid_eps: f64,
+) -> Vec<Chain> {
+    // global numbering of raw segments
+    let mut start = Vec::with_capacity(paths.len() + 1);
+    let mut rs: Vec<Seg> = Vec::new();
+    let mut owner: Vec<u32> = Vec::new();
+    let mut is_join: Vec<bool> = Vec::new();
+    for (pi, p) in paths.iter().enumerate() {
+        start.push(rs.len());
+        rs.extend(p.segs.iter().map(|r| r.seg));
+        is_join.extend(p.segs.iter().map(|r| r.origin == Origin::Join));
+        owner.extend(std::iter::repeat_n(pi as u32, p.segs.len()));
+    }
+    start.push(rs.len());
+    let n = rs.len();
+    let next = |g: usize| -> Option<usize> {
+        let p = owner[g] as usize;
+        if g + 1 < start[p + 1] {
+            Some(g + 1)
+        } else if paths[p].closed {
+            Some(start[p])
+        } else {
+            None
+        }
+    };
+    let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.bbox(), eps)).collect();
+    boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
+    let index = BoxIndex::new(&boxes);
+
+    // (segment, parameter, point) of every split
+    let mut splits: Vec<(u32, f64, Point)> = Vec::new();
+    for i in 0..n {
+        let si = rs[i];
+        let ni = next(i);
+        index.query(&boxes[i], |j| {
+            if j <= i {
+                return true;
+            }
+            if j >= n {
+                let h = intersect(&si, &splitters[j - n], eps);
+                for (p, t, _) in h.iter() {
+                    splits.push((i as u32, t, p));
+                }
+                return true;
+            }
+            let sj = &rs[j];
+            let h = intersect(&si, sj, eps);
+            if h.n == 0 {
+                return true;
+            }
+            let nj = next(j);
+            for (p, t, u) in h.iter() {
+                // the shared end of neighbours is no crossing
+                if ni == Some(j) && p.dist(si.b) <= eps && u <= 0.5 {
+                    continue;
+                }
+                if nj == Some(i) && p.dist(si.a) <= eps && t <= 0.5 {
+                    continue;
+                }
+                splits.push((i as u32, t, p));
+                splits.push((j as u32, u, p));
+            }
+            true
+        });
+    }
+    splits.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
+
+    // pieces per path, with a break flag where a run ends before them
+    struct Piece {
+        seg: Seg,
+        brk: bool,
+        whole_join: bool,
+    }
+    let mut pieces: Vec<Piece> = Vec::with_capacity(n + splits.len());
+    let mut pstart: Vec<usize> = Vec::with_capacity(paths.len() + 1);
+    let mut sp = 0;
+    for (pi, p) in paths.iter().enumerate() {
+        pstart.push(pieces.len());
+        let first = pieces.len();
+        let mut brk = false;
+        for g in start[pi]..start[pi + 1] {
+            let s = rs[g];
+            let len = s.length();
+            let tiny = if len > 0.0 { eps / len } else { 1.0 };
+            let (mut t0, mut p0) = (0.0, s.a);
+            let mut end_brk = false;
+            while sp < splits.len() && splits[sp].0 as usize == g {
+                let (_, t, q) = splits[sp];
+                sp += 1;
+                if t <= tiny {
+                    brk = true;
+                } else if t >= 1.0 - tiny {
+                    end_brk = true;
+                } else if t - t0 <= tiny {
+                    brk = true;
+                } else {
+                    pieces.push(Piece {
+                        seg: s.sub(t0, p0, t, q),
+                        brk,
+                        whole_join: false,
+                    });
+                    brk = true;
+                    t0 = t;
+                    p0 = q;
+                }
+            }
+            pieces.push(Piece {
+                seg: s.sub(t0, p0, 1.0, s.b),
+                brk,
+                whole_join: is_join[g] && t0 == 0.0,
+            });
+            brk = end_brk;
+        }
+        if p.closed && brk && pieces.len() > first {
+            pieces[first].brk = true;
+        }
+    }
+    pstart.push(pieces.len());
+
+    // runs: maximal stretches of pieces without a break
+    struct Run {
+        path: usize,
+        first: usize,
+        count: usize,
+        whole: bool,
+    }
+    let mut runs: Vec<Run> = Vec::new();
+    for (pi, p) in paths.iter().enumerate() {
+        let (a, b) = (pstart[pi], pstart[pi + 1]);
+        let m = b - a;
+        if m == 0 {
+            continue;
+        }
+        let breaks: Vec<usize> = (a..b).filter(|&k| pieces[k].brk).collect();
+        if p.closed {
+            if breaks.is_empty() {
+                runs.push(Run {
+                    path: pi,
+                    first: a,
+                    count: m,
+                    whole: true,
+                });
+                continue;
+            }
+            for (bi, &k) in breaks.iter().enumerate() {
+                let nk = breaks[(bi + 1) % breaks.len()];
+                let count = if nk > k { nk - k } else { nk + m - k };
+                runs.push(Run {
+                    path: pi,
+                    first: k,
+                    count,
+                    whole: false,
+                });
+            }
+        } else {
+            let mut k = a;
+            while k < b {
+                let mut e = k + 1;
+                while e < b && !pieces[e].brk {
+                    e += 1;
+                }
+                runs.push(Run {
+                    path: pi,
+                    first: k,
+                    count: e - k,
+                    whole: false,
+                });
+                k = e;
+            }
+        }
+    }
+    let piece_at = |r: &Run, k: usize| -> &Piece {
+        let (a, b) = (pstart[r.path], pstart[r.path + 1]);
+        let idx = r.first + k;
+        &pieces[if idx >= b { idx - (b - a) } else { idx }]
+    };
+
+    // validity: the midpoint of the run's longest piece must keep its distance
+    let thr = dist - valid_eps;
+    let valid: Vec<bool> = runs
+        .iter()
+        .map(|r| {
+            let mut best = (0.0, 0usize);
+            for k in 0..r.count {
+                let l = piece_at(r, k).seg.length();
+                if l > best.0 {
+                    best = (l, k);
+                }
+            }
+            if best.0 <= 0.0 {
+                return false;
+            }
+            let p = piece_at(r, best.1).seg.point_at(0.5);
+            !input.any_closer(p, thr)
+        })
+        .collect();
+
+    let collect = |r: &Run, out: &mut Vec<Seg>, wj: &mut Vec<bool>| {
+        for k in 0..r.count {
+            let pc = piece_at(r, k);
+            if pc.seg.length() > 0.0 {
+                out.push(pc.seg);
+                wj.push(pc.whole_join);
+            }
+        }
+    };
+    let mut chains = Vec::new();
+    let run_start = |r: &Run| piece_at(r, 0).seg.a;
+    let run_end = |r: &Run| piece_at(r, r.count - 1).seg.b;
+    let mut used = vec![false; runs.len()];
+    for (ri, r) in runs.iter().enumerate() {
+        if valid[ri] && r.whole {
+            used[ri] = true;
+            let mut segs = Vec::with_capacity(r.count);
+            let mut whole_join = Vec::with_capacity(r.count);
+            collect(r, &mut segs, &mut whole_join);
+            chains.push(Chain {
+                segs,
+                whole_join,
+                closed: true,
+            });
+        }
+    }
+    // hash of run starts
+    let cell = (eps * 16.0).max(f64::MIN_POSITIVE);
+    let key = |p: Point| ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64);
+    let mut starts: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    let mut ends: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    for (ri, r) in runs.iter().enumerate() {
+        if valid[ri] && !used[ri] {
+            starts.entry(key(run_start(r))).or_default().push(ri);
+            ends.entry(key(run_end(r))).or_default().push(ri);
+        }
+    }
+    let near = |map: &HashMap<(i64, i64), Vec<usize>>, p: Point, f: &mut dyn FnMut(usize)| {
+        let (kx, ky) = key(p);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                if let Some(v) = map.get(&(kx + dx, ky + dy)) {
+                    for &ri in v {
+                        f(ri);
+                    }
+                }
+            }
+        }
+    };
+    let match_eps = eps * 16.0;
+    // open chains first start where no valid run ends
+    let mut order: Vec<usize> = Vec::new();
+    for (ri, r) in runs.iter().enumerate() {
+        if !valid[ri] || used[ri] {
+            continue;
+        }
+        let s = run_start(r);
+        let mut has_pred = false;
+        near(&ends, s, &mut |k| {
+            if k != ri && run_end(&runs[k]).dist(s) <= match_eps {
+                has_pred = true;
+            }
+        });
+        if !has_pred {
+            order.push(ri);
+        }
+    }
+    order.extend(0..runs.len());
+    for &ri in &order {
+        if !valid[ri] || used[ri] {
+            continue;
+        }
+        used[ri] = true;
+        let first_start = run_start(&runs[ri]);
+        let mut segs = Vec::new();
+        let mut whole_join = Vec::new();
+        collect(&runs[ri], &mut segs, &mut whole_join);
+        let mut cur = ri;
+        let mut closed = false;
+        loop {
+            let e = run_end(&runs[cur]);
+            if e.dist(first_start) <= match_eps {
+                closed = true;
+                break;
+            }
+            let mut best: Option<(usize, f64, bool)> = None;
+            near(&starts, e, &mut |k| {
+                if used[k] {
+                    return;
+                }
+                let d = run_start(&runs[k]).dist(e);
+                if d > match_eps {
+                    return;
+                }
+                let same = runs[k].path == runs[cur].path;
+                let better = match best {
+                    None => true,
+                    Some((_, bd, bs)) => (same && !bs) || (same == bs && d < bd),
+                };
+                if better {
+                    best = Some((k, d, same));
+                }
+            });
+            match best {
+                Some((k, _, _)) => {
+                    used[k] = true;
+                    collect(&runs[k], &mut segs, &mut whole_join);
+                    cur = k;
+                }
+                None => {
+                    if paths[runs[ri].path].closed {
+                        closed = e.dist(first_start) <= match_eps.max(valid_eps);
+                    }
+                    break;
+                }
+            }
+        }
+        if paths[runs[ri].path].closed && !closed {
+            // a broken loop of a closed curve: numerically lost, drop it
+            continue;
+        }
+        chains.push(Chain {
+            segs,
+            whole_join,
+            closed,
+        });
+    }
+    chains
+}

@@ -1,0 +1,475 @@
+//! The kernel's working segment (a line or an arc with its start angle and signed sweep) and
+//! the exact intersections of two of them.
+
+use crate::geom::{Point, Segment};
+use std::f64::consts::PI;
+
+/// A line (`sw == 0`) or a circular arc about `c` of radius `r`, starting at angle `sa` and
+/// sweeping `sw` radians (positive counter-clockwise). `a` and `b` are the end points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Seg {
+    pub a: Point,
+    pub b: Point,
+    pub c: Point,
+    pub r: f64,
+    pub sa: f64,
+    pub sw: f64,
+}
+
+/// Wraps an angle into [-π, π).
+pub fn wrap(a: f64) -> f64 {
+    let mut x = (a + PI) % (2.0 * PI);
+    if x < 0.0 {
+        x += 2.0 * PI;
+    }
+    x - PI
+}
+
+impl Seg {
+    pub fn line(a: Point, b: Point) -> Seg {
+        Seg {
+            a,
+            b,
+            c: Point::default(),
+            r: 0.0,
+            sa: 0.0,
+            sw: 0.0,
+        }
+    }
+
+    /// The arc about `c` from `a` to `b` sweeping `sw` (its sign gives the direction).
+    pub fn arc(c: Point, r: f64, a: Point, b: Point, sw: f64) -> Seg {
+        if sw == 0.0 || r <= 0.0 || !r.is_finite() {
+            return Seg::line(a, b);
+        }
+        let v = a - c;
+        Seg {
+            a,
+            b,
+            c,
+            r,
+            sa: v.y.atan2(v.x),
+            sw,
+        }
+    }
+
+    /// The segment from `a` to `b` with a DXF bulge.
+    pub fn from_bulge(a: Point, b: Point, bulge: f64) -> Seg {
+        match Segment::from_bulge(a, b, bulge) {
+            Segment::Line { a, b } => Seg::line(a, b),
+            Segment::Arc {
+                a,
+                b,
+                center,
+                radius,
+                ..
+            } => Seg::arc(center, radius, a, b, 4.0 * bulge.atan()),
+        }
+    }
+
+    pub fn is_arc(&self) -> bool {
+        self.sw != 0.0
+    }
+
+    pub fn bulge(&self) -> f64 {
+        if self.is_arc() {
+            (self.sw / 4.0).tan()
+        } else {
+            0.0
+        }
+    }
+
+    pub fn length(&self) -> f64 {
+        if self.is_arc() {
+            self.r * self.sw.abs()
+        } else {
+            self.a.dist(self.b)
+        }
+    }
+
+    /// The parameter (0 at `a`, 1 at `b`) of the point of the segment's line or circle
+    /// nearest `p`; outside [0, 1] when `p` lies beyond an end.
+    pub fn param(&self, p: Point) -> f64 {
+        if self.is_arc() {
+            let v = p - self.c;
+            let d = wrap(v.y.atan2(v.x) - self.sa - self.sw * 0.5);
+            (d + self.sw * 0.5) / self.sw
+        } else {
+            let ab = self.b - self.a;
+            let l2 = ab.dot(ab);
+            if l2 == 0.0 {
+                0.0
+            } else {
+                (p - self.a).dot(ab) / l2
+            }
+        }
+    }
+
+    pub fn point_at(&self, t: f64) -> Point {
+        if t <= 0.0 {
+            return self.a;
+        }
+        if t >= 1.0 {
+            return self.b;
+        }
+        if self.is_arc() {
+            let ang = self.sa + self.sw * t;
+            self.c + Point::new(ang.cos(), ang.sin()) * self.r
+        } else {
+            self.a.lerp(self.b, t)
+        }
+    }
+
+    /// Unit tangent in the direction of travel at parameter t.
+    pub fn tangent_at(&self, t: f64) -> Point {
+        if self.is_arc() {
+            let ang = self.sa + self.sw * t;
+            let rad = Point::new(ang.cos(), ang.sin());
+            if self.sw > 0.0 {
+                rad.perp()
+            } else {
+                -rad.perp()
+            }
+        } else {
+            (self.b - self.a).unit()
+        }
+    }
+
+    /// The part between parameters t0 < t1, with the given exact end points.
+    pub fn sub(&self, t0: f64, p0: Point, t1: f64, p1: Point) -> Seg {
+        if self.is_arc() {
+            Seg {
+                a: p0,
+                b: p1,
+                c: self.c,
+                r: self.r,
+                sa: self.sa + self.sw * t0,
+                sw: self.sw * (t1 - t0),
+            }
+        } else {
+            Seg::line(p0, p1)
+        }
+    }
+
+    /// The same segment run backwards.
+    pub fn reversed(&self) -> Seg {
+        if self.is_arc() {
+            Seg {
+                a: self.b,
+                b: self.a,
+                c: self.c,
+                r: self.r,
+                sa: self.sa + self.sw,
+                sw: -self.sw,
+            }
+        } else {
+            Seg::line(self.b, self.a)
+        }
+    }
+
+    /// Whether the direction of `p` from the centre lies within the sweep.
+    fn within_sweep(&self, p: Point) -> bool {
+        let t = self.param(p);
+        (0.0..=1.0).contains(&t)
+    }
+
+    pub fn closest_point(&self, p: Point) -> Point {
+        if self.is_arc() {
+            let v = p - self.c;
+            if v.len() > 0.0 && self.within_sweep(p) {
+                return self.c + v * (self.r / v.len());
+            }
+            if p.dist(self.a) <= p.dist(self.b) {
+                self.a
+            } else {
+                self.b
+            }
+        } else {
+            let ab = self.b - self.a;
+            let l2 = ab.dot(ab);
+            if l2 == 0.0 {
+                return self.a;
+            }
+            let t = ((p - self.a).dot(ab) / l2).clamp(0.0, 1.0);
+            self.a.lerp(self.b, t)
+        }
+    }
+
+    pub fn dist(&self, p: Point) -> f64 {
+        p.dist(self.closest_point(p))
+    }
+
+    /// Bounding box as [min x, min y, max x, max y].
+    pub fn bbox(&self) -> [f64; 4] {
+        let mut bb = [
+            self.a.x.min(self.b.x),
+            self.a.y.min(self.b.y),
+            self.a.x.max(self.b.x),
+            self.a.y.max(self.b.y),
+        ];
+        if self.is_arc() {
+            for (k, d) in [
+                Point::new(1.0, 0.0),
+                Point::new(0.0, 1.0),
+                Point::new(-1.0, 0.0),
+                Point::new(0.0, -1.0),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                if self.within_sweep(self.c + d) {
+                    let q = self.c + d * self.r;
+                    match k {
+                        0 => bb[2] = bb[2].max(q.x),
+                        1 => bb[3] = bb[3].max(q.y),
+                        2 => bb[0] = bb[0].min(q.x),
+                        _ => bb[1] = bb[1].min(q.y),
+                    }
+                }
+            }
+        }
+        bb
+    }
+
+    /// Twice the signed area this segment adds to a closed loop.
+    pub fn area2(&self) -> f64 {
+        let chord = self.a.cross(self.b);
+        if self.is_arc() {
+            chord + self.r * self.r * (self.sw - self.sw.sin())
+        } else {
+            chord
+        }
+    }
+}
+
+/// Where two segments meet: up to two points, each with its parameter on both.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Hits {
+    pub n: usize,
+    pub p: [(Point, f64, f64); 2],
+}
+
+impl Hits {
+    fn push(&mut self, p: Point, t: f64, u: f64) {
+        if self.n < 2 {
+            // two hits closer than the caller's tolerance are one (tangency)
+            self.p[self.n] = (p, t, u);
+            self.n += 1;
+        }
+    }
+    pub fn iter(&self) -> impl Iterator<Item = (Point, f64, f64)> + '_ {
+        self.p[..self.n].iter().copied()
+    }
+}
+
+/// Parameter slack on `s` that corresponds to a distance `eps` along it.
+fn slack(s: &Seg, eps: f64) -> f64 {
+    let l = s.length();
+    if l > 0.0 {
+        eps / l
+    } else {
+        0.0
+    }
+}
+
+/// The points where `s1` and `s2` meet, within `eps`. Overlapping collinear lines and
+/// overlapping arcs of one circle report the ends of their overlap.
+pub fn intersect(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
+    match (s1.is_arc(), s2.is_arc()) {
+        (false, false) => line_line(s1, s2, eps),
+        (false, true) => line_arc(s1, s2, eps, false),
+        (true, false) => line_arc(s2, s1, eps, true),
+        (true, true) => arc_arc(s1, s2, eps),
+    }
+}
+
+fn accept(t: f64, e: f64) -> Option<f64> {
+    if t >= -e && t <= 1.0 + e {
+        Some(t.clamp(0.0, 1.0))
+    } else {
+        None
+    }
+}
+
+fn line_line(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
+    let mut h = Hits::default();
+    let o = s1.a;
+    let d1 = s1.b - s1.a;
+    let d2 = s2.b - s2.a;
+    let a2 = s2.a - o;
+    let b2 = s2.b - o;
+    let l1 = d1.len();
+    let l2 = d2.len();
+    if l1 == 0.0 || l2 == 0.0 {
+        return h;
+    }
+    // distances of s2's ends from s1's line
+    let da = d1.cross(a2) / l1;
+    let db = d1.cross(b2) / l1;
+    let den = d1.cross(d2);
+    if da.abs() <= eps && db.abs() <= eps {
+        // collinear: report the ends of the overlap
+        let ta = a2.dot(d1) / (l1 * l1);
+        let tb = b2.dot(d1) / (l1 * l1);
+        let (lo, hi) = (ta.min(tb).max(0.0), ta.max(tb).min(1.0));
+        let e = eps / l1;
+        if lo > hi + e {
+            return h;
+        }
+        for t in [lo, hi] {
+            let t = t.clamp(0.0, 1.0);
+            let p = s1.point_at(t);
+            let u = s2.param(p).clamp(0.0, 1.0);
+            if h.n == 1 && (h.p[0].1 - t).abs() * l1 <= eps {
+                continue;
+            }
+            h.push(p, t, u);
+        }
+        return h;
+    }
+    if den.abs() <= f64::EPSILON * l1 * l2 {
+        return h;
+    }
+    let t = a2.cross(d2) / den;
+    let u = a2.cross(d1) / den;
+    if let (Some(t), Some(u)) = (accept(t, eps / l1), accept(u, eps / l2)) {
+        h.push(s1.point_at(t), t, u);
+    }
+    h
+}
+
+/// `l` a line, `c` an arc; `swap` reports the parameters as (arc, line).
+fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
+    let mut h = Hits::default();
+    let o = c.c;
+    let a = l.a - o;
+    let d = l.b - l.a;
+    let len = d.len();
+    if len == 0.0 {
+        return h;
+    }
+    let dir = d * (1.0 / len);
+    // foot of the centre on the line, relative to the centre
+    let s0 = -a.dot(dir);
+    let foot = a + dir * s0;
+    let hd = foot.len();
+    let r = c.r;
+    let mut cands: [(f64, bool); 2] = [(0.0, false); 2];
+    if hd > r + eps {
+        return h;
+    }
+    let el = eps / len;
+    let ea = slack(c, eps);
+    if hd >= r - eps {
+        // tangent within eps: one point
+        cands[0] = (s0, true);
+    } else {
+        let k = (r * r - hd * hd).max(0.0).sqrt();
+        cands[0] = (s0 - k, true);
+        cands[1] = (s0 + k, true);
+    }
+    for (s, ok) in cands {
+        if !ok {
+            continue;
+        }
+        let t = s / len;
+        let Some(t) = accept(t, el) else { continue };
+        let p = l.point_at(t);
+        let Some(u) = accept(c.param(p), ea) else {
+            continue;
+        };
+        if swap {
+            h.push(p, u, t);
+        } else {
+            h.push(p, t, u);
+        }
+    }
+    h
+}
+
+fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
+    let mut h = Hits::default();
+    let dv = s2.c - s1.c;
+    let d = dv.len();
+    let (r1, r2) = (s1.r, s2.r);
+    let e1 = slack(s1, eps);
+    let e2 = slack(s2, eps);
+    if d <= eps && (r1 - r2).abs() <= eps {
+        // one circle: the ends of either arc that lie on the other
+        for p in [s1.a, s1.b, s2.a, s2.b] {
+            let (Some(t), Some(u)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) else {
+                continue;
+            };
+            if h.iter().any(|(q, _, _)| q.dist(p) <= eps) {
+                continue;
+            }
+            h.push(p, t, u);
+        }
+        return h;
+    }
+    if d == 0.0 || d > r1 + r2 + eps || d < (r1 - r2).abs() - eps {
+        return h;
+    }
+    let a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
+    let u = dv * (1.0 / d);
+    let hh = r1 * r1 - a * a;
+    let base = s1.c + u * a;
+    let pts: [Option<Point>; 2] = if hh <= (eps * r1).max(0.0) * 2.0 || hh <= 0.0 {
+        [Some(base), None]
+    } else {
+        let k = hh.sqrt();
+        if k <= eps {
+            [Some(base), None]
+        } else {
+            [Some(base + u.perp() * k), Some(base - u.perp() * k)]
+        }
+    };
+    for p in pts.into_iter().flatten() {
+        let (Some(t), Some(w)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) else {
+            continue;
+        };
+        h.push(p, t, w);
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crossing_lines_and_overlaps() {
+        let s1 = Seg::line(Point::new(0.0, 0.0), Point::new(2.0, 2.0));
+        let s2 = Seg::line(Point::new(0.0, 2.0), Point::new(2.0, 0.0));
+        let h = intersect(&s1, &s2, 1e-9);
+        assert_eq!(h.n, 1);
+        assert!(h.p[0].0.dist(Point::new(1.0, 1.0)) < 1e-12);
+        let s3 = Seg::line(Point::new(1.0, 1.0), Point::new(3.0, 3.0));
+        let h = intersect(&s1, &s3, 1e-9);
+        assert_eq!(h.n, 2);
+    }
+
+    #[test]
+    fn arcs_meet_lines_and_arcs() {
+        let c = Seg::from_bulge(Point::new(1.0, 0.0), Point::new(-1.0, 0.0), 1.0);
+        let l = Seg::line(Point::new(0.0, -2.0), Point::new(0.0, 2.0));
+        let h = intersect(&l, &c, 1e-9);
+        assert_eq!(h.n, 1);
+        assert!(h.p[0].0.dist(Point::new(0.0, 1.0)) < 1e-12);
+        assert!((h.p[0].2 - 0.5).abs() < 1e-12);
+        let c2 = Seg::from_bulge(Point::new(0.0, 0.0), Point::new(0.0, 2.0), -1.0);
+        let h = intersect(&c, &c2, 1e-9);
+        assert_eq!(h.n, 1, "{h:?}");
+        assert!((h.p[0].0.dist(Point::default()) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn params_and_bulges_round_trip() {
+        let c = Seg::from_bulge(Point::new(1.0, 0.0), Point::new(0.0, 1.0), -0.3);
+        assert!((c.bulge() + 0.3).abs() < 1e-12);
+        assert!(c.param(c.point_at(0.3)) - 0.3 < 1e-12);
+        let r = c.reversed();
+        assert!(r.point_at(0.25).dist(c.point_at(0.75)) < 1e-12);
+        assert!((c.area2() + r.area2()).abs() < 1e-12);
+    }
+}
