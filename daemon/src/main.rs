@@ -3,7 +3,7 @@
 //! stderr and a non-zero exit status.
 
 mod cmd;
-mod planning;
+use machlink::planning;
 
 use clap::{Parser, Subcommand};
 

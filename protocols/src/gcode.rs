@@ -1,7 +1,17 @@
 //! G-code posts: GRBL, LinuxCNC and a generic dialect, from the Toolpath IR to program lines.
+//!
+//! Every program is absolute millimetres (`G21 G90 G17 G94`), with fixed three-decimal
+//! numbers (never exponents, never `-0.000`), the feed written only when it changes, arcs as
+//! `G2`/`G3` with `I`/`J` (helical when Z changes), and a rapid to a safe height before the
+//! first move and after the last. For GRBL the lines also carry no comments, no byte
+//! above 0x7f and at most 80 characters, and each arc is re-centred after its end points
+//! are rounded so that GRBL's own arc check (error:33) passes. GRBL has no tool changer
+//! (`M6` is error:20 there): a tool change after the first move becomes a program stop
+//! (`M5`, `M0`) at which the operator swaps the tool and resumes with cycle start.
 
 use crate::program::Program;
-use offset_core::Toolpath;
+use offset_core::toolpath::arc_segment;
+use offset_core::{Move, Point, Segment, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 
 /// Which controller the G-code is for.
@@ -16,18 +26,664 @@ pub enum Dialect {
 
 /// Settings of one post run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct GcodeOptions {
     pub dialect: Dialect,
+    /// Height (mm) of the rapid before the first move and after the last; None takes the
+    /// highest Z the tool path itself reaches (its own clearance).
+    pub safe_z: Option<f64>,
+    /// Lines written after the standard preamble (`G21 G90 G17 G94`).
+    pub header: Vec<String>,
+    /// Lines written before the program end.
+    pub footer: Vec<String>,
+    /// The machine's work envelope, mm: every position the path reaches (arc extremes
+    /// included) must lie within it, or the post fails before writing anything.
+    pub envelope_min: Option<[f64; 3]>,
+    pub envelope_max: Option<[f64; 3]>,
+    /// End with `M30` instead of `M2`.
+    pub end_with_m30: bool,
 }
 
 /// Why a tool path could not be posted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PostError {
-    #[error("the G-code post is not built yet")]
-    NotImplemented,
+    #[error(
+        "move {index} reaches {axis}={value:.3}, beyond the machine's {axis} {side} of {limit:.3}"
+    )]
+    OutsideEnvelope {
+        index: usize,
+        axis: char,
+        value: f64,
+        limit: f64,
+        side: &'static str,
+    },
+    #[error("the safe height Z={value:.3} is beyond the machine's Z {side} of {limit:.3}")]
+    SafeZOutsideEnvelope {
+        value: f64,
+        limit: f64,
+        side: &'static str,
+    },
+    #[error("move {index} holds a number that is not finite (NaN or infinite)")]
+    NotFinite { index: usize },
+    #[error("move {index} cuts at feed {feed} mm/min; a cutting feed must be above 0")]
+    BadFeed { index: usize, feed: f64 },
+    #[error("move {index} is an arc but the tool's position before it is unknown; start the path with a rapid or a line")]
+    UnknownStart { index: usize },
+    #[error("move {index} is a sewing move ({what}), which G-code cannot express")]
+    SewingMove { index: usize, what: &'static str },
+    #[error("G-code line {line} is {len} characters long; GRBL takes at most 80")]
+    LineTooLong { line: usize, len: usize },
+    #[error("the {place} line {text:?} cannot be sent: {why}")]
+    BadExtraLine {
+        place: &'static str,
+        text: String,
+        why: &'static str,
+    },
+}
+
+/// GRBL's longest line, in characters.
+pub const GRBL_MAX_LINE: usize = 80;
+/// Decimals of every coordinate.
+pub const DECIMALS: usize = 3;
+/// Arcs whose radius is below this (mm) are written as straight lines.
+pub const MIN_ARC_RADIUS: f64 = 0.01;
+/// Arcs that depart from their chord by less than this (mm) are written as straight lines.
+const MAX_SAGITTA_AS_LINE: f64 = 0.0002;
+/// A written arc may stray this far (mm) from the planned one before it is flattened.
+const MAX_ARC_DEVIATION: f64 = 0.005;
+
+/// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc.
+fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &Segment) -> f64 {
+    let r = a.dist(c);
+    let a0 = (a - c).y.atan2((a - c).x);
+    let a1 = (b - c).y.atan2((b - c).x);
+    let tau = std::f64::consts::TAU;
+    let mut s = a1 - a0;
+    if ccw {
+        while s <= 1e-12 {
+            s += tau;
+        }
+    } else {
+        while s >= -1e-12 {
+            s -= tau;
+        }
+    }
+    (0..=24)
+        .map(|i| {
+            let ang = a0 + s * i as f64 / 24.0;
+            planned.distance_to(c + Point::new(ang.cos(), ang.sin()) * r)
+        })
+        .fold(0.0, f64::max)
+}
+
+/// A coordinate as written: three decimals, no exponent, no negative zero.
+pub fn num(v: f64) -> String {
+    let s = format!("{v:.DECIMALS$}");
+    if s.strip_prefix('-')
+        .is_some_and(|r| r.bytes().all(|b| b == b'0' || b == b'.'))
+    {
+        s[1..].to_string()
+    } else {
+        s
+    }
+}
+
+/// The value a coordinate has once written.
+fn q(v: f64) -> f64 {
+    num(v).parse().unwrap_or(v)
+}
+
+/// A feed, speed or time: up to three decimals, trailing zeros dropped.
+fn short(v: f64) -> String {
+    let s = num(v);
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s.is_empty() || s == "-" {
+        "0".into()
+    } else {
+        s.to_string()
+    }
+}
+
+/// GRBL 1.1's arc check (`gc_execute_line`, in single precision as on the controller):
+/// the target must lie on the circle through the start within 0.005 mm, or within 0.1 %
+/// of the radius when that is larger (and never more than 0.5 mm off).
+pub fn grbl_arc_ok(from: Point, to: Point, ij: Point) -> bool {
+    let x = (to.x - from.x) as f32 - ij.x as f32;
+    let y = (to.y - from.y) as f32 - ij.y as f32;
+    let target_r = x.hypot(y);
+    let r = (ij.x as f32).hypot(ij.y as f32);
+    let delta = (target_r - r).abs();
+    !(delta > 0.005 && (delta > 0.5 || delta > 0.001 * r))
+}
+
+struct Writer {
+    dialect: Dialect,
+    lines: Vec<String>,
+    /// The written (rounded) position, per axis, once known.
+    pos: [Option<f64>; 3],
+    feed: Option<String>,
+    spindle: Option<f64>,
+    moved: bool,
+}
+
+impl Writer {
+    fn push(&mut self, l: String) {
+        self.lines.push(l);
+    }
+
+    fn axes(&self, to: [f64; 3], all_xy: bool) -> String {
+        let mut s = String::new();
+        for (k, letter) in ['X', 'Y', 'Z'].into_iter().enumerate() {
+            let v = num(to[k]);
+            let changed = self.pos[k].is_none_or(|p| num(p) != v);
+            if changed || (all_xy && k < 2) {
+                s.push(' ');
+                s.push(letter);
+                s.push_str(&v);
+            }
+        }
+        s
+    }
+
+    fn feed_word(&mut self, feed: f64) -> String {
+        let f = short(feed);
+        if self.feed.as_deref() == Some(f.as_str()) {
+            String::new()
+        } else {
+            self.feed = Some(f.clone());
+            format!(" F{f}")
+        }
+    }
+
+    fn set_pos(&mut self, to: [f64; 3]) {
+        self.pos = [Some(q(to[0])), Some(q(to[1])), Some(q(to[2]))];
+        self.moved = true;
+    }
+
+    fn rapid(&mut self, to: [f64; 3]) {
+        let a = self.axes(to, false);
+        if !a.is_empty() {
+            self.push(format!("G0{a}"));
+        }
+        self.set_pos(to);
+    }
+
+    fn linear(&mut self, to: [f64; 3], feed: f64) {
+        let a = self.axes(to, false);
+        if !a.is_empty() {
+            let f = self.feed_word(feed);
+            self.push(format!("G1{a}{f}"));
+        }
+        self.set_pos(to);
+    }
+
+    /// An arc from the written position to `to` about `center`, exact start `from`.
+    fn arc(&mut self, from: P3, to: P3, center: Point, ccw: bool, feed: f64) {
+        let (Some(ax), Some(ay)) = (self.pos[0], self.pos[1]) else {
+            unreachable!("arcs are only written from a known position");
+        };
+        let a = Point::new(ax, ay);
+        let b = Point::new(q(to.x), q(to.y));
+        let seg = arc_segment(from.xy(), to.xy(), center, ccw);
+        let sweep = seg.sweep();
+        let r = 0.5 * (from.xy().dist(center) + to.xy().dist(center));
+        let chord = a.dist(b);
+        let half_turn = std::f64::consts::PI;
+        let sagitta = r * (1.0 - (sweep.abs().min(half_turn) / 2.0).cos());
+        let straight = r < MIN_ARC_RADIUS
+            || (sweep.abs() <= half_turn && sagitta < MAX_SAGITTA_AS_LINE)
+            || (chord == 0.0 && sweep.abs() <= half_turn);
+        if straight {
+            self.linear([to.x, to.y, to.z], feed);
+            return;
+        }
+        let base = if chord < 0.05 {
+            // a full turn, or a chord too short to have a reliable direction: keep the
+            // centre (the rounded ends are still on its circle within 0.0015 mm)
+            center
+        } else {
+            // the point of the written chord's bisector nearest the intended centre: as
+            // far from both written ends, and well conditioned for every sweep (the
+            // centre at the intended radius is not, near half turns)
+            let mid = a.lerp(b, 0.5);
+            let n = (b - a).unit().perp();
+            mid + n * (center - mid).dot(n)
+        };
+        // I and J are rounded too: of the written centres around the ideal one, take the
+        // one whose arc (as GRBL runs it) stays closest to the planned arc and that passes
+        // GRBL's arc check
+        let ij0 = Point::new(q(base.x - a.x), q(base.y - a.y));
+        let mut best: Option<(f64, Point)> = None;
+        for dx in -2..=2 {
+            for dy in -2..=2 {
+                let ij = Point::new(q(ij0.x + dx as f64 * 1e-3), q(ij0.y + dy as f64 * 1e-3));
+                if !grbl_arc_ok(a, b, ij) || ij.len() < MIN_ARC_RADIUS {
+                    continue;
+                }
+                let dev = written_arc_deviation(a, b, a + ij, ccw, &seg);
+                if best.is_none_or(|(d, _)| dev < d) {
+                    best = Some((dev, ij));
+                }
+            }
+        }
+        let ij = match best {
+            Some((dev, ij)) if dev <= MAX_ARC_DEVIATION => ij,
+            _ => {
+                // an arc whose ends are not on one circle: follow it with short lines
+                self.flatten(from, to, center, ccw, feed);
+                return;
+            }
+        };
+        let g = if ccw { "G3" } else { "G2" };
+        let z = if self.pos[2].is_none_or(|p| num(p) != num(to.z)) {
+            format!(" Z{}", num(to.z))
+        } else {
+            String::new()
+        };
+        let f = self.feed_word(feed);
+        self.push(format!(
+            "{g} X{} Y{}{z} I{} J{}{f}",
+            num(b.x),
+            num(b.y),
+            num(ij.x),
+            num(ij.y)
+        ));
+        self.set_pos([to.x, to.y, to.z]);
+    }
+
+    fn flatten(&mut self, from: P3, to: P3, center: Point, ccw: bool, feed: f64) {
+        let seg = arc_segment(from.xy(), to.xy(), center, ccw);
+        let r = from.xy().dist(center).max(1e-9);
+        let step = 2.0 * (1.0 - MAX_SAGITTA_AS_LINE / r).clamp(-1.0, 1.0).acos();
+        let n = ((seg.sweep().abs() / step.max(1e-6)).ceil() as usize).clamp(1, 100_000);
+        for i in 1..=n {
+            let t = i as f64 / n as f64;
+            let p = if i == n { to.xy() } else { seg.point_at(t) };
+            self.linear([p.x, p.y, from.z + (to.z - from.z) * t], feed);
+        }
+    }
+}
+
+fn check_extra(place: &'static str, l: &str, dialect: Dialect) -> Result<(), PostError> {
+    let bad = |why| {
+        Err(PostError::BadExtraLine {
+            place,
+            text: l.to_string(),
+            why,
+        })
+    };
+    if !l.is_ascii() || l.bytes().any(|b| b < b' ') {
+        return bad("it holds control characters or bytes beyond ASCII");
+    }
+    if dialect == Dialect::Grbl {
+        if l.len() > GRBL_MAX_LINE {
+            return bad("it is longer than GRBL's 80 characters");
+        }
+        if l.contains(['(', ';', '?', '!', '~']) {
+            return bad("GRBL takes no comments and acts on ? ! ~ at once");
+        }
+    }
+    Ok(())
+}
+
+fn envelope_check(index: usize, p: [f64; 3], opts: &GcodeOptions) -> Result<(), PostError> {
+    for (k, axis) in ['X', 'Y', 'Z'].into_iter().enumerate() {
+        if let Some(min) = opts.envelope_min {
+            if p[k] < min[k] - 1e-9 {
+                return Err(PostError::OutsideEnvelope {
+                    index,
+                    axis,
+                    value: p[k],
+                    limit: min[k],
+                    side: "minimum",
+                });
+            }
+        }
+        if let Some(max) = opts.envelope_max {
+            if p[k] > max[k] + 1e-9 {
+                return Err(PostError::OutsideEnvelope {
+                    index,
+                    axis,
+                    value: p[k],
+                    limit: max[k],
+                    side: "maximum",
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Checks every move before anything is written: finite numbers, feeds, sewing moves,
+/// arcs from a known position, the work envelope.
+fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
+    let mut known_xy = false;
+    let mut pos = P3::default();
+    for (index, m) in tp.moves.iter().enumerate() {
+        let finite = |vals: &[f64]| {
+            if vals.iter().all(|v| v.is_finite()) {
+                Ok(())
+            } else {
+                Err(PostError::NotFinite { index })
+            }
+        };
+        match m {
+            Move::Rapid { to } => {
+                finite(&[to.x, to.y, to.z])?;
+                envelope_check(index, [to.x, to.y, to.z], opts)?;
+                known_xy = true;
+                pos = *to;
+            }
+            Move::Linear { to, feed } => {
+                finite(&[to.x, to.y, to.z, *feed])?;
+                if *feed <= 0.0 {
+                    return Err(PostError::BadFeed { index, feed: *feed });
+                }
+                envelope_check(index, [to.x, to.y, to.z], opts)?;
+                known_xy = true;
+                pos = *to;
+            }
+            Move::Arc {
+                to,
+                center,
+                ccw,
+                feed,
+            } => {
+                finite(&[to.x, to.y, to.z, center.x, center.y, *feed])?;
+                if *feed <= 0.0 {
+                    return Err(PostError::BadFeed { index, feed: *feed });
+                }
+                if !known_xy {
+                    return Err(PostError::UnknownStart { index });
+                }
+                envelope_check(index, [to.x, to.y, to.z], opts)?;
+                let b = arc_segment(pos.xy(), to.xy(), *center, *ccw).bounds();
+                let zlo = pos.z.min(to.z);
+                let zhi = pos.z.max(to.z);
+                envelope_check(index, [b.min.x, b.min.y, zlo], opts)?;
+                envelope_check(index, [b.max.x, b.max.y, zhi], opts)?;
+                pos = *to;
+            }
+            Move::Stitch { .. } => {
+                return Err(PostError::SewingMove {
+                    index,
+                    what: "stitch",
+                })
+            }
+            Move::Jump { .. } => {
+                return Err(PostError::SewingMove {
+                    index,
+                    what: "jump",
+                })
+            }
+            Move::Trim => {
+                return Err(PostError::SewingMove {
+                    index,
+                    what: "trim",
+                })
+            }
+            Move::ColorChange => {
+                return Err(PostError::SewingMove {
+                    index,
+                    what: "colour change",
+                })
+            }
+            Move::Spindle { rpm } => {
+                finite(&[*rpm])?;
+            }
+            Move::Dwell { seconds } => finite(&[*seconds])?,
+            Move::Stop | Move::ToolChange { .. } | Move::Comment { .. } => {}
+        }
+    }
+    Ok(())
+}
+
+/// The height of the retracts before the first move and after the last.
+fn safe_height(tp: &Toolpath, opts: &GcodeOptions) -> Option<f64> {
+    opts.safe_z.or_else(|| {
+        let mut top: Option<f64> = None;
+        tp.walk(P3::default(), |_, _, to| {
+            top = Some(top.map_or(to.z, |t: f64| t.max(to.z)));
+        });
+        top
+    })
+}
+
+fn comment(text: &str) -> String {
+    let clean: String = text
+        .chars()
+        .map(|c| match c {
+            '(' | ')' => ' ',
+            c if c.is_ascii() && !c.is_ascii_control() => c,
+            _ => '?',
+        })
+        .collect();
+    format!("({})", clean.trim())
 }
 
 /// Turns a tool path into G-code lines for the dialect.
-pub fn post(_tp: &Toolpath, _opts: &GcodeOptions) -> Result<Program, PostError> {
-    Err(PostError::NotImplemented)
+pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Program, PostError> {
+    for l in &opts.header {
+        check_extra("header", l, opts.dialect)?;
+    }
+    for l in &opts.footer {
+        check_extra("footer", l, opts.dialect)?;
+    }
+    validate(tp, opts)?;
+    let safe = safe_height(tp, opts);
+    if let Some(z) = safe {
+        if !z.is_finite() {
+            return Err(PostError::NotFinite { index: 0 });
+        }
+        if let Some(min) = opts.envelope_min {
+            if z < min[2] {
+                return Err(PostError::SafeZOutsideEnvelope {
+                    value: z,
+                    limit: min[2],
+                    side: "minimum",
+                });
+            }
+        }
+        if let Some(max) = opts.envelope_max {
+            if z > max[2] {
+                return Err(PostError::SafeZOutsideEnvelope {
+                    value: z,
+                    limit: max[2],
+                    side: "maximum",
+                });
+            }
+        }
+    }
+    let grbl = opts.dialect == Dialect::Grbl;
+    let mut w = Writer {
+        dialect: opts.dialect,
+        lines: Vec::new(),
+        pos: [None; 3],
+        feed: None,
+        spindle: None,
+        moved: false,
+    };
+    if !grbl {
+        let what = if tp.source.is_empty() {
+            tp.operation.clone()
+        } else {
+            format!("{} of {}", tp.operation, tp.source)
+        };
+        w.push(comment(&format!("machlink: {what}")));
+    }
+    w.push(match opts.dialect {
+        Dialect::Linuxcnc => "G21 G90 G17 G94 G40 G49 G80".to_string(),
+        _ => "G21 G90 G17 G94".to_string(),
+    });
+    w.lines.extend(opts.header.iter().cloned());
+    if let (false, Some(tool)) = (grbl, tp.tool) {
+        w.push(format!("T{} M6", tool.number));
+    }
+    if let Some(z) = safe {
+        w.push(format!("G0 Z{}", num(z)));
+        w.pos[2] = Some(q(z));
+    }
+    let mut exact = P3::default();
+    for m in &tp.moves {
+        match m {
+            Move::Rapid { to } => {
+                w.rapid([to.x, to.y, to.z]);
+                exact = *to;
+            }
+            Move::Linear { to, feed } => {
+                w.linear([to.x, to.y, to.z], *feed);
+                exact = *to;
+            }
+            Move::Arc {
+                to,
+                center,
+                ccw,
+                feed,
+            } => {
+                w.arc(exact, *to, *center, *ccw, *feed);
+                exact = *to;
+            }
+            Move::Spindle { rpm } => {
+                if *rpm > 0.0 {
+                    w.push(format!("M3 S{}", short(*rpm)));
+                    w.spindle = Some(*rpm);
+                } else {
+                    w.push("M5".into());
+                    w.spindle = None;
+                }
+            }
+            Move::Dwell { seconds } => w.push(format!("G4 P{}", short(seconds.max(0.0)))),
+            Move::Stop => w.push("M0".into()),
+            Move::ToolChange { tool } => {
+                let restart = w.spindle;
+                if w.moved || !grbl {
+                    if restart.is_some() {
+                        w.push("M5".into());
+                    }
+                    if grbl {
+                        w.push("M0".into());
+                    } else {
+                        w.push(format!("T{tool} M6"));
+                    }
+                    if let Some(rpm) = restart {
+                        w.push(format!("M3 S{}", short(rpm)));
+                    }
+                }
+            }
+            Move::Comment { text } => {
+                if !grbl {
+                    w.push(comment(text));
+                }
+            }
+            Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
+                unreachable!("validate() refuses sewing moves")
+            }
+        }
+    }
+    if let Some(z) = safe {
+        if w.pos[2].is_some_and(|p| p < q(z)) {
+            w.push(format!("G0 Z{}", num(z)));
+        }
+    }
+    if w.spindle.is_some() {
+        w.push("M5".into());
+    }
+    w.lines.extend(opts.footer.iter().cloned());
+    w.push(if opts.end_with_m30 { "M30" } else { "M2" }.into());
+    if w.dialect == Dialect::Grbl {
+        for (i, l) in w.lines.iter().enumerate() {
+            if l.len() > GRBL_MAX_LINE {
+                return Err(PostError::LineTooLong {
+                    line: i + 1,
+                    len: l.len(),
+                });
+            }
+        }
+    }
+    Ok(Program::Gcode(w.lines))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lines(p: &Program) -> &[String] {
+        #[allow(unreachable_patterns)]
+        match p {
+            Program::Gcode(l) => l,
+            _ => panic!("a G-code post makes G-code"),
+        }
+    }
+
+    #[test]
+    fn numbers_are_fixed_without_exponent_or_negative_zero() {
+        assert_eq!(num(-0.0001), "0.000");
+        assert_eq!(num(-0.0), "0.000");
+        assert_eq!(num(1e-12), "0.000");
+        assert_eq!(num(123456.78901), "123456.789");
+        assert_eq!(num(-2.5), "-2.500");
+        assert_eq!(short(1200.0), "1200");
+        assert_eq!(short(0.25), "0.25");
+    }
+
+    #[test]
+    fn envelope_errors_name_the_move_and_the_coordinate() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::Rapid {
+            to: P3::new(0.0, 0.0, 5.0),
+        });
+        tp.push(Move::Arc {
+            to: P3::new(20.0, 0.0, 5.0),
+            center: Point::new(10.0, 0.0),
+            ccw: true,
+            feed: 100.0,
+        });
+        let opts = GcodeOptions {
+            envelope_min: Some([-50.0, -5.0, -10.0]),
+            envelope_max: Some([50.0, 50.0, 10.0]),
+            ..Default::default()
+        };
+        // the ccw half circle from (0,0) to (20,0) about (10,0) dips to y = -10
+        let e = post(&tp, &opts).unwrap_err();
+        assert!(matches!(
+            e,
+            PostError::OutsideEnvelope {
+                index: 1,
+                axis: 'Y',
+                side: "minimum",
+                ..
+            }
+        ));
+        assert!(e.to_string().starts_with("move 1 reaches Y=-10.000"), "{e}");
+    }
+
+    #[test]
+    fn grbl_gets_no_tool_changer_and_no_comments() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::ToolChange { tool: 1 });
+        tp.push(Move::Comment {
+            text: "début".into(),
+        });
+        tp.push(Move::Spindle { rpm: 10000.0 });
+        tp.push(Move::Rapid {
+            to: P3::new(1.0, 1.0, 2.0),
+        });
+        tp.push(Move::ToolChange { tool: 2 });
+        let g = post(&tp, &GcodeOptions::default()).unwrap();
+        let gl = lines(&g);
+        assert!(!gl.iter().any(|l| l.contains("M6") || l.contains('(')));
+        let stop = gl.iter().position(|l| l == "M0").unwrap();
+        assert_eq!(gl[stop - 1], "M5");
+        assert_eq!(gl[stop + 1], "M3 S10000");
+        let lc = post(
+            &tp,
+            &GcodeOptions {
+                dialect: Dialect::Linuxcnc,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(lines(&lc).iter().any(|l| l == "T2 M6"));
+        assert!(lines(&lc).iter().all(|l| l.is_ascii()));
+    }
 }

@@ -1,27 +1,232 @@
 //! The operator's commands against a running daemon: jobs, machines, watch, pause, resume, cancel.
 
-#[derive(clap::Args)]
-pub struct JobsArgs {}
-#[derive(clap::Args)]
-pub struct MachinesArgs {}
-#[derive(clap::Args)]
-pub struct JobArgs {}
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use machlink::client::{Client, Endpoint};
+use machlink::scheduler::Event;
+use machlink::store::{JobId, JobRecord, JobState};
+use std::path::PathBuf;
+use std::time::Duration;
 
-pub fn jobs(_a: JobsArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+/// How to reach the daemon (every client command takes these).
+#[derive(clap::Args, Clone, Debug)]
+pub struct ClientArgs {
+    /// The daemon's Unix socket. Default: $XDG_RUNTIME_DIR/machlink.sock, else
+    /// /tmp/machlink-$USER.sock.
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// Reach the daemon on TCP at ADDR instead (it must run with --listen and --token).
+    #[arg(long, value_name = "ADDR", requires = "token")]
+    pub connect: Option<String>,
+    /// The daemon's bearer token, for --connect.
+    #[arg(long)]
+    pub token: Option<String>,
 }
-pub fn machines(_a: MachinesArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+
+impl ClientArgs {
+    pub fn client(&self) -> Client {
+        match &self.connect {
+            Some(addr) => Client::new(Endpoint::Tcp {
+                addr: addr.clone(),
+                token: self.token.clone(),
+            }),
+            None => Client::new(Endpoint::Unix(
+                self.socket
+                    .clone()
+                    .unwrap_or_else(machlink::config::default_socket),
+            )),
+        }
+    }
 }
-pub fn watch(_a: JobArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+
+#[derive(clap::Args)]
+pub struct JobsArgs {
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
 }
-pub fn pause(_a: JobArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+
+#[derive(clap::Args)]
+pub struct MachinesArgs {
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
 }
-pub fn resume(_a: JobArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+
+#[derive(clap::Args)]
+pub struct JobArgs {
+    /// The job's number (as `machlink submit` and `machlink jobs` show it).
+    pub job: JobId,
+    /// Print the job as JSON when done.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
 }
-pub fn cancel(_a: JobArgs) -> anyhow::Result<()> {
-    anyhow::bail!("not built yet")
+
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
+}
+
+fn progress(j: &JobRecord) -> String {
+    format!("{}/{}", j.acked_units, j.total_units)
+}
+
+pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
+    let jobs = runtime()?.block_on(a.client.client().jobs())?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&jobs)?);
+        return Ok(());
+    }
+    println!(
+        "{:>5}  {:<12} {:<11} {:>13}  {:<8} {:<20} ERROR",
+        "JOB", "MACHINE", "STATE", "LINES", "OP", "FILE"
+    );
+    for j in jobs {
+        println!(
+            "{:>5}  {:<12} {:<11} {:>13}  {:<8} {:<20} {}",
+            j.id,
+            j.machine,
+            j.state.as_str(),
+            progress(&j),
+            j.op,
+            j.file_name,
+            j.error.unwrap_or_default()
+        );
+    }
+    Ok(())
+}
+
+pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
+    let ms = runtime()?.block_on(a.client.client().machines())?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&ms)?);
+        return Ok(());
+    }
+    println!(
+        "{:<12} {:<9} {:>5} {:>6}  {:<8} POSITION",
+        "MACHINE", "LINK", "JOB", "QUEUED", "STATUS"
+    );
+    for m in ms {
+        println!(
+            "{:<12} {:<9} {:>5} {:>6}  {:<8} X{:.3} Y{:.3} Z{:.3}",
+            m.name,
+            m.link,
+            m.job.map(|j| j.to_string()).unwrap_or_else(|| "-".into()),
+            m.queued,
+            if m.status.is_empty() { "-" } else { &m.status },
+            m.position[0],
+            m.position[1],
+            m.position[2]
+        )
+    }
+    Ok(())
+}
+
+pub fn watch(a: JobArgs) -> anyhow::Result<()> {
+    let client = a.client.client();
+    let j = runtime()?.block_on(watch_job(&client, a.job, false))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    }
+    Ok(())
+}
+
+/// Follows a job with a progress bar (lines acknowledged / total, machine state, feed,
+/// ETA) until it ends; an error unless it completed.
+pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
+    let mut events = client.events(id).await?;
+    let bar = if quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(0)
+    };
+    bar.set_style(
+        ProgressStyle::with_template(
+            "job {prefix} [{bar:32.cyan/blue}] {pos}/{len} lines  {msg}  ETA {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    bar.set_prefix(id.to_string());
+    bar.enable_steady_tick(Duration::from_millis(200));
+    let mut state = String::new();
+    while let Some(ev) = events.next().await? {
+        match ev {
+            Event::State {
+                state: s,
+                acked,
+                total,
+                ..
+            } => {
+                bar.set_length(total as u64);
+                bar.set_position(acked as u64);
+                state = s.to_string();
+                bar.set_message(state.clone());
+            }
+            Event::Progress { acked, total, .. } => {
+                bar.set_length(total as u64);
+                bar.set_position(acked as u64);
+            }
+            Event::Status {
+                state: st,
+                position,
+                feed,
+                ..
+            } => bar.set_message(format!(
+                "{state}  {st} F{feed:.0} X{:.2} Y{:.2} Z{:.2}",
+                position[0], position[1], position[2]
+            )),
+            Event::Message { text, .. } => bar.println(format!("machine: {text}")),
+        }
+    }
+    bar.finish_and_clear();
+    let j = client.job(id).await?;
+    match j.state {
+        JobState::Completed => {
+            if !quiet {
+                eprintln!("job {id} completed: {} lines", j.total_units);
+            }
+            Ok(j)
+        }
+        s if s.is_final() => anyhow::bail!(
+            "job {id} {s} at line {} of {}{}",
+            j.acked_units,
+            j.total_units,
+            j.error.map(|e| format!(": {e}")).unwrap_or_default()
+        ),
+        s => anyhow::bail!("the daemon stopped sending events while job {id} was {s}"),
+    }
+}
+
+fn act(a: JobArgs, action: &str) -> anyhow::Result<()> {
+    let j = runtime()?.block_on(a.client.client().act(a.job, action))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        eprintln!(
+            "job {} is {} ({} lines acknowledged)",
+            j.id,
+            j.state,
+            progress(&j)
+        );
+    }
+    Ok(())
+}
+
+pub fn pause(a: JobArgs) -> anyhow::Result<()> {
+    act(a, "pause")
+}
+pub fn resume(a: JobArgs) -> anyhow::Result<()> {
+    act(a, "resume")
+}
+pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
+    act(a, "cancel")
 }

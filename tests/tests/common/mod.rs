@@ -1,0 +1,109 @@
+//! Shared helpers of the end-to-end tests: an in-process daemon on a temp dir, its client,
+//! programs, and what the simulator should execute from them.
+#![allow(dead_code)]
+
+use machlink::client::{Client, Endpoint};
+use machlink::config::Config;
+use machlink::daemon::{Daemon, StartOptions};
+use machlink::store::{JobId, JobRecord, JobState};
+use machlink_sim::grbl::interp::{clean_line, Action, Interpreter};
+use std::path::Path;
+use std::time::Duration;
+
+/// A daemon whose store and socket live in `dir`, with the machine tables `machines`.
+pub async fn start(dir: &Path, machines: &str, opts: StartOptions) -> Daemon {
+    let toml = format!(
+        "[daemon]\nstore = \"{}\"\nsocket = \"{}\"\n\n{machines}",
+        dir.join("jobs.db").display(),
+        dir.join("ml.sock").display()
+    );
+    let cfg = Config::parse(&toml, &dir.join("machlink.toml")).expect("config");
+    Daemon::start(cfg, opts).await.expect("daemon starts")
+}
+
+pub fn client(d: &Daemon) -> Client {
+    Client::new(Endpoint::Unix(d.socket.clone()))
+}
+
+/// `n` G-code lines: a zig-zag of short feed moves with lines of varied length.
+pub fn zigzag(n: usize) -> Vec<String> {
+    let mut lines = vec![
+        "G21 G90".to_string(),
+        "G0 Z1".to_string(),
+        "G1 Z-0.5 F600".to_string(),
+    ];
+    let mut i = 0;
+    while lines.len() < n {
+        let x = (i % 40) as f64 * 0.5 + if i % 3 == 0 { 0.125 } else { 0.0 };
+        let y = (i / 40) as f64 * 0.5 + if i % 7 == 0 { 0.0625 } else { 0.0 };
+        lines.push(if i % 5 == 0 {
+            format!("G1 X{x:.4} Y{y:.4} F1500")
+        } else {
+            format!("X{x:.3} Y{y:.3}")
+        });
+        i += 1;
+    }
+    lines
+}
+
+/// The cleaned motion lines the simulator should record for `lines`, in order.
+pub fn expected_motion(lines: &[String]) -> Vec<String> {
+    let mut interp = Interpreter::new();
+    let mut out = Vec::new();
+    for l in lines {
+        let clean = clean_line(l);
+        let actions = interp.execute(&clean).expect("valid G-code");
+        if actions.iter().any(|a| matches!(a, Action::Move { .. })) {
+            out.push(clean);
+        }
+    }
+    out
+}
+
+/// Submits G-code lines as a .nc file.
+pub async fn submit_gcode(c: &Client, machine: &str, name: &str, lines: &[String]) -> JobRecord {
+    c.submit(&machlink::api::SubmitRequest {
+        machine: machine.into(),
+        file_name: format!("{name}.nc"),
+        file_text: Some(lines.join("\n")),
+        file_base64: None,
+        params: None,
+    })
+    .await
+    .expect("submitted")
+}
+
+/// Follows the job's events until it ends; returns the final record.
+pub async fn wait_end(c: &Client, id: JobId) -> JobRecord {
+    let mut ev = c.events(id).await.expect("events");
+    tokio::time::timeout(Duration::from_secs(60), async {
+        while ev.next().await.expect("event").is_some() {}
+    })
+    .await
+    .expect("the job ends within a minute");
+    c.job(id).await.unwrap()
+}
+
+/// Polls until the job is in `state` (bounded).
+pub async fn wait_state(c: &Client, id: JobId, state: JobState) -> JobRecord {
+    for _ in 0..3000 {
+        let j = c.job(id).await.unwrap();
+        if j.state == state {
+            return j;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("job {id} never became {state}");
+}
+
+/// Polls until `f` holds of the job (bounded).
+pub async fn wait_until(c: &Client, id: JobId, f: impl Fn(&JobRecord) -> bool) -> JobRecord {
+    for _ in 0..3000 {
+        let j = c.job(id).await.unwrap();
+        if f(&j) {
+            return j;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    panic!("job {id} never got there");
+}

@@ -1,0 +1,261 @@
+//! Operating jobs on a simulated GRBL through the API: pause, resume, cancel, and resuming
+//! a job that a crashed daemon left behind.
+
+mod common;
+
+use common::*;
+use futures::future::BoxFuture;
+use machlink::config::MachineConfig;
+use machlink::daemon::StartOptions;
+use machlink::scheduler::LinkOpener;
+use machlink::store::{JobState, Store};
+use machlink_protocols::grbl::{modal_preamble, GrblLink, GrblOptions};
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_sim::grbl::{GrblSim, GrblSimConfig};
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::sync::{mpsc, watch, Notify};
+
+fn machine_on(port: &std::path::Path) -> String {
+    format!(
+        "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"{}\"\n",
+        port.display()
+    )
+}
+
+fn executed(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<String> {
+    sim.trace().into_iter().map(|e| e.line).collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn pause_holds_the_machine_and_resume_finishes_every_line_once() {
+    // slow enough that the job is still running when it is paused
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 10.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let lines = zigzag(600);
+    let job = submit_gcode(&c, "mill", "zigzag", &lines).await;
+    wait_until(&c, job.id, |j| j.acked_units >= 100).await;
+    assert_eq!(
+        c.act(job.id, "pause").await.unwrap().state,
+        JobState::Paused
+    );
+    // once the machine has decelerated, nothing more is executed while held
+    let mut held = executed(&sim).len();
+    for _ in 0..100 {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+        let now = executed(&sim).len();
+        if now == held {
+            break;
+        }
+        held = now;
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(
+        executed(&sim).len(),
+        held,
+        "the machine moved on while held"
+    );
+    assert!(held < expected_motion(&lines).len());
+    let machines = c.machines().await.unwrap();
+    assert_eq!(machines[0].job, Some(job.id));
+    assert_eq!(
+        c.act(job.id, "resume").await.unwrap().state,
+        JobState::Running
+    );
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    assert_eq!(executed(&sim), expected_motion(&lines));
+    assert_eq!(sim.received_lines(), lines.len() as u64);
+    assert_eq!(sim.rx_overflows(), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancel_stops_the_machine_and_the_next_job_runs() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 10.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let lines = zigzag(2000);
+    let job = submit_gcode(&c, "mill", "long", &lines).await;
+    let queued = submit_gcode(&c, "mill", "queued", &zigzag(50)).await;
+    wait_until(&c, job.id, |j| j.acked_units >= 100).await;
+    // a queued job is cancelled at once and never runs
+    assert_eq!(
+        c.act(queued.id, "cancel").await.unwrap().state,
+        JobState::Cancelled
+    );
+    c.act(job.id, "cancel").await.unwrap();
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Cancelled);
+    assert!(done.acked_units < lines.len());
+    let stopped = executed(&sim);
+    // what ran is the program's beginning, each line once, and no more than was acknowledged
+    let want = expected_motion(&lines);
+    assert_eq!(stopped[..], want[..stopped.len()]);
+    assert!(stopped.len() <= expected_motion(&lines[..done.acked_units]).len());
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(
+        executed(&sim).len(),
+        stopped.len(),
+        "the machine moved after the cancel"
+    );
+    // the refused requests say why
+    let e = c.act(done.id, "pause").await.unwrap_err().to_string();
+    assert_eq!(
+        e,
+        format!("job {} is cancelled and cannot be paused", done.id)
+    );
+    let e = c.act(999, "cancel").await.unwrap_err().to_string();
+    assert_eq!(e, "there is no job 999");
+    // and the machine takes the next job
+    let next = zigzag(200);
+    let n = submit_gcode(&c, "mill", "next", &next).await;
+    assert_eq!(wait_end(&c, n.id).await.state, JobState::Completed);
+    let all = executed(&sim);
+    assert_eq!(all[stopped.len()..], expected_motion(&next)[..]);
+    assert_eq!(sim.rx_overflows(), 0);
+}
+
+/// A link that streams only the first `stop_at` lines, waits for the machine to finish
+/// them, tells the test, and then hangs as a daemon would that is about to crash.
+struct StopAt {
+    port: String,
+    stop_at: usize,
+    reached: Arc<Notify>,
+}
+
+struct StopAtLink {
+    link: GrblLink,
+    stop_at: usize,
+    reached: Arc<Notify>,
+}
+
+impl LinkOpener for StopAt {
+    fn open(&self, _m: &MachineConfig) -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>> {
+        let (port, stop_at, reached) = (self.port.clone(), self.stop_at, self.reached.clone());
+        Box::pin(async move {
+            let link = GrblLink::open(&port, GrblOptions::default()).await?;
+            Ok(Box::new(StopAtLink {
+                link,
+                stop_at,
+                reached,
+            }) as Box<dyn Link>)
+        })
+    }
+}
+
+impl Link for StopAtLink {
+    fn stream<'a>(
+        &'a mut self,
+        program: &'a Program,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        Box::pin(async move {
+            let Program::Gcode(lines) = program;
+            let head = Program::Gcode(lines[..self.stop_at].to_vec());
+            let end = self
+                .link
+                .stream(&head, from, events.clone(), control)
+                .await?;
+            assert_eq!(end, StreamEnd::Completed);
+            self.reached.notify_one();
+            // keep the events channel open, as a live stream does, and never return
+            let _keep = events;
+            std::future::pending().await
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_line() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 400.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let lines = zigzag(2000);
+    let stop_at = 777;
+    let reached = Arc::new(Notify::new());
+    let opener = StopAt {
+        port: sim.port().display().to_string(),
+        stop_at,
+        reached: reached.clone(),
+    };
+    let mut d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions {
+            opener: Some(Arc::new(opener)),
+            ..Default::default()
+        },
+    )
+    .await;
+    let c = client(&d);
+    let job = submit_gcode(&c, "mill", "long", &lines).await;
+    tokio::time::timeout(Duration::from_secs(30), reached.notified())
+        .await
+        .expect("the machine ran the first part");
+    // the journal catches up on its own (its timer), without the stream ending: read the
+    // SQLite file through a connection of our own, as the restarted daemon will
+    let store = Store::open(&dir.path().join("jobs.db")).unwrap();
+    let mut journaled = 0;
+    for _ in 0..300 {
+        journaled = store.job(job.id).unwrap().unwrap().acked_units;
+        if journaled == stop_at {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert_eq!(journaled, stop_at);
+    d.crash();
+    drop(d);
+    assert_eq!(
+        store.job(job.id).unwrap().unwrap().state,
+        JobState::Running,
+        "a crash leaves the job running in the store"
+    );
+    // restart on the same store with the ordinary link
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let j = c.job(job.id).await.unwrap();
+    assert_eq!((j.state, j.acked_units), (JobState::Interrupted, stop_at));
+    assert!(j.error.unwrap().contains(&format!("{stop_at} of 2000")));
+    assert_eq!(c.act(job.id, "resume").await.unwrap().acked_units, stop_at);
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    assert_eq!(done.acked_units, 2000);
+    // every motion line ran once, in order, across both daemons; the only extra lines
+    // the machine received are the modal preamble the resume sent first
+    assert_eq!(executed(&sim), expected_motion(&lines));
+    let preamble = modal_preamble(&lines[..stop_at]);
+    assert_eq!(sim.received_lines(), (lines.len() + preamble.len()) as u64);
+    assert_eq!(sim.rx_overflows(), 0);
+}

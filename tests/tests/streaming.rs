@@ -1,0 +1,124 @@
+//! The daemon streams jobs to a simulated GRBL: every line once, in order, no overflow;
+//! device errors and alarms fail one job, never the daemon.
+
+mod common;
+
+use common::*;
+use machlink::daemon::StartOptions;
+use machlink::store::JobState;
+use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
+
+fn machine_on(port: &std::path::Path) -> String {
+    format!(
+        "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"{}\"\n",
+        port.display()
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_long_job_runs_every_line_exactly_once_in_order() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 400.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let lines = zigzag(2400);
+    let job = submit_gcode(&c, "mill", "zigzag", &lines).await;
+    assert_eq!(job.total_units, 2400);
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    assert_eq!(done.acked_units, 2400);
+    // what the store kept is what was sent, and what the machine ran
+    let stored = d.scheduler.store().program(job.id).unwrap();
+    assert_eq!(stored, machlink_protocols::Program::Gcode(lines.clone()));
+    let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
+    assert_eq!(executed, expected_motion(&lines));
+    assert_eq!(sim.received_lines(), 2400);
+    assert_eq!(sim.rx_overflows(), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_error_fails_the_job_naming_the_line_and_the_next_job_completes() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 400.0,
+        faults: vec![GrblFault::ErrorAtLine {
+            line: 150,
+            code: 33,
+        }],
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let first = zigzag(400);
+    let a = submit_gcode(&c, "mill", "first", &first).await;
+    let second = zigzag(300);
+    let b = submit_gcode(&c, "mill", "second", &second).await;
+    let a = wait_end(&c, a.id).await;
+    assert_eq!(a.state, JobState::Failed);
+    let msg = a.error.unwrap();
+    assert!(
+        msg.contains("line 150") && msg.contains(&first[149]),
+        "{msg}"
+    );
+    assert!(msg.contains("error:33"), "{msg}");
+    assert_eq!(a.acked_units, 149);
+    let b = wait_end(&c, b.id).await;
+    assert_eq!(b.state, JobState::Completed, "{:?}", b.error);
+    // the second job ran whole, after what the first got to run
+    let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
+    let want = expected_motion(&second);
+    assert_eq!(executed[executed.len() - want.len()..], want[..]);
+    assert!(executed.len() - want.len() <= expected_motion(&first[..149]).len());
+    assert_eq!(sim.rx_overflows(), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 400.0,
+        faults: vec![GrblFault::AlarmAtLine { line: 120, code: 1 }],
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let first = zigzag(400);
+    let a = submit_gcode(&c, "mill", "first", &first).await;
+    let a = wait_end(&c, a.id).await;
+    assert_eq!(a.state, JobState::Failed);
+    let msg = a.error.unwrap();
+    assert!(
+        msg.contains("ALARM:1") && msg.contains("line 120") && msg.contains(&first[119]),
+        "{msg}"
+    );
+    // the daemon goes on: the next job unlocks the machine and completes
+    let second = zigzag(300);
+    let b = submit_gcode(&c, "mill", "second", &second).await;
+    let b = wait_end(&c, b.id).await;
+    assert_eq!(b.state, JobState::Completed, "{:?}", b.error);
+    let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
+    let want = expected_motion(&second);
+    assert_eq!(executed[executed.len() - want.len()..], want[..]);
+    assert_eq!(sim.rx_overflows(), 0);
+}
