@@ -290,6 +290,7 @@ pub fn plan(
 pub fn post_for(machine: &MachineConfig) -> Post {
     match machine.link {
         crate::config::LinkConfig::Grbl(_) | crate::config::LinkConfig::SimGrbl(_) => Post::Grbl,
+        crate::config::LinkConfig::Sewing(_) | crate::config::LinkConfig::SimSewing(_) => Post::Dst,
     }
 }
 

@@ -86,6 +86,12 @@ pub enum LinkConfig {
     /// A GRBL simulator the daemon starts itself on a pseudo-terminal.
     #[serde(rename = "sim-grbl")]
     SimGrbl(SimGrblLinkConfig),
+    /// A pattern sewing machine on a serial port (pattern transfer protocol).
+    #[serde(rename = "sewing")]
+    Sewing(SewingLinkConfig),
+    /// A simulated pattern sewing machine the daemon starts itself on a pseudo-terminal.
+    #[serde(rename = "sim-sewing")]
+    SimSewing(SimSewingLinkConfig),
 }
 
 impl LinkConfig {
@@ -94,6 +100,8 @@ impl LinkConfig {
         match self {
             LinkConfig::Grbl(_) => "grbl",
             LinkConfig::SimGrbl(_) => "sim-grbl",
+            LinkConfig::Sewing(_) => "sewing",
+            LinkConfig::SimSewing(_) => "sim-sewing",
         }
     }
 
@@ -102,6 +110,8 @@ impl LinkConfig {
         let mut keys = BTreeSet::new();
         keys.extend(struct_fields::<GrblLinkConfig>());
         keys.extend(struct_fields::<SimGrblLinkConfig>());
+        keys.extend(struct_fields::<SewingLinkConfig>());
+        keys.extend(struct_fields::<SimSewingLinkConfig>());
         keys
     }
 }
@@ -142,6 +152,42 @@ pub struct SimGrblLinkConfig {
 
 fn default_time_scale() -> f64 {
     1.0
+}
+
+/// `link = "sewing"`: a pattern sewing machine on a serial port.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SewingLinkConfig {
+    /// The serial port, e.g. /dev/ttyUSB1.
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+}
+
+/// `link = "sim-sewing"`: a simulated pattern sewing machine on a pseudo-terminal, started
+/// by the daemon (see `machlink-sim sewing` for the same machine from the command line).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSewingLinkConfig {
+    /// How many times faster than real time the simulated machine sews.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: f64,
+    /// Stitches per minute.
+    #[serde(default = "default_spm")]
+    pub spm: u32,
+    /// Probability per byte, each direction, of line noise (lost or corrupted bytes).
+    #[serde(default)]
+    pub noise: f64,
+    /// The thread breaks before these records (0-based).
+    #[serde(default)]
+    pub thread_break_at: Vec<u32>,
+    /// The power fails (the pattern is lost) before these records (0-based).
+    #[serde(default)]
+    pub power_loss_at: Vec<u32>,
+}
+
+fn default_spm() -> u32 {
+    2500
 }
 
 /// A box the tool must stay inside, in work coordinates, mm.
@@ -317,6 +363,19 @@ impl MachineConfig {
             LinkConfig::SimGrbl(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
                 format!("time_scale must be a positive number, got {}", s.time_scale),
             ),
+            LinkConfig::Sewing(g) if g.port.trim().is_empty() => {
+                Err("port must not be empty".into())
+            }
+            LinkConfig::Sewing(g) if g.baud == 0 => Err("baud must be above 0".into()),
+            LinkConfig::SimSewing(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
+                format!("time_scale must be a positive number, got {}", s.time_scale),
+            ),
+            LinkConfig::SimSewing(s) if s.spm == 0 => Err("spm must be above 0".into()),
+            LinkConfig::SimSewing(s)
+                if !(s.noise.is_finite() && (0.0..=0.1).contains(&s.noise)) =>
+            {
+                Err(format!("noise must be 0 to 0.1, got {}", s.noise))
+            }
             _ => Ok(()),
         }
     }

@@ -79,6 +79,15 @@ pub struct PlanParams {
     /// Geometric tolerance of every approximation, mm.
     #[arg(long, default_value_t = 0.001)]
     pub tolerance: f64,
+    /// The stitch operation's options.
+    #[command(flatten)]
+    #[serde(flatten, default)]
+    pub stitch: StitchArgs,
+}
+
+/// The options of the stitch operation (`--op stitch`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+pub struct StitchArgs {
     /// Stitch: nominal stitch length, mm (1 to 12.7); each run between corners gets equal stitches.
     #[arg(long, default_value_t = 2.5)]
     pub stitch_length: f64,
@@ -108,6 +117,20 @@ pub struct PlanParams {
     pub stitch_tolerance: f64,
 }
 
+impl Default for StitchArgs {
+    fn default() -> Self {
+        StitchArgs {
+            stitch_length: 2.5,
+            rows: vec![0.0],
+            bean: false,
+            tie: false,
+            corner_angle: 20.0,
+            round_corners: false,
+            stitch_tolerance: 0.2,
+        }
+    }
+}
+
 /// Plans the tool path of `params.op` on `shape`.
 pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolpath> {
     match params.op {
@@ -132,14 +155,15 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
         }
         Op::Pocket => anyhow::bail!("the pocket operation is not built yet"),
         Op::Stitch => {
+            let a = &params.stitch;
             let p = offset_core::stitch::StitchParams {
-                stitch_length: params.stitch_length,
-                rows: params.rows.clone(),
-                bean: params.bean,
-                tie: params.tie,
-                corner_angle: params.corner_angle,
-                round_corners: params.round_corners,
-                tolerance: params.stitch_tolerance,
+                stitch_length: a.stitch_length,
+                rows: a.rows.clone(),
+                bean: a.bean,
+                tie: a.tie,
+                corner_angle: a.corner_angle,
+                round_corners: a.round_corners,
+                tolerance: a.stitch_tolerance,
                 ..Default::default()
             };
             Ok(offset_core::stitch::stitch(shape, &p).context("cannot plan the stitches")?)

@@ -528,7 +528,14 @@ async fn stream_job(
         loop {
             tokio::select! {
                 biased;
-                Some(ev) = ev_rx.recv() => on_link_event(inner, m, id, total, &mut journal, ev),
+                Some(ev) = ev_rx.recv() => {
+                    // a machine that stopped itself for the operator (a sewing machine's
+                    // thread break) pauses the job: `machlink resume JOB` continues it
+                    if matches!(&ev, LinkEvent::Status(s) if s.state == "ThreadBreak") {
+                        let _ = on_command(inner, id, &ctl_tx, Request::Pause);
+                    }
+                    on_link_event(inner, m, id, total, &mut journal, ev)
+                }
                 Some(cmd) = commands.recv() => {
                     let r = on_command(inner, id, &ctl_tx, cmd.request);
                     cancel_requested |= cmd.request == Request::Cancel;

@@ -173,7 +173,9 @@ impl Link for StopAtLink {
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
-            let Program::Gcode(lines) = program;
+            let Program::Gcode(lines) = program else {
+                return Err(LinkError::WrongProgram(program.kind()));
+            };
             let head = Program::Gcode(lines[..self.stop_at].to_vec());
             let end = self
                 .link

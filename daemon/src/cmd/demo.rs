@@ -33,7 +33,10 @@ pub struct DemoArgs {
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if !(a.time_scale.is_finite() && a.time_scale > 0.0) {
-        anyhow::bail!("--time-scale must be a positive number, got {}", a.time_scale);
+        anyhow::bail!(
+            "--time-scale must be a positive number, got {}",
+            a.time_scale
+        );
     }
     let (name, bytes) = match &a.shape {
         Some(p) => (
@@ -56,6 +59,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         spindle: 12000.0,
         conventional: false,
         tolerance: 0.001,
+        stitch: Default::default(),
     };
     // plan here too, for the deviation check against what the machine ran
     let shape = offset_core::io::read_shape(&bytes, &name)?;

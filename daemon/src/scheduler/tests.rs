@@ -30,7 +30,9 @@ impl Link for FakeLink {
             if let Some(f) = &self.0.on_start {
                 f();
             }
-            let Program::Gcode(lines) = program;
+            let Program::Gcode(lines) = program else {
+                return Err(LinkError::WrongProgram(program.kind()));
+            };
             for (i, line) in lines.iter().enumerate().skip(from) {
                 loop {
                     let c = *control.borrow_and_update();
@@ -154,8 +156,12 @@ async fn jobs_run_in_order_and_the_store_has_them_before_the_first_unit() {
     assert_eq!((ja.state, ja.acked_units), (JobState::Completed, 30));
     assert_eq!((jb.state, jb.acked_units), (JobState::Completed, 20));
     let executed = dev.executed.lock().unwrap().clone();
-    let Program::Gcode(pa) = program("a", 30);
-    let Program::Gcode(pb) = program("b", 20);
+    let Program::Gcode(pa) = program("a", 30) else {
+        unreachable!("program() makes G-code")
+    };
+    let Program::Gcode(pb) = program("b", 20) else {
+        unreachable!("program() makes G-code")
+    };
     assert_eq!(executed, [pa, pb].concat());
     assert_eq!(
         *seen_before_start.lock().unwrap(),
@@ -233,7 +239,9 @@ async fn pause_resume_and_cancel_steer_the_stream() {
     s.resume(a.id).await.unwrap();
     let ja = wait_final(&s, a.id).await;
     assert_eq!(ja.state, JobState::Completed);
-    let Program::Gcode(pa) = program("a", 100);
+    let Program::Gcode(pa) = program("a", 100) else {
+        unreachable!("program() makes G-code")
+    };
     assert_eq!(*dev.executed.lock().unwrap(), pa);
 }
 
@@ -280,7 +288,9 @@ async fn a_crash_leaves_an_interrupted_job_that_resumes_where_it_stopped() {
     s.resume(a.id).await.unwrap();
     let ja = wait_final(&s, a.id).await;
     assert_eq!(ja.state, JobState::Completed);
-    let Program::Gcode(pa) = program("a", 200);
+    let Program::Gcode(pa) = program("a", 200) else {
+        unreachable!("program() makes G-code")
+    };
     assert_eq!(*dev.executed.lock().unwrap(), pa);
 }
 
