@@ -85,7 +85,10 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
     assert!(paused.acked_units <= BREAK_AT as usize);
     tokio::time::sleep(std::time::Duration::from_millis(200)).await;
     let before = sewn();
-    assert!(before.iter().all(|(i, _, _)| *i < BREAK_AT), "sewed past the break");
+    assert!(
+        before.iter().all(|(i, _, _)| *i < BREAK_AT),
+        "sewed past the break"
+    );
     assert_eq!(before, planned[..before.len()].to_vec());
     assert_eq!(
         c.act(job.id, "resume").await.unwrap().state,
@@ -102,4 +105,64 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
         t.corrupt_frames + t.duplicates > 0,
         "the line noise never hit a frame"
     );
+}
+
+/// `machlink plan FILE --op stitch --stitch-length 2.5 --rows 0,-3 --post dst`: the options
+/// as the command line gives them, planned and written as DST, read back.
+#[test]
+fn plan_options_from_the_command_line_make_a_dst_with_both_rows() {
+    use clap::Parser;
+    use machlink::planning::{self, Post};
+    use machlink_protocols::sewing::dst;
+    #[derive(Parser)]
+    struct Cmd {
+        #[command(flatten)]
+        params: PlanParams,
+    }
+    let cmd = Cmd::try_parse_from([
+        "plan",
+        "--op",
+        "stitch",
+        "--stitch-length",
+        "2.5",
+        "--rows",
+        "0,-3",
+    ])
+    .unwrap();
+    assert_eq!(cmd.params.stitch.rows, vec![0.0, -3.0]);
+    let shape = offset_core::io::read_shape(POCKET.as_bytes(), "pocket.json").unwrap();
+    let tp = planning::plan_toolpath(&shape, &cmd.params).unwrap();
+    let Program::Stitches(records) = planning::post(&tp, Post::Dst).unwrap() else {
+        panic!("the DST post makes stitches")
+    };
+    let bytes = dst::write(&records, "pocket").unwrap();
+    let back = dst::read(&bytes, "pocket.dst").unwrap();
+    assert_eq!(back.records, records);
+    // two seams (outline and the row 3 mm inside), stitches of at most 2.5 mm + rounding
+    let outline = &shape.paths[0];
+    let (mut on, mut inside) = (0, 0);
+    let mut prev = (0, 0);
+    for r in &back.records {
+        if r.kind == StitchKind::Stitch {
+            let d = (((r.x - prev.0).pow(2) + (r.y - prev.1).pow(2)) as f64).sqrt();
+            assert!(d <= 25.0 + 1.5, "a {d} stitch");
+            let q = r.mm();
+            let dist = outline.distance_to(q);
+            if dist < 0.2 {
+                on += 1;
+            } else {
+                assert!(outline.contains(q) && dist > 2.8, "{q:?} is {dist} mm off");
+                inside += 1;
+            }
+        }
+        if r.kind.moves() {
+            prev = (r.x, r.y);
+        }
+    }
+    assert!(
+        on > 100 && inside > 100,
+        "{on} on the outline, {inside} inside"
+    );
+    assert_eq!(back.header.plus_x, 600);
+    assert_eq!(back.header.plus_y, 600);
 }

@@ -212,9 +212,11 @@ impl SewingLink {
         let crc = pattern_crc(records);
         let mut st = self.status().await?;
         let same = st.pattern_len as usize == len && st.pattern_crc == crc;
-        // the machine keeps its counter through stops and power loss: when it sewed further
-        // than our journal says (we missed its last acknowledgements), trust the machine.
-        let mut done = if same {
+        // the machine keeps its counter through stops and power loss: when a resumed job
+        // (from > 0) finds the machine further on than our journal (we missed its last
+        // acknowledgements), trust the machine. A job from 0 always sews the whole pattern,
+        // even when the machine just sewed the same one (the next pocket of a batch).
+        let mut done = if same && from > 0 {
             from.max(st.counter as usize)
         } else {
             from
