@@ -33,7 +33,10 @@ pub struct DemoArgs {
 
 pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     if !(a.time_scale.is_finite() && a.time_scale > 0.0) {
-        anyhow::bail!("--time-scale must be a positive number, got {}", a.time_scale);
+        anyhow::bail!(
+            "--time-scale must be a positive number, got {}",
+            a.time_scale
+        );
     }
     let (name, bytes) = match &a.shape {
         Some(p) => (
