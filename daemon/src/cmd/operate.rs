@@ -197,7 +197,7 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
             Ok(j)
         }
         s if s.is_final() => anyhow::bail!(
-            "job {id} {s} at line {} of {}{}",
+            "job {id} {s} after {} of {} lines{}",
             j.acked_units,
             j.total_units,
             j.error.map(|e| format!(": {e}")).unwrap_or_default()
