@@ -342,8 +342,7 @@ fn machine_at(text: &str, offset: usize) -> Option<String> {
     names
         .machine
         .iter()
-        .filter(|m| m.span().start <= offset)
-        .next_back()
+        .rfind(|m| m.span().start <= offset)
         .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
 }
 
