@@ -632,6 +632,17 @@ time_scale = 20
     }
 
     #[test]
+    fn the_documented_example_parses() {
+        let text = include_str!("../../docs/machlink.example.toml");
+        let c = Config::parse(text, Path::new("/srv/cell/machlink.toml")).unwrap();
+        assert_eq!(c.daemon.store, PathBuf::from("/srv/cell/machlink.db"));
+        assert_eq!(c.daemon.journal_every, 50);
+        let names: Vec<&str> = c.machines.iter().map(|m| m.name.as_str()).collect();
+        assert_eq!(names, ["router", "bench"]);
+        assert_eq!(c.machines[0].tools.len(), 2);
+    }
+
+    #[test]
     fn struct_fields_lists_the_link_keys() {
         assert_eq!(
             struct_fields::<GrblLinkConfig>(),
