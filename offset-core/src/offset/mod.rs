@@ -118,6 +118,13 @@ pub fn offset_polyline(
                 std::f64::consts::PI,
             ));
         }
+        // a piece of this side's offset may come round to the path's other side: the other
+        // side's raw offset marks where it starts to come too near (the dual offset)
+        splitters.extend(
+            raw::raw_offset(&segs, false, -distance, eps)
+                .into_iter()
+                .map(|r| r.seg),
+        );
         Ok(run(&[(segs, false)], &splitters, distance, opts, eps))
     }
 }

@@ -1,0 +1,150 @@
+//! Open offsets to the left and right, and the miter and chamfer joins.
+
+mod common;
+use common::*;
+use offset_core::check::check_offset;
+use offset_core::geom::{Point, Polyline, Vertex};
+use offset_core::offset::{offset_polyline, Join, OffsetOptions};
+use proptest::prelude::*;
+use std::f64::consts::PI;
+
+#[test]
+fn open_line_moves_left_and_right() {
+    let l = Polyline::from_points(&[Point::new(0.0, 0.0), Point::new(10.0, 0.0)], false);
+    let left = offset_polyline(&l, 2.0, &OffsetOptions::default()).unwrap();
+    assert_eq!(left.len(), 1);
+    assert_eq!(left[0].vertices[0].pos(), Point::new(0.0, 2.0));
+    assert_eq!(left[0].vertices[1].pos(), Point::new(10.0, 2.0));
+    let right = offset_polyline(&l, -2.0, &OffsetOptions::default()).unwrap();
+    assert_eq!(right[0].vertices[0].pos(), Point::new(0.0, -2.0));
+    assert!(!right[0].closed);
+}
+
+#[test]
+fn open_corner_gets_a_round_join_outside_and_is_trimmed_inside() {
+    let p = Polyline::from_points(
+        &[
+            Point::new(0.0, 0.0),
+            Point::new(10.0, 0.0),
+            Point::new(10.0, 10.0),
+        ],
+        false,
+    );
+    // right of travel is the outside of this left turn
+    let out = offset_polyline(&p, -1.0, &OffsetOptions::default()).unwrap();
+    assert_eq!(out.len(), 1);
+    assert_eq!(out[0].len(), 4);
+    assert!((out[0].length() - (20.0 + PI / 2.0)).abs() < 1e-9);
+    let out = offset_polyline(&p, 1.0, &OffsetOptions::default()).unwrap();
+    assert_eq!(out[0].len(), 3);
+    assert_eq!(out[0].vertices[1].pos(), Point::new(9.0, 1.0));
+    assert!((out[0].length() - 18.0).abs() < 1e-9);
+}
+
+#[test]
+fn u_turn_narrower_than_twice_the_distance_loses_its_middle() {
+    // a hairpin 2 mm wide, offset 3 mm into its inside: nothing is 3 mm from both legs
+    let p = Polyline::new(
+        vec![
+            Vertex::new(10.0, 0.0, 0.0),
+            Vertex::new(0.0, 0.0, -1.0),
+            Vertex::new(0.0, 2.0, 0.0),
+            Vertex::new(10.0, 2.0, 0.0),
+        ],
+        false,
+    );
+    let out = offset_polyline(&p, -3.0, &OffsetOptions::default()).unwrap();
+    let r = check_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
+    assert!(r.within(1e-3), "{r:?}");
+    let out = offset_polyline(&p, 3.0, &OffsetOptions::default()).unwrap();
+    assert_eq!(out.len(), 1);
+    assert_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
+}
+
+#[test]
+fn miter_and_chamfer_joins_of_a_square() {
+    let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(10.0, 10.0));
+    let miter = OffsetOptions {
+        join: Join::Miter,
+        ..Default::default()
+    };
+    let out = offset_polyline(&sq, 1.0, &miter).unwrap();
+    assert_eq!(out.len(), 1);
+    assert_eq!(out[0].len(), 4, "{out:?}");
+    assert!((out[0].area() - 144.0).abs() < 1e-9);
+    let chamfer = OffsetOptions {
+        join: Join::Chamfer,
+        ..Default::default()
+    };
+    let out = offset_polyline(&sq, 1.0, &chamfer).unwrap();
+    assert_eq!(out[0].len(), 8);
+    assert!((out[0].area() - 142.0).abs() < 1e-9);
+    // a miter limit of 1.2 × d cuts the corners square to the bisector at 1.2 mm
+    let limited = OffsetOptions {
+        join: Join::Miter,
+        miter_limit: 1.2,
+        ..Default::default()
+    };
+    let out = offset_polyline(&sq, 1.0, &limited).unwrap();
+    assert_eq!(out[0].len(), 8);
+    let cut = 2f64.sqrt() - 1.2; // how far the cut sits inside the full miter's apex
+    let expect = 144.0 - 4.0 * cut * cut;
+    assert!((out[0].area() - expect).abs() < 1e-9, "{}", out[0].area());
+    // concave corners are never joined: the L's inner corner is a plain trim
+    let l = Polyline::from_points(
+        &[
+            Point::new(0.0, 0.0),
+            Point::new(10.0, 0.0),
+            Point::new(10.0, 5.0),
+            Point::new(5.0, 5.0),
+            Point::new(5.0, 10.0),
+            Point::new(0.0, 10.0),
+        ],
+        true,
+    );
+    let out = offset_polyline(&l, 1.0, &miter).unwrap();
+    assert_eq!(out[0].len(), 6);
+    assert!(
+        (out[0].area() - (75.0 + 40.0 + 4.0 - 0.0)).abs() < 1e-9,
+        "{}",
+        out[0].area()
+    );
+}
+
+/// A random walk with gentle turns and some arcs: rarely crosses itself.
+fn walk(steps: &[(f64, f64, f64)]) -> Polyline {
+    let mut p = Point::new(0.0, 0.0);
+    let mut heading: f64 = 0.0;
+    let mut vs = Vec::new();
+    for &(len, turn, bulge) in steps {
+        vs.push(Vertex::new(p.x, p.y, bulge));
+        heading += turn;
+        p = p + Point::new(heading.cos(), heading.sin()) * len;
+    }
+    vs.push(Vertex::new(p.x, p.y, 0.0));
+    Polyline::new(vs, false)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+    #[test]
+    fn random_open_paths_keep_their_distance(
+        steps in prop::collection::vec((0.5f64..8.0, -1.2f64..1.2, -0.6f64..0.6), 1..25),
+        d in -4.0f64..4.0,
+    ) {
+        prop_assume!(d.abs() > 1e-3);
+        let p = walk(&steps);
+        prop_assume!(offset_core::check::first_crossing(std::slice::from_ref(&p), 1e-3).is_none());
+        let out = offset_polyline(&p, d, &OffsetOptions::default()).unwrap();
+        assert_offset(std::slice::from_ref(&p), &out, d, 1e-3);
+        // the start's offset point is in the result unless it lies too near the path
+        let s = p.segments().next().unwrap();
+        let start = s.start() + s.tangent_at(0.0).perp() * d;
+        let checker = offset_core::check::Checker::new(std::slice::from_ref(&p));
+        if checker.distance(start) > d.abs() - 1e-6 {
+            prop_assert!(out.iter().any(|o| o.vertices[0].pos().dist(start) < 1e-6 || o.vertices.iter().any(|v| v.pos().dist(start) < 1e-6)),
+                "start {start:?} missing from {out:?}");
+        }
+    }
+}
