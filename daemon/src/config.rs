@@ -282,8 +282,13 @@ impl Config {
                 message,
             },
         };
-        let raw: RawConfig =
-            toml::from_str(text).map_err(|e| at(e.span(), e.message().trim().to_string()))?;
+        let raw: RawConfig = toml::from_str(text).map_err(|e| {
+            let mut message = e.message().trim().to_string();
+            if let Some(name) = e.span().and_then(|s| machine_at(text, s.start)) {
+                message = message.replace(UNNAMED, &format!("machine `{name}`"));
+            }
+            at(e.span(), message)
+        })?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let resolve = |p: PathBuf| if p.is_relative() { dir.join(p) } else { p };
         let mut cfg = Config::empty();
@@ -381,6 +386,25 @@ impl MachineConfig {
     }
 }
 
+/// How a machine table is called before its `name` key has been read (keys come in
+/// alphabetical order); replaced by the name once the whole file is known.
+const UNNAMED: &str = "a [[machine]] table";
+
+/// The name of the machine table that holds byte `offset`, if the file reads as TOML.
+fn machine_at(text: &str, offset: usize) -> Option<String> {
+    #[derive(Deserialize)]
+    struct Names {
+        #[serde(default)]
+        machine: Vec<toml::Spanned<toml::Table>>,
+    }
+    let names: Names = toml::from_str(text).ok()?;
+    names
+        .machine
+        .iter()
+        .rfind(|m| m.span().start <= offset)
+        .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
+}
+
 /// 1-based line and column of byte `offset` in `text`.
 fn line_column(text: &str, offset: usize) -> (usize, usize) {
     let before = &text[..offset.min(text.len())];
@@ -416,7 +440,7 @@ impl<'de> Visitor<'de> for MachineVisitor {
         let link_keys = LinkConfig::all_keys();
         let who = |name: &Option<String>| match name {
             Some(n) => format!("machine `{n}`"),
-            None => "a [[machine]] table".to_string(),
+            None => UNNAMED.to_string(),
         };
         while let Some(key) = map.next_key::<String>()? {
             let ctx = |e: String| format!("{}: key `{key}`: {e}", who(&name));
@@ -460,12 +484,23 @@ impl<'de> Visitor<'de> for MachineVisitor {
                 )))
             }
         };
-        let link = LinkConfig::deserialize(toml::Value::Table(link_table)).map_err(|e| {
-            de::Error::custom(format!(
-                "machine `{name}` (link = \"{kind}\"): {}",
-                e.message().trim().replace("field", "key")
-            ))
-        })?;
+        let link =
+            LinkConfig::deserialize(toml::Value::Table(link_table.clone())).map_err(|e| {
+                let message = e.message().trim().replace("field", "key");
+                // name the key at fault: the one whose removal changes the complaint
+                let culprit = link_table.keys().filter(|k| *k != "link").find(|k| {
+                    let mut t = link_table.clone();
+                    t.remove(*k);
+                    match LinkConfig::deserialize(toml::Value::Table(t)) {
+                        Ok(_) => true,
+                        Err(e2) => e2.message().trim().replace("field", "key") != message,
+                    }
+                });
+                let key = culprit.map(|k| format!("key `{k}`: ")).unwrap_or_default();
+                de::Error::custom(format!(
+                    "machine `{name}` (link = \"{kind}\"): {key}{message}"
+                ))
+            })?;
         Ok(MachineConfig {
             name,
             link,
@@ -616,7 +651,18 @@ time_scale = 20
     fn a_bad_value_names_the_key_and_its_line() {
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = \"fast\"\n")
             .unwrap_err();
-        assert!(e.contains("line 5") && e.contains("max_feed"), "{e}");
+        assert!(
+            e.contains("line 5") && e.contains("machine `mill`: key `max_feed`"),
+            "{e}"
+        );
+        let e = parse(
+            "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nbaud = \"fast\"\n",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("machine `mill` (link = \"grbl\"): key `baud`"),
+            "{e}"
+        );
         let e = parse(
             "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = -3\n",
         )
@@ -642,6 +688,17 @@ time_scale = 20
         ))
         .unwrap_err();
         assert!(e.contains("min Y"), "{e}");
+    }
+
+    #[test]
+    fn the_documented_example_parses() {
+        let text = include_str!("../../docs/machlink.example.toml");
+        let c = Config::parse(text, Path::new("/srv/cell/machlink.toml")).unwrap();
+        assert_eq!(c.daemon.store, PathBuf::from("/srv/cell/machlink.db"));
+        assert_eq!(c.daemon.journal_every, 50);
+        let names: Vec<&str> = c.machines.iter().map(|m| m.name.as_str()).collect();
+        assert_eq!(names, ["router", "bench"]);
+        assert_eq!(c.machines[0].tools.len(), 2);
     }
 
     #[test]

@@ -237,32 +237,30 @@ impl Writer {
             self.linear([to.x, to.y, to.z], feed);
             return;
         }
-        let base = if chord < 0.05 {
-            // a full turn, or a chord too short to have a reliable direction: keep the
-            // centre (the rounded ends are still on its circle within 0.0015 mm)
-            center
-        } else {
-            // the point of the written chord's bisector nearest the intended centre: as
-            // far from both written ends, and well conditioned for every sweep (the
-            // centre at the intended radius is not, near half turns)
+        // Two starting points for the centre: the planned one, and the point of the written
+        // chord's bisector nearest it (as far from both written ends, which GRBL's check
+        // wants when the planned end is off the circle). I and J are rounded too: of the
+        // written centres on the 0.001 mm grid around both, keep the one whose arc, as
+        // GRBL runs it, stays closest to the planned arc and passes GRBL's check.
+        let mut bases = vec![center];
+        if chord >= 0.05 {
             let mid = a.lerp(b, 0.5);
             let n = (b - a).unit().perp();
-            mid + n * (center - mid).dot(n)
-        };
-        // I and J are rounded too: of the written centres around the ideal one, take the
-        // one whose arc (as GRBL runs it) stays closest to the planned arc and that passes
-        // GRBL's arc check
-        let ij0 = Point::new(q(base.x - a.x), q(base.y - a.y));
+            bases.push(mid + n * (center - mid).dot(n));
+        }
         let mut best: Option<(f64, Point)> = None;
-        for dx in -2..=2 {
-            for dy in -2..=2 {
-                let ij = Point::new(q(ij0.x + dx as f64 * 1e-3), q(ij0.y + dy as f64 * 1e-3));
-                if !grbl_arc_ok(a, b, ij) || ij.len() < MIN_ARC_RADIUS {
-                    continue;
-                }
-                let dev = written_arc_deviation(a, b, a + ij, ccw, &seg);
-                if best.is_none_or(|(d, _)| dev < d) {
-                    best = Some((dev, ij));
+        for base in bases {
+            let ij0 = Point::new(q(base.x - a.x), q(base.y - a.y));
+            for dx in -3..=3 {
+                for dy in -3..=3 {
+                    let ij = Point::new(q(ij0.x + dx as f64 * 1e-3), q(ij0.y + dy as f64 * 1e-3));
+                    if !grbl_arc_ok(a, b, ij) || ij.len() < MIN_ARC_RADIUS {
+                        continue;
+                    }
+                    let dev = written_arc_deviation(a, b, a + ij, ccw, &seg);
+                    if best.is_none_or(|(d, _)| dev < d) {
+                        best = Some((dev, ij));
+                    }
                 }
             }
         }

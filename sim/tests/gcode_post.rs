@@ -227,7 +227,7 @@ fn build(start: (f64, f64), steps: &[Step]) -> Toolpath {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
 
     #[test]
     fn grbl_posts_are_short_ascii_accepted_and_reproduce_the_path(

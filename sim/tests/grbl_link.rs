@@ -110,41 +110,128 @@ async fn two_thousand_lines_of_many_lengths_each_run_once_in_order_without_overf
 
 #[test]
 fn a_client_that_ignores_the_window_overflows_the_receive_buffer() {
-    // the negative control: the same program, written all at once by a raw client
+    // the negative control: a program of the same kind, written in 64-byte chunks without
+    // waiting for any ok, to a controller whose planner fills
     let sim = GrblSim::spawn_pty(GrblSimConfig {
-        time_scale: 1.0,
+        time_scale: 20.0,
         ..Default::default()
     })
     .unwrap();
-    let mut port = std::fs::OpenOptions::new()
+    let port = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
         .open(sim.port())
         .unwrap();
+    let mut reader = port.try_clone().unwrap();
+    let replies = std::thread::spawn(move || {
+        let mut all = Vec::new();
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            all.extend_from_slice(&buf[..n]);
+        }
+        String::from_utf8_lossy(&all).into_owned()
+    });
     let lines = program_of_many_lengths(400, 7);
     let mut bytes = Vec::new();
     for l in &lines {
         bytes.extend_from_slice(l.as_bytes());
         bytes.push(b'\n');
     }
-    port.write_all(&bytes).unwrap();
-    std::thread::sleep(Duration::from_millis(300));
-    assert!(sim.rx_overflows() > 0, "no bytes were dropped");
+    let mut writer = port;
+    for chunk in bytes.chunks(64) {
+        writer.write_all(chunk).unwrap();
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    std::thread::sleep(Duration::from_millis(500));
+    let overflows = sim.rx_overflows();
+    let received = sim.received_lines();
+    // closing the simulator's side ends the reader
+    sim.shutdown();
+    let replies = replies.join().unwrap();
+    assert!(overflows > 0, "no bytes were dropped");
     assert!(
-        sim.received_lines() < lines.len() as u64,
+        received < lines.len() as u64,
         "dropped bytes merge or lose lines"
     );
-    // and the controller complained about the corrupted lines it did get
-    let mut reply = vec![0u8; 65536];
-    let n = read_some(&mut port, &mut reply);
-    let text = String::from_utf8_lossy(&reply[..n]);
-    assert!(text.contains("Grbl 1.1h"), "{text}");
-    sim.shutdown();
+    // the controller rejects the spliced lines it does get
+    assert!(replies.contains("error:"), "{replies}");
 }
 
-fn read_some(port: &mut std::fs::File, buf: &mut [u8]) -> usize {
-    // the pty is blocking; the banner and acknowledgements are already waiting
-    port.read(buf).unwrap_or(0)
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn check_mode_finds_a_bad_line_before_anything_moves() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 200.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let opts = GrblOptions {
+        check_first: true,
+        ..Default::default()
+    };
+    let mut link = GrblLink::open(sim.port().to_str().unwrap(), opts)
+        .await
+        .unwrap();
+    let mut lines = program_of_many_lengths(300, 11);
+    // an arc whose end is not on its circle: GRBL's error:33
+    lines[200] = "G2 X10 Y0 I3 J0".to_string();
+    let (etx, _erx, _ctx, crx) = channels();
+    let err = link
+        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
+        .await
+        .unwrap_err();
+    let LinkError::Rejected { unit, reason, .. } = &err else {
+        panic!("expected a rejection, got {err}");
+    };
+    assert_eq!(*unit, 200);
+    assert!(
+        reason.starts_with("error:33") && reason.contains("check mode"),
+        "{reason}"
+    );
+    assert!(sim.trace().is_empty(), "nothing moved");
+    // the controller left check mode: the fixed program runs for real
+    lines[200] = "G1 X10 Y0".to_string();
+    let (etx, _erx, _ctx, crx) = channels();
+    let end = link
+        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
+        .await
+        .unwrap();
+    assert_eq!(end, StreamEnd::Completed);
+    assert_eq!(sim.trace().len(), lines.len() - 2);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_command_line_simulator_serves_a_link_through_its_symlink() {
+    let dir = tempfile::tempdir().unwrap();
+    let link_path = dir.path().join("grbl0");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_machlink-sim"))
+        .args(["grbl", "--pty"])
+        .arg(&link_path)
+        .args(["--time-scale", "inf", "--error-at", "5:20"])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut printed = String::new();
+    std::io::BufRead::read_line(&mut out, &mut printed).unwrap();
+    assert_eq!(printed.trim(), link_path.to_str().unwrap());
+    let result = async {
+        let mut link = GrblLink::open(link_path.to_str().unwrap(), GrblOptions::default()).await?;
+        let lines = program_of_many_lengths(20, 2);
+        let (etx, _erx, _ctx, crx) = channels();
+        link.stream(&Program::Gcode(lines), 0, etx, crx).await
+    }
+    .await;
+    let _ = child.kill();
+    let _ = child.wait();
+    match result {
+        Err(LinkError::Rejected {
+            unit: 4, reason, ..
+        }) => assert!(reason.starts_with("error:20")),
+        other => panic!("expected error:20 at the fifth line, got {other:?}"),
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -243,6 +243,20 @@ mod tests {
     use super::*;
 
     #[test]
+    fn hilbert_order_walks_to_neighbouring_cells() {
+        let mut v = Vec::new();
+        for x in 0..64u32 {
+            for y in 0..64u32 {
+                v.push((hilbert(x << 10, y << 10), x as i32, y as i32));
+            }
+        }
+        v.sort();
+        for w in v.windows(2) {
+            assert_eq!((w[0].1 - w[1].1).abs() + (w[0].2 - w[1].2).abs(), 1);
+        }
+    }
+
+    #[test]
     fn queries_find_exactly_the_overlapping_boxes() {
         let mut boxes = Vec::new();
         for i in 0..1000 {

@@ -306,7 +306,7 @@ pub fn prune(
         let (kx, ky) = key(p);
         for dx in -1..=1 {
             for dy in -1..=1 {
-                if let Some(v) = map.get(&(kx + dx, ky + dy)) {
+                if let Some(v) = map.get(&(kx.wrapping_add(dx), ky.wrapping_add(dy))) {
                     for &ri in v {
                         f(ri);
                     }

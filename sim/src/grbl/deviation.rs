@@ -122,13 +122,27 @@ impl Grid {
             ny,
             cells: vec![Vec::new(); nx * ny],
         };
+        // each piece goes into the cells its points pass through (sampled every half cell,
+        // so every point of it is within a quarter cell of a registered cell)
         for (i, p) in pieces.iter().enumerate() {
-            let (a, b) = p.xy_bounds();
-            let (x0, y0) = g.cell_of(a);
-            let (x1, y1) = g.cell_of(b);
-            for y in y0..=y1 {
-                for x in x0..=x1 {
-                    g.cells[y * nx + x].push(i);
+            let step = g.cell / 2.0;
+            let samples: Vec<Point> = match p {
+                Piece::Line(a, b) => {
+                    let n = ((a.xy().dist(b.xy()) / step).ceil() as usize).max(1);
+                    (0..=n)
+                        .map(|k| a.xy().lerp(b.xy(), k as f64 / n as f64))
+                        .collect()
+                }
+                Piece::Arc { seg, .. } => {
+                    let n = ((seg.length() / step).ceil() as usize).max(1);
+                    (0..=n).map(|k| seg.point_at(k as f64 / n as f64)).collect()
+                }
+            };
+            for q in samples {
+                let (x, y) = g.cell_of(q);
+                let c = &mut g.cells[y * nx + x];
+                if c.last() != Some(&i) {
+                    c.push(i);
                 }
             }
         }
@@ -160,8 +174,8 @@ impl Grid {
                     }
                 }
             }
-            // anything in rings further out is at least this far in plan
-            if best <= r as f64 * self.cell {
+            // anything not seen yet is at least this far in plan
+            if best <= (r as f64 - 0.25) * self.cell {
                 break;
             }
         }
@@ -241,5 +255,73 @@ pub fn sample_executed(e: &Executed) -> Vec<P3> {
                 })
                 .collect()
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ex(motion: Motion, from: [f64; 3], to: [f64; 3], center: Option<[f64; 2]>) -> Executed {
+        Executed {
+            index: 1,
+            line: String::new(),
+            motion,
+            from,
+            to,
+            center,
+            feed: 100.0,
+        }
+    }
+
+    #[test]
+    fn deviation_measures_offsets_of_lines_arcs_and_helices() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::Rapid {
+            to: P3::new(10.0, 0.0, 0.0),
+        });
+        tp.push(Move::Arc {
+            to: P3::new(10.0, 0.0, -2.0),
+            center: Point::new(0.0, 0.0),
+            ccw: true,
+            feed: 100.0,
+        });
+        tp.push(Move::Linear {
+            to: P3::new(20.0, 0.0, -2.0),
+            feed: 100.0,
+        });
+        // the same helix: no deviation
+        let same = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
+        // the helix 0.1 mm larger in radius
+        let wide = ex(
+            Motion::ArcCcw,
+            [10.1, 0.0, 0.0],
+            [10.1, 0.0, -2.0],
+            Some([0.0, 0.0]),
+        );
+        assert!((max_deviation(&tp, &[wide]) - 0.1).abs() < 1e-3);
+        // the helix run flat at the start height: near the end of the turn the helix is
+        // almost 2 mm below, until the flat circle comes back near the helix's start
+        let flat = ex(
+            Motion::ArcCcw,
+            [10.0, 0.0, 0.0],
+            [10.0, 0.0, 0.0],
+            Some([0.0, 0.0]),
+        );
+        let d = max_deviation(&tp, &[flat]);
+        assert!(d > 1.9 && d < 2.0, "{d}");
+        // a line 0.3 mm above the planned one
+        let high = ex(Motion::Linear, [10.0, 0.0, -1.7], [20.0, 0.0, -1.7], None);
+        assert!((max_deviation(&tp, &[high]) - 0.3).abs() < 1e-6);
+        // rapids do not count; cuts with nothing planned are infinitely off
+        let rapid = ex(Motion::Rapid, [50.0, 50.0, 5.0], [60.0, 50.0, 5.0], None);
+        assert_eq!(max_deviation(&tp, &[rapid]), 0.0);
+        assert!(max_deviation(&Toolpath::new("empty"), &[same]).is_infinite());
     }
 }

@@ -677,3 +677,118 @@ fn trapezoid(l: f64, v: f64, a: f64) -> (f64, f64) {
         (2.0 * t, a * t)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    fn feed(m: &mut Machine, s: &str, now: Instant) {
+        for b in s.bytes() {
+            m.receive(b, now);
+        }
+        m.process(now);
+    }
+
+    fn said(m: &mut Machine) -> String {
+        String::from_utf8(m.take_output()).unwrap()
+    }
+
+    #[test]
+    fn a_full_receive_buffer_drops_and_counts_bytes() {
+        let t0 = Instant::now();
+        let mut m = Machine::new(GrblSimConfig::default(), t0);
+        said(&mut m);
+        // nothing is processed while bytes arrive: 200 bytes into 128
+        for b in "G1 X1 F100\n".repeat(20).bytes() {
+            m.receive(b, t0);
+        }
+        assert_eq!(m.overflows, 220 - 128);
+        // the real-time bytes still get through a full buffer
+        m.receive(b'?', t0);
+        assert!(said(&mut m).starts_with("<Idle|MPos:0.000,0.000,0.000|Bf:15,0|"));
+    }
+
+    #[test]
+    fn ok_waits_for_planner_room_and_motion_takes_simulated_time() {
+        let t0 = Instant::now();
+        let cfg = GrblSimConfig {
+            planner_blocks: 2,
+            ..Default::default()
+        };
+        let mut m = Machine::new(cfg, t0);
+        said(&mut m);
+        feed(&mut m, "G1 X10 F600\nG1 X20\nG1 X30\n", t0);
+        // two blocks fit, the third line waits for room: two oks
+        assert_eq!(said(&mut m), "ok\r\nok\r\n");
+        m.receive(b'?', t0);
+        assert!(said(&mut m).starts_with("<Run|"));
+        // 10 mm at 10 mm/s with 500 mm/s² takes 1.02 s; after 1.1 s the first is done
+        m.process(t0 + Duration::from_millis(1100));
+        assert_eq!(said(&mut m), "ok\r\n");
+        assert_eq!(m.trace.len(), 1);
+        m.process(t0 + Duration::from_secs(10));
+        assert_eq!(m.trace.len(), 3);
+        assert!(
+            (m.motion_time - 3.0 * 1.02).abs() < 1e-9,
+            "{}",
+            m.motion_time
+        );
+        m.receive(b'?', t0 + Duration::from_secs(10));
+        assert!(said(&mut m).starts_with("<Idle|MPos:30.000,0.000,0.000|Bf:2,128|"));
+    }
+
+    #[test]
+    fn hold_resume_and_reset_in_motion_raises_alarm_3() {
+        let t0 = Instant::now();
+        let mut m = Machine::new(GrblSimConfig::default(), t0);
+        said(&mut m);
+        feed(&mut m, "G1 X10 F600\n", t0);
+        m.receive(b'!', t0 + Duration::from_millis(500));
+        let p = m.position();
+        m.process(t0 + Duration::from_secs(5));
+        assert_eq!(m.position(), p, "a held machine does not move");
+        m.receive(b'?', t0 + Duration::from_secs(5));
+        assert!(said(&mut m).contains("<Hold:0|"));
+        m.receive(b'~', t0 + Duration::from_secs(5));
+        m.receive(0x18, t0 + Duration::from_millis(5200));
+        let out = said(&mut m);
+        assert!(
+            out.contains("ALARM:3") && out.contains("Grbl 1.1h"),
+            "{out}"
+        );
+        feed(&mut m, "G0 X0\n", t0 + Duration::from_secs(6));
+        assert_eq!(said(&mut m), "error:9\r\n");
+        feed(&mut m, "$X\nG0 X0\n", t0 + Duration::from_secs(6));
+        assert_eq!(said(&mut m), "[MSG:Caution: Unlocked]\r\nok\r\nok\r\n");
+    }
+
+    #[test]
+    fn check_mode_parses_without_moving_and_leaving_it_resets() {
+        let t0 = Instant::now();
+        let mut m = Machine::new(GrblSimConfig::default(), t0);
+        said(&mut m);
+        feed(&mut m, "$C\nG1 X5 F100\nG2 X9 Y0 I1 J0\n$C\n", t0);
+        let out = said(&mut m);
+        assert_eq!(
+            out,
+            "[MSG:Enabled]\r\nok\r\nok\r\nerror:33\r\n[MSG:Disabled]\r\nok\r\n\r\nGrbl 1.1h ['$' for help]\r\n"
+        );
+        m.process(t0 + Duration::from_secs(10));
+        assert!(m.trace.is_empty());
+        assert_eq!(m.received, 2);
+    }
+
+    #[test]
+    fn settings_and_line_overflow() {
+        let t0 = Instant::now();
+        let mut m = Machine::new(GrblSimConfig::default(), t0);
+        said(&mut m);
+        feed(&mut m, "$110=800\n$999=1\n$110=abc\n", t0);
+        assert_eq!(said(&mut m), "ok\r\nerror:3\r\nerror:2\r\n");
+        feed(&mut m, &format!("G1X{}\n", "1".repeat(90)), t0);
+        assert_eq!(said(&mut m), "error:11\r\n");
+        feed(&mut m, "$$\n", t0);
+        assert!(said(&mut m).contains("$110=800\r\n"));
+    }
+}

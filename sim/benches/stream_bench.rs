@@ -1,0 +1,135 @@
+//! GRBL streaming throughput: character counting against plain send-and-wait, through the
+//! simulated GRBL on a pty paced at 115200 baud, with motion that finishes at once (the
+//! planner never fills), so the serial line is the only limit. Same run, same program.
+//!
+//! `cargo bench -p machlink-sim --bench stream_bench`
+
+use machlink_protocols::gcode::{post, GcodeOptions};
+use machlink_protocols::grbl::{GrblLink, GrblOptions};
+use machlink_protocols::{Control, Link, LinkEvent, Program, StreamEnd};
+use machlink_sim::grbl::{GrblSim, GrblSimConfig};
+use offset_core::{Move, Point, Toolpath, P3};
+use std::time::{Duration, Instant};
+use tokio::sync::{mpsc, watch};
+
+const BAUD: u32 = 115_200;
+const LINES: usize = 2000;
+
+/// A posted program: a serpentine of short feed moves with half-circle turns and a
+/// helical plunge at each row, the mix a profile or pocket post makes.
+fn program() -> Vec<String> {
+    let mut tp = Toolpath::new("bench serpentine");
+    tp.push(Move::Rapid {
+        to: P3::new(0.0, 0.0, 5.0),
+    });
+    tp.push(Move::Linear {
+        to: P3::new(0.0, 0.0, 0.0),
+        feed: 300.0,
+    });
+    let mut y = 0.0;
+    let mut row = 0;
+    while tp.moves.len() < LINES {
+        let dir = if row % 2 == 0 { 1.0 } else { -1.0 };
+        let x0 = if row % 2 == 0 { 0.0 } else { 60.0 };
+        for k in 1..=30 {
+            let x = x0 + dir * k as f64 * 2.0;
+            let z = -0.5 - 0.013 * (k % 7) as f64;
+            tp.push(Move::Linear {
+                to: P3::new(x, y, z),
+                feed: 1200.0 + (k % 3) as f64 * 100.0,
+            });
+        }
+        let xe = x0 + dir * 60.0;
+        tp.push(Move::Arc {
+            to: P3::new(xe, y + 3.0, -0.5),
+            center: Point::new(xe, y + 1.5),
+            ccw: row % 2 == 0,
+            feed: 900.0,
+        });
+        y += 3.0;
+        row += 1;
+    }
+    match post(&tp, &GcodeOptions::default()).expect("the bench path posts") {
+        Program::Gcode(lines) => lines,
+        #[allow(unreachable_patterns)]
+        _ => unreachable!("a G-code post"),
+    }
+}
+
+fn bytes(lines: &[String]) -> usize {
+    lines.iter().map(|l| l.len() + 1).sum()
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: f64::INFINITY,
+        baud: Some(BAUD),
+        ..Default::default()
+    })
+    .expect("the simulator starts");
+    let opts = GrblOptions {
+        baud: BAUD,
+        ..Default::default()
+    };
+    let mut link = GrblLink::open(sim.port().to_str().unwrap(), opts)
+        .await
+        .expect("the link opens");
+    let lines = program();
+    let total_bytes = bytes(&lines);
+    let capacity = BAUD as f64 / 10.0;
+
+    // character counting
+    let program = Program::Gcode(lines.clone());
+    let (etx, mut erx) = mpsc::unbounded_channel();
+    let (_ctx, crx) = watch::channel(Control::Run);
+    let start = Instant::now();
+    let last_ack = tokio::spawn(async move {
+        let mut last = start;
+        while let Some(ev) = erx.recv().await {
+            if let LinkEvent::Acked { .. } = ev {
+                last = Instant::now();
+            }
+        }
+        last
+    });
+    let end = link
+        .stream(&program, 0, etx, crx)
+        .await
+        .expect("the stream runs");
+    let done = start.elapsed();
+    assert_eq!(end, StreamEnd::Completed);
+    let acked = last_ack.await.unwrap().duration_since(start);
+
+    // send and wait, one line at a time
+    let start = Instant::now();
+    for l in &lines {
+        link.send_setting(l).await.expect("each line is accepted");
+    }
+    let saw = start.elapsed();
+    assert_eq!(sim.rx_overflows(), 0);
+
+    let row = |name: &str, t: Duration| {
+        let s = t.as_secs_f64();
+        let bps = total_bytes as f64 / s;
+        println!(
+            "| {name} | {} lines, {total_bytes} bytes | {:.2} s | {:.0} lines/s | {:.0} bytes/s | {:.1} % |",
+            lines.len(),
+            s,
+            lines.len() as f64 / s,
+            bps,
+            100.0 * bps / capacity
+        );
+    };
+    println!("GRBL streaming at {BAUD} baud ({capacity:.0} bytes/s), planner never full");
+    println!("| method | program | time | lines/s | bytes/s | of the line's capacity |");
+    println!("|---|---|---|---|---|---|");
+    row("character counting (to the last ok)", acked);
+    row("character counting (to Idle)", done);
+    row("send and wait", saw);
+    println!(
+        "counting is {:.2}x send-and-wait",
+        saw.as_secs_f64() / acked.as_secs_f64()
+    );
+    sim.shutdown();
+}
