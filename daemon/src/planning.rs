@@ -85,8 +85,10 @@ pub struct PlanParams {
     pub stitch: StitchArgs,
 }
 
-/// The options of the stitch operation (`--op stitch`).
+/// The options of the stitch operation (`--op stitch`); each may be left out of a JSON
+/// submission (its default applies).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+#[serde(default)]
 pub struct StitchArgs {
     /// Stitch: nominal stitch length, mm (1 to 12.7); each run between corners gets equal stitches.
     #[arg(long, default_value_t = 2.5)]
