@@ -182,8 +182,32 @@ async fn pause(State(st): State<AppState>, Path(id): Path<String>) -> Result<Res
     Ok(Json(st.sched.pause(job_id(&id)?).await?).into_response())
 }
 
-async fn resume(State(st): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
-    Ok(Json(st.sched.resume(job_id(&id)?).await?).into_response())
+/// The optional body of `POST /jobs/{id}/resume`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResumeRequest {
+    /// Restart a stopped job from this program line (1-based) instead of its resume point.
+    #[serde(default)]
+    pub from_line: Option<usize>,
+}
+
+async fn resume(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+    body: axum::body::Bytes,
+) -> Result<Response, ApiError> {
+    let id = job_id(&id)?;
+    let req: ResumeRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
+        ResumeRequest::default()
+    } else {
+        serde_json::from_slice(&body)
+            .map_err(|e| bad(format!("the resume request is not valid: {e}")))?
+    };
+    let job = match req.from_line {
+        Some(line) => st.sched.resume_from_line(id, line).await?,
+        None => st.sched.resume(id).await?,
+    };
+    Ok(Json(job).into_response())
 }
 
 async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
@@ -293,6 +317,7 @@ pub fn post_for(machine: &MachineConfig) -> Post {
         crate::config::LinkConfig::ModbusTcp(_) | crate::config::LinkConfig::ModbusRtu(_) => {
             Post::Modbus
         }
+        crate::config::LinkConfig::Sewing(_) | crate::config::LinkConfig::SimSewing(_) => Post::Dst,
     }
 }
 

@@ -136,6 +136,16 @@ impl Client {
             .await
     }
 
+    /// Restarts a stopped job from program line `line` (1-based).
+    pub async fn resume_from_line(&self, id: JobId, line: usize) -> Result<JobRecord, ClientError> {
+        let body = serde_json::to_vec(&crate::api::ResumeRequest {
+            from_line: Some(line),
+        })
+        .map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.call(Method::POST, &format!("/jobs/{id}/resume"), Some(body))
+            .await
+    }
+
     /// The job's events, from its current state until it ends.
     pub async fn events(&self, id: JobId) -> Result<EventStream, ClientError> {
         let (status, mut body) = self

@@ -92,6 +92,12 @@ pub enum LinkConfig {
     /// A PLC or drive taking motion blocks over Modbus RTU on a serial port.
     #[serde(rename = "modbus-rtu")]
     ModbusRtu(ModbusRtuLinkConfig),
+    /// A pattern sewing machine on a serial port (pattern transfer protocol).
+    #[serde(rename = "sewing")]
+    Sewing(SewingLinkConfig),
+    /// A simulated pattern sewing machine the daemon starts itself on a pseudo-terminal.
+    #[serde(rename = "sim-sewing")]
+    SimSewing(SimSewingLinkConfig),
 }
 
 impl LinkConfig {
@@ -102,6 +108,8 @@ impl LinkConfig {
             LinkConfig::SimGrbl(_) => "sim-grbl",
             LinkConfig::ModbusTcp(_) => "modbus-tcp",
             LinkConfig::ModbusRtu(_) => "modbus-rtu",
+            LinkConfig::Sewing(_) => "sewing",
+            LinkConfig::SimSewing(_) => "sim-sewing",
         }
     }
 
@@ -112,6 +120,8 @@ impl LinkConfig {
         keys.extend(struct_fields::<SimGrblLinkConfig>());
         keys.extend(struct_fields::<ModbusTcpLinkConfig>());
         keys.extend(struct_fields::<ModbusRtuLinkConfig>());
+        keys.extend(struct_fields::<SewingLinkConfig>());
+        keys.extend(struct_fields::<SimSewingLinkConfig>());
         keys
     }
 }
@@ -271,6 +281,42 @@ impl ModbusRtuLinkConfig {
     }
 }
 
+/// `link = "sewing"`: a pattern sewing machine on a serial port.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SewingLinkConfig {
+    /// The serial port, e.g. /dev/ttyUSB1.
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+}
+
+/// `link = "sim-sewing"`: a simulated pattern sewing machine on a pseudo-terminal, started
+/// by the daemon (see `machlink-sim sewing` for the same machine from the command line).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSewingLinkConfig {
+    /// How many times faster than real time the simulated machine sews.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: f64,
+    /// Stitches per minute.
+    #[serde(default = "default_spm")]
+    pub spm: u32,
+    /// Probability per byte, each direction, of line noise (lost or corrupted bytes).
+    #[serde(default)]
+    pub noise: f64,
+    /// The thread breaks before these records (0-based).
+    #[serde(default)]
+    pub thread_break_at: Vec<u32>,
+    /// The power fails (the pattern is lost) before these records (0-based).
+    #[serde(default)]
+    pub power_loss_at: Vec<u32>,
+}
+
+fn default_spm() -> u32 {
+    2500
+}
+
 /// A box the tool must stay inside, in work coordinates, mm.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -363,8 +409,13 @@ impl Config {
                 message,
             },
         };
-        let raw: RawConfig =
-            toml::from_str(text).map_err(|e| at(e.span(), e.message().trim().to_string()))?;
+        let raw: RawConfig = toml::from_str(text).map_err(|e| {
+            let mut message = e.message().trim().to_string();
+            if let Some(name) = e.span().and_then(|s| machine_at(text, s.start)) {
+                message = message.replace(UNNAMED, &format!("machine `{name}`"));
+            }
+            at(e.span(), message)
+        })?;
         let dir = path.parent().unwrap_or(Path::new("."));
         let resolve = |p: PathBuf| if p.is_relative() { dir.join(p) } else { p };
         let mut cfg = Config::empty();
@@ -446,9 +497,41 @@ impl MachineConfig {
             ),
             LinkConfig::ModbusTcp(m) => m.settings().validate().map_err(|e| e.to_string()),
             LinkConfig::ModbusRtu(m) => m.settings().validate().map_err(|e| e.to_string()),
+            LinkConfig::Sewing(g) if g.port.trim().is_empty() => {
+                Err("port must not be empty".into())
+            }
+            LinkConfig::Sewing(g) if g.baud == 0 => Err("baud must be above 0".into()),
+            LinkConfig::SimSewing(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
+                format!("time_scale must be a positive number, got {}", s.time_scale),
+            ),
+            LinkConfig::SimSewing(s) if s.spm == 0 => Err("spm must be above 0".into()),
+            LinkConfig::SimSewing(s)
+                if !(s.noise.is_finite() && (0.0..=0.1).contains(&s.noise)) =>
+            {
+                Err(format!("noise must be 0 to 0.1, got {}", s.noise))
+            }
             _ => Ok(()),
         }
     }
+}
+
+/// How a machine table is called before its `name` key has been read (keys come in
+/// alphabetical order); replaced by the name once the whole file is known.
+const UNNAMED: &str = "a [[machine]] table";
+
+/// The name of the machine table that holds byte `offset`, if the file reads as TOML.
+fn machine_at(text: &str, offset: usize) -> Option<String> {
+    #[derive(Deserialize)]
+    struct Names {
+        #[serde(default)]
+        machine: Vec<toml::Spanned<toml::Table>>,
+    }
+    let names: Names = toml::from_str(text).ok()?;
+    names
+        .machine
+        .iter()
+        .rfind(|m| m.span().start <= offset)
+        .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
 }
 
 /// 1-based line and column of byte `offset` in `text`.
@@ -486,7 +569,7 @@ impl<'de> Visitor<'de> for MachineVisitor {
         let link_keys = LinkConfig::all_keys();
         let who = |name: &Option<String>| match name {
             Some(n) => format!("machine `{n}`"),
-            None => "a [[machine]] table".to_string(),
+            None => UNNAMED.to_string(),
         };
         while let Some(key) = map.next_key::<String>()? {
             let ctx = |e: String| format!("{}: key `{key}`: {e}", who(&name));
@@ -530,12 +613,23 @@ impl<'de> Visitor<'de> for MachineVisitor {
                 )))
             }
         };
-        let link = LinkConfig::deserialize(toml::Value::Table(link_table)).map_err(|e| {
-            de::Error::custom(format!(
-                "machine `{name}` (link = \"{kind}\"): {}",
-                e.message().trim().replace("field", "key")
-            ))
-        })?;
+        let link =
+            LinkConfig::deserialize(toml::Value::Table(link_table.clone())).map_err(|e| {
+                let message = e.message().trim().replace("field", "key");
+                // name the key at fault: the one whose removal changes the complaint
+                let culprit = link_table.keys().filter(|k| *k != "link").find(|k| {
+                    let mut t = link_table.clone();
+                    t.remove(*k);
+                    match LinkConfig::deserialize(toml::Value::Table(t)) {
+                        Ok(_) => true,
+                        Err(e2) => e2.message().trim().replace("field", "key") != message,
+                    }
+                });
+                let key = culprit.map(|k| format!("key `{k}`: ")).unwrap_or_default();
+                de::Error::custom(format!(
+                    "machine `{name}` (link = \"{kind}\"): {key}{message}"
+                ))
+            })?;
         Ok(MachineConfig {
             name,
             link,
@@ -686,7 +780,18 @@ time_scale = 20
     fn a_bad_value_names_the_key_and_its_line() {
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = \"fast\"\n")
             .unwrap_err();
-        assert!(e.contains("line 5") && e.contains("max_feed"), "{e}");
+        assert!(
+            e.contains("line 5") && e.contains("machine `mill`: key `max_feed`"),
+            "{e}"
+        );
+        let e = parse(
+            "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nbaud = \"fast\"\n",
+        )
+        .unwrap_err();
+        assert!(
+            e.contains("machine `mill` (link = \"grbl\"): key `baud`"),
+            "{e}"
+        );
         let e = parse(
             "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = -3\n",
         )
@@ -712,6 +817,17 @@ time_scale = 20
         ))
         .unwrap_err();
         assert!(e.contains("min Y"), "{e}");
+    }
+
+    #[test]
+    fn the_documented_example_parses() {
+        let text = include_str!("../../docs/machlink.example.toml");
+        let c = Config::parse(text, Path::new("/srv/cell/machlink.toml")).unwrap();
+        assert_eq!(c.daemon.store, PathBuf::from("/srv/cell/machlink.db"));
+        assert_eq!(c.daemon.journal_every, 50);
+        let names: Vec<&str> = c.machines.iter().map(|m| m.name.as_str()).collect();
+        assert_eq!(names, ["router", "bench"]);
+        assert_eq!(c.machines[0].tools.len(), 2);
     }
 
     #[test]

@@ -51,6 +51,8 @@ pub struct Daemon {
     pub tcp: Option<SocketAddr>,
     /// The simulated GRBL machines this daemon started, by machine name.
     pub sims: BTreeMap<String, machlink_sim::grbl::GrblSimHandle>,
+    /// The simulated pattern sewing machines this daemon started, by machine name.
+    pub sewing_sims: BTreeMap<String, machlink_sim::sewing::SewingSim>,
     servers: Vec<JoinHandle<()>>,
 }
 
@@ -60,6 +62,7 @@ impl Daemon {
     pub async fn start(config: Config, opts: StartOptions) -> Result<Daemon, DaemonError> {
         let store = Store::open(&config.daemon.store)?;
         let mut sims = BTreeMap::new();
+        let mut sewing_sims = BTreeMap::new();
         let mut opener = ConfigOpener::default();
         for m in &config.machines {
             match &m.link {
@@ -84,6 +87,35 @@ impl Daemon {
                             "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
                             m.name,
                             r.port
+                        );
+                    }
+                }
+                LinkConfig::SimSewing(s) => {
+                    let cfg = machlink_sim::sewing::SewingSimConfig {
+                        time_scale: s.time_scale,
+                        spm: s.spm,
+                        noise: s.noise,
+                        thread_break_at: s.thread_break_at.clone(),
+                        power_loss_at: s.power_loss_at.clone(),
+                        ..Default::default()
+                    };
+                    let h = machlink_sim::sewing::spawn_on_pty(cfg).map_err(|source| {
+                        DaemonError::Sim {
+                            machine: m.name.clone(),
+                            source,
+                        }
+                    })?;
+                    opener
+                        .sim_ports
+                        .insert(m.name.clone(), std::path::PathBuf::from(&h.path));
+                    sewing_sims.insert(m.name.clone(), h);
+                }
+                LinkConfig::Sewing(g) => {
+                    if !std::path::Path::new(&g.port).exists() {
+                        tracing::warn!(
+                            "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
+                            m.name,
+                            g.port
                         );
                     }
                 }
@@ -141,6 +173,7 @@ impl Daemon {
             socket,
             tcp,
             sims,
+            sewing_sims,
             servers,
         })
     }
@@ -162,6 +195,9 @@ impl Daemon {
         let _ = std::fs::remove_file(&self.socket);
         for (_, s) in std::mem::take(&mut self.sims) {
             s.shutdown();
+        }
+        for (_, s) in std::mem::take(&mut self.sewing_sims) {
+            s.task.abort();
         }
     }
 }

@@ -23,6 +23,9 @@ impl LinkOpener for ConfigOpener {
         &self,
         machine: &MachineConfig,
     ) -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>> {
+        if let Some(open) = self.open_sewing(machine) {
+            return open;
+        }
         let (port, opts, unlock) = match &machine.link {
             LinkConfig::Grbl(g) => (
                 g.port.clone(),
@@ -43,6 +46,7 @@ impl LinkOpener for ConfigOpener {
             ),
             LinkConfig::ModbusTcp(m) => return open_modbus(m.settings()),
             LinkConfig::ModbusRtu(m) => return open_modbus(m.settings()),
+            LinkConfig::Sewing(_) | LinkConfig::SimSewing(_) => unreachable!("opened above"),
         };
         Box::pin(async move {
             let link = GrblLink::open(&port, opts).await?;
@@ -60,6 +64,31 @@ fn open_modbus(
             machlink_protocols::modbus::ModbusLink::new(settings).map_err(LinkError::from)?;
         Ok(Box::new(link) as Box<dyn Link>)
     })
+}
+
+impl ConfigOpener {
+    /// The link of a pattern sewing machine (`sewing` or `sim-sewing`); None for other links.
+    fn open_sewing(
+        &self,
+        machine: &MachineConfig,
+    ) -> Option<BoxFuture<'static, Result<Box<dyn Link>, LinkError>>> {
+        use machlink_protocols::sewing::link::{SewingLink, SewingTiming};
+        let (port, baud) = match &machine.link {
+            LinkConfig::Sewing(s) => (s.port.clone(), s.baud),
+            LinkConfig::SimSewing(_) => (
+                self.sim_ports
+                    .get(&machine.name)
+                    .map(|p| p.display().to_string())
+                    .unwrap_or_default(),
+                115_200,
+            ),
+            _ => return None,
+        };
+        Some(Box::pin(async move {
+            let link = SewingLink::open(&port, baud, SewingTiming::default())?;
+            Ok(Box::new(link) as Box<dyn Link>)
+        }))
+    }
 }
 
 /// A GRBL link that, with `unlock`, clears an alarm lock left by an earlier job (`$X`)

@@ -36,7 +36,7 @@ enum Command {
     /// Hold a running job (feed hold).
     Pause(cmd::operate::JobArgs),
     /// Continue a held or paused job.
-    Resume(cmd::operate::JobArgs),
+    Resume(cmd::operate::ResumeArgs),
     /// Cancel a job.
     Cancel(cmd::operate::JobArgs),
     /// Geometry only: offset a shape and write it.

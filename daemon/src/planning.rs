@@ -111,6 +111,17 @@ pub struct PlanParams {
     #[arg(long)]
     #[serde(default)]
     pub layer: Vec<String>,
+    /// The stitch operation's options.
+    #[command(flatten)]
+    #[serde(flatten, default)]
+    pub stitch: StitchArgs,
+}
+
+/// The options of the stitch operation (`--op stitch`); each may be left out of a JSON
+/// submission (its default applies).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, clap::Args)]
+#[serde(default)]
+pub struct StitchArgs {
     /// Stitch: nominal stitch length, mm (1 to 12.7); each run between corners gets equal stitches.
     #[arg(long, default_value_t = 2.5)]
     pub stitch_length: f64,
@@ -147,6 +158,35 @@ fn default_stepover() -> Stepover {
 /// Parses a step-over: `1.2` (mm) or `40%` (of the tool diameter).
 fn parse_stepover(s: &str) -> Result<Stepover, String> {
     s.parse()
+}
+
+impl Default for StitchArgs {
+    fn default() -> Self {
+        StitchArgs {
+            stitch_length: 2.5,
+            rows: vec![0.0],
+            bean: false,
+            tie: false,
+            corner_angle: 20.0,
+            round_corners: false,
+            stitch_tolerance: 0.2,
+        }
+    }
+}
+
+impl PlanParams {
+    /// The options for `op` with every other option at its command-line default, so that
+    /// code that builds parameters (the demo, tests) plans what `machlink plan --op OP` would.
+    pub fn defaults(op: Op) -> PlanParams {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct P {
+            #[command(flatten)]
+            p: PlanParams,
+        }
+        let op = clap::ValueEnum::to_possible_value(&op).expect("every op has a name");
+        P::parse_from(["machlink", "--op", op.get_name()]).p
+    }
 }
 
 /// Plans the tool path of `params.op` on `shape`.
@@ -192,14 +232,15 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
             Ok(pocket(shape, &p).context("cannot plan the pocket")?)
         }
         Op::Stitch => {
+            let a = &params.stitch;
             let p = offset_core::stitch::StitchParams {
-                stitch_length: params.stitch_length,
-                rows: params.rows.clone(),
-                bean: params.bean,
-                tie: params.tie,
-                corner_angle: params.corner_angle,
-                round_corners: params.round_corners,
-                tolerance: params.stitch_tolerance,
+                stitch_length: a.stitch_length,
+                rows: a.rows.clone(),
+                bean: a.bean,
+                tie: a.tie,
+                corner_angle: a.corner_angle,
+                round_corners: a.round_corners,
+                tolerance: a.stitch_tolerance,
                 ..Default::default()
             };
             Ok(offset_core::stitch::stitch(shape, &p).context("cannot plan the stitches")?)

@@ -135,7 +135,8 @@ struct Active {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Request {
     Pause,
-    Resume,
+    /// With a 1-based line: restart a stopped job there instead of at its resume point.
+    Resume(Option<usize>),
     Cancel,
 }
 
@@ -301,7 +302,14 @@ impl Scheduler {
     /// Continues a held job, or queues a stopped one (interrupted, failed, cancelled) again
     /// from its last acknowledged unit.
     pub async fn resume(&self, id: JobId) -> Result<JobRecord, SchedError> {
-        self.request(id, Request::Resume).await
+        self.request(id, Request::Resume(None)).await
+    }
+
+    /// Queues a stopped job (interrupted, failed, cancelled) again from program line
+    /// `line` (1-based), e.g. a few lines before its resume point when the machine had
+    /// not cut every line it acknowledged.
+    pub async fn resume_from_line(&self, id: JobId, line: usize) -> Result<JobRecord, SchedError> {
+        self.request(id, Request::Resume(Some(line))).await
     }
 
     /// Cancels a queued, running or held job.
@@ -353,11 +361,23 @@ impl Scheduler {
                     Some("cancelled before it started"),
                 )?;
             }
-            (Request::Resume, JobState::Interrupted | JobState::Failed | JobState::Cancelled) => {
+            (
+                Request::Resume(from),
+                JobState::Interrupted | JobState::Failed | JobState::Cancelled,
+            ) => {
+                if let Some(line) = from {
+                    if line == 0 || line > job.total_units {
+                        return Err(SchedError::Conflict(format!(
+                            "job {} has lines 1 to {}; it cannot resume from line {line}",
+                            job.id, job.total_units
+                        )));
+                    }
+                    store.set_resume_point(job.id, line - 1)?;
+                }
                 store.set_state(job.id, JobState::Queued, None)?;
                 let _ = m.queue.send(job.id);
             }
-            (Request::Resume, JobState::Queued) => return Ok(()),
+            (Request::Resume(None), JobState::Queued) => return Ok(()),
             (Request::Cancel, JobState::Interrupted | JobState::Failed) => {
                 store.set_state(job.id, JobState::Cancelled, job.error.as_deref())?;
             }
@@ -370,7 +390,8 @@ impl Scheduler {
             (r, s) => {
                 let what = match r {
                     Request::Pause => "paused",
-                    Request::Resume => "resumed",
+                    Request::Resume(None) => "resumed",
+                    Request::Resume(Some(_)) => "restarted from a line",
                     Request::Cancel => "cancelled",
                 };
                 return Err(SchedError::Conflict(format!(
@@ -528,7 +549,14 @@ async fn stream_job(
         loop {
             tokio::select! {
                 biased;
-                Some(ev) = ev_rx.recv() => on_link_event(inner, m, id, total, &mut journal, ev),
+                Some(ev) = ev_rx.recv() => {
+                    // a machine that stopped itself for the operator (a sewing machine's
+                    // thread break) pauses the job: `machlink resume JOB` continues it
+                    if matches!(&ev, LinkEvent::Status(s) if s.state == "ThreadBreak") {
+                        let _ = on_command(inner, id, &ctl_tx, Request::Pause);
+                    }
+                    on_link_event(inner, m, id, total, &mut journal, ev)
+                }
                 Some(cmd) = commands.recv() => {
                     let r = on_command(inner, id, &ctl_tx, cmd.request);
                     cancel_requested |= cmd.request == Request::Cancel;
@@ -661,11 +689,16 @@ fn on_command(
             let _ = control.send(Control::Hold);
             inner.set_state(id, JobState::Paused, None);
         }
-        (Request::Resume, Control::Hold) => {
+        (Request::Resume(Some(_)), _) => {
+            return Err(SchedError::Conflict(format!(
+                "job {id} is still streaming; only a stopped job restarts from a line (cancel it first)"
+            )))
+        }
+        (Request::Resume(None), Control::Hold) => {
             let _ = control.send(Control::Run);
             inner.set_state(id, JobState::Running, None);
         }
-        (Request::Pause, Control::Hold) | (Request::Resume, Control::Run) => {}
+        (Request::Pause, Control::Hold) | (Request::Resume(None), Control::Run) => {}
         (Request::Cancel, _) => {
             let _ = control.send(Control::Cancel);
         }

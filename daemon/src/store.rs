@@ -335,6 +335,23 @@ impl Store {
         Ok(())
     }
 
+    /// Moves a stopped job's resume point to unit `acked_units` (the operator's choice).
+    pub fn set_resume_point(&self, id: JobId, acked_units: usize) -> Result<(), StoreError> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        tx.execute(
+            "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
+            params![id, acked_units as i64],
+        )?;
+        tx.execute(
+            "INSERT INTO journal (job_id, at_ms, event, acked_units, detail)
+             VALUES (?1, ?2, 'rewind', ?3, 'resume point set by the operator')",
+            params![id, now_ms(), acked_units as i64],
+        )?;
+        tx.commit()?;
+        Ok(())
+    }
+
     /// How many journal flushes this store has made (for tests and stats).
     pub fn flush_count(&self) -> u64 {
         self.flushes.load(std::sync::atomic::Ordering::Relaxed)

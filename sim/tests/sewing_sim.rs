@@ -164,6 +164,15 @@ async fn a_power_loss_uploads_the_pattern_again_and_sews_on_from_the_counter() {
     assert_eq!(end.unwrap(), StreamEnd::Completed);
     assert_eq!(sewn_drops(&sim), planned_drops(&recs));
     assert!(messages.iter().any(|m| m.contains("lost its pattern")));
+    // the next piece of the batch: the same pattern, a new job from 0, sewn whole again
+    // without another upload
+    let (end, _, _) = stream_resuming_breaks(&mut link, &program, 0, None).await;
+    assert_eq!(end.unwrap(), StreamEnd::Completed);
+    let twice: Vec<_> = planned_drops(&recs)
+        .into_iter()
+        .chain(planned_drops(&recs))
+        .collect();
+    assert_eq!(sewn_drops(&sim), twice);
     let t = sim.trace.lock().unwrap();
     let verified = t
         .events

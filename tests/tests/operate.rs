@@ -43,7 +43,7 @@ async fn pause_holds_the_machine_and_resume_finishes_every_line_once() {
     )
     .await;
     let c = client(&d);
-    let lines = zigzag(600);
+    let lines = zigzag(400);
     let job = submit_gcode(&c, "mill", "zigzag", &lines).await;
     wait_until(&c, job.id, |j| j.acked_units >= 100).await;
     assert_eq!(
@@ -259,5 +259,51 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
     assert_eq!(executed(&sim), expected_motion(&lines));
     let preamble = modal_preamble(&lines[..stop_at]);
     assert_eq!(sim.received_lines(), (lines.len() + preamble.len()) as u64);
+    assert_eq!(sim.rx_overflows(), 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_job_restarts_from_the_line_the_operator_names() {
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 10.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let lines = zigzag(500);
+    let job = submit_gcode(&c, "mill", "long", &lines).await;
+    wait_until(&c, job.id, |j| j.acked_units >= 150).await;
+    c.act(job.id, "cancel").await.unwrap();
+    let stopped = wait_end(&c, job.id).await;
+    assert_eq!(stopped.state, JobState::Cancelled);
+    // the reset dropped what GRBL had planned but not cut: find the first program line
+    // the machine did not run, as an operator would from the machine's position
+    let ran = executed(&sim).len();
+    let first_uncut = motions_up_to(&lines).iter().position(|&m| m > ran).unwrap();
+    assert!(first_uncut <= stopped.acked_units);
+    let e = c
+        .resume_from_line(job.id, 5000)
+        .await
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        format!(
+            "job {} has lines 1 to 500; it cannot resume from line 5000",
+            job.id
+        )
+    );
+    let j = c.resume_from_line(job.id, first_uncut + 1).await.unwrap();
+    assert_eq!(j.acked_units, first_uncut);
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    assert_eq!(executed(&sim), expected_motion(&lines));
     assert_eq!(sim.rx_overflows(), 0);
 }

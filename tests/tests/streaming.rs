@@ -122,3 +122,67 @@ async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
     assert_eq!(executed[executed.len() - want.len()..], want[..]);
     assert_eq!(sim.rx_overflows(), 0);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
+    // a dense open polyline (a sine wave of 2,100 vertices), profiled on the line: the
+    // daemon plans and posts it, and the machine must run every line of that program
+    let vertices: Vec<[f64; 3]> = (0..2100)
+        .map(|i| {
+            let x = i as f64 * 0.05;
+            [x, 20.0 + 8.0 * (x / 6.0).sin(), 0.0]
+        })
+        .collect();
+    let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });
+    let sim = GrblSim::spawn_pty(GrblSimConfig {
+        time_scale: 1000.0,
+        ..Default::default()
+    })
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    let params = machlink::planning::PlanParams {
+        depth: 0.5,
+        stepdown: 0.5,
+        side: machlink::planning::SideArg::On,
+        feed: 1200.0,
+        safe_z: 2.0,
+        spindle: 0.0,
+        ..machlink::planning::PlanParams::defaults(machlink::planning::Op::Profile)
+    };
+    let job = c
+        .submit(&machlink::api::SubmitRequest {
+            machine: "mill".into(),
+            file_name: "wave.json".into(),
+            file_text: Some(shape.to_string()),
+            file_base64: None,
+            params: Some(params.clone()),
+        })
+        .await
+        .unwrap();
+    assert!(job.total_units >= 2000, "{} lines", job.total_units);
+    let done = wait_end(&c, job.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    let machlink_protocols::Program::Gcode(lines) = d.scheduler.store().program(job.id).unwrap()
+    else {
+        panic!("a GRBL job holds G-code")
+    };
+    let trace = sim.trace();
+    let executed: Vec<String> = trace.iter().map(|e| e.line.clone()).collect();
+    assert_eq!(executed, expected_motion(&lines));
+    assert_eq!(sim.received_lines(), lines.len() as u64);
+    assert_eq!(sim.rx_overflows(), 0);
+    let planned = machlink::planning::plan_toolpath(
+        &offset_core::io::read_shape(shape.to_string().as_bytes(), "wave.json").unwrap(),
+        &params,
+    )
+    .unwrap();
+    let dev = machlink_sim::grbl::max_deviation(&planned, &trace);
+    assert!(dev < 0.01, "the machine strayed {dev} mm from the plan");
+}

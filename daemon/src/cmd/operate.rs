@@ -68,6 +68,21 @@ pub struct JobArgs {
     pub client: ClientArgs,
 }
 
+#[derive(clap::Args)]
+pub struct ResumeArgs {
+    /// The job's number.
+    pub job: JobId,
+    /// Restart a stopped job from this program line (1-based) instead of the first line
+    /// the machine had not acknowledged.
+    #[arg(long, value_name = "LINE")]
+    pub from_line: Option<usize>,
+    /// Print the job as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
 pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -197,7 +212,7 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
             Ok(j)
         }
         s if s.is_final() => anyhow::bail!(
-            "job {id} {s} at line {} of {}{}",
+            "job {id} {s} after {} of {} lines{}",
             j.acked_units,
             j.total_units,
             j.error.map(|e| format!(": {e}")).unwrap_or_default()
@@ -224,8 +239,26 @@ fn act(a: JobArgs, action: &str) -> anyhow::Result<()> {
 pub fn pause(a: JobArgs) -> anyhow::Result<()> {
     act(a, "pause")
 }
-pub fn resume(a: JobArgs) -> anyhow::Result<()> {
-    act(a, "resume")
+pub fn resume(a: ResumeArgs) -> anyhow::Result<()> {
+    match a.from_line {
+        None => act(
+            JobArgs {
+                job: a.job,
+                json: a.json,
+                client: a.client,
+            },
+            "resume",
+        ),
+        Some(line) => {
+            let j = runtime()?.block_on(a.client.client().resume_from_line(a.job, line))?;
+            if a.json {
+                println!("{}", serde_json::to_string_pretty(&j)?);
+            } else {
+                eprintln!("job {} is {} from line {line}", j.id, j.state);
+            }
+            Ok(())
+        }
+    }
 }
 pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
     act(a, "cancel")

@@ -68,13 +68,7 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
 
 /// Options for reading a shape without a plan: all layers, the default tolerance.
 fn default_read_params() -> PlanParams {
-    use clap::Parser;
-    #[derive(clap::Parser)]
-    struct P {
-        #[command(flatten)]
-        p: PlanParams,
-    }
-    P::parse_from(["preview", "--op", "profile"]).p
+    PlanParams::defaults(crate::planning::Op::Profile)
 }
 
 /// Renders the drawing to PNG bytes.

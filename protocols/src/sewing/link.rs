@@ -173,15 +173,32 @@ impl SewingLink {
         let mut p = (records.len() as u32).to_le_bytes().to_vec();
         p.extend_from_slice(&crc.to_le_bytes());
         self.must(req::LOAD_BEGIN, p, "the upload").await?;
-        for (k, chunk) in records.chunks(wire::CHUNK_RECORDS).enumerate() {
-            let offset = (k * wire::CHUNK_RECORDS) as u32;
-            let mut p = offset.to_le_bytes().to_vec();
+        // chunks shrink when the line is noisy (a long frame is more likely to be hit) and
+        // grow back while it is clean
+        let mut size = wire::CHUNK_RECORDS;
+        let mut clean = 0;
+        let mut offset = 0usize;
+        while offset < records.len() {
+            let chunk = &records[offset..(offset + size).min(records.len())];
+            let mut p = (offset as u32).to_le_bytes().to_vec();
             p.extend_from_slice(&(chunk.len() as u16).to_le_bytes());
             for r in chunk {
                 p.extend_from_slice(&r.to_wire());
             }
+            let before = self.retransmissions;
             self.must(req::LOAD_CHUNK, p, &format!("the chunk at record {offset}"))
                 .await?;
+            offset += chunk.len();
+            if self.retransmissions > before {
+                size = (size / 2).max(4);
+                clean = 0;
+            } else {
+                clean += 1;
+                if clean >= 8 {
+                    size = (size * 2).min(wire::CHUNK_RECORDS);
+                    clean = 0;
+                }
+            }
         }
         self.must(req::LOAD_END, vec![], "the pattern").await?;
         Ok(())
@@ -212,9 +229,11 @@ impl SewingLink {
         let crc = pattern_crc(records);
         let mut st = self.status().await?;
         let same = st.pattern_len as usize == len && st.pattern_crc == crc;
-        // the machine keeps its counter through stops and power loss: when it sewed further
-        // than our journal says (we missed its last acknowledgements), trust the machine.
-        let mut done = if same {
+        // the machine keeps its counter through stops and power loss: when a resumed job
+        // (from > 0) finds the machine further on than our journal (we missed its last
+        // acknowledgements), trust the machine. A job from 0 always sews the whole pattern,
+        // even when the machine just sewed the same one (the next pocket of a batch).
+        let mut done = if same && from > 0 {
             from.max(st.counter as usize)
         } else {
             from

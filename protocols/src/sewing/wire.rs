@@ -10,7 +10,9 @@ use super::crc16_ccitt_false;
 pub const SOF: u8 = 0x7E;
 /// The largest payload of a frame.
 pub const MAX_PAYLOAD: usize = 1024;
-/// Records per upload chunk (9 bytes each): 64 × 9 + 6 = 582 bytes of payload.
+/// The most records per upload chunk (9 bytes each): 64 × 9 + 6 = 582 bytes of payload. The
+/// link halves its chunks after a chunk had to be sent again (down to 4) and doubles them
+/// after 8 clean ones.
 pub const CHUNK_RECORDS: usize = 64;
 
 /// Host → machine requests.

@@ -60,6 +60,22 @@ pub fn expected_motion(lines: &[String]) -> Vec<String> {
     out
 }
 
+/// For each line, how many motion lines the program has up to and including it.
+pub fn motions_up_to(lines: &[String]) -> Vec<usize> {
+    let mut interp = Interpreter::new();
+    let mut n = 0;
+    lines
+        .iter()
+        .map(|l| {
+            let actions = interp.execute(&clean_line(l)).expect("valid G-code");
+            if actions.iter().any(|a| matches!(a, Action::Move { .. })) {
+                n += 1;
+            }
+            n
+        })
+        .collect()
+}
+
 /// Submits G-code lines as a .nc file.
 pub async fn submit_gcode(c: &Client, machine: &str, name: &str, lines: &[String]) -> JobRecord {
     c.submit(&machlink::api::SubmitRequest {
