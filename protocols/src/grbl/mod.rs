@@ -420,9 +420,11 @@ impl GrblLink {
         let mut idle_seen = 0u32;
         let mut poll = tokio::time::interval(self.opts.status_interval.max(MIN_STATUS_INTERVAL));
         poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        // a poll in flight: when it was sent and whether every line was acknowledged then
-        let mut poll_out: Option<(Instant, bool)> = None;
+        // when the status poll in flight was sent
+        let mut poll_out: Option<Instant> = None;
         let mut last_heard = Instant::now();
+        // one early poll when the last line is answered; after that the 5 Hz tick
+        let mut final_poll_sent = false;
 
         let initial = *control.borrow_and_update();
         match initial {
@@ -454,9 +456,10 @@ impl GrblLink {
             if all_acked && check {
                 return Ok(PassEnd::Done);
             }
-            if all_acked && poll_out.is_none() {
+            if all_acked && poll_out.is_none() && !final_poll_sent {
                 self.write(&[realtime::STATUS]).await?;
-                poll_out = Some((Instant::now(), true));
+                poll_out = Some(Instant::now());
+                final_poll_sent = true;
             }
             let acked_count = next - inflight.len();
             tokio::select! {
@@ -502,7 +505,10 @@ impl GrblLink {
                             )));
                         }
                         Reply::Status(s) => {
-                            let confirms = poll_out.take().map(|(_, c)| c).unwrap_or(false);
+                            // any report that comes after the last ok was made after it
+                            // (the controller's bytes arrive in order)
+                            poll_out = None;
+                            let confirms = next == n && inflight.is_empty();
                             if s.wco.is_some() {
                                 self.wco = s.wco;
                             }
@@ -545,10 +551,10 @@ impl GrblLink {
                     }
                 }
                 _ = poll.tick() => {
-                    let stale = poll_out.is_some_and(|(t, _)| t.elapsed() > Duration::from_secs(2));
+                    let stale = poll_out.is_some_and(|t| t.elapsed() > Duration::from_secs(2));
                     if poll_out.is_none() || stale {
                         self.write(&[realtime::STATUS]).await?;
-                        poll_out = Some((Instant::now(), all_acked));
+                        poll_out = Some(Instant::now());
                     }
                 }
                 changed = control.changed(), if control_open => {

@@ -28,6 +28,8 @@ struct FakeConfig {
     error_at: Option<(usize, u16)>,
     /// 1-based G-code line that raises `ALARM:N`.
     alarm_at: Option<(usize, u16)>,
+    /// Status reports that still say Run once every line is answered (the last moves).
+    run_after: usize,
 }
 
 #[derive(Default)]
@@ -53,6 +55,7 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
     let mut gcode_count = 0usize;
     let mut locked = false;
     let mut held = false;
+    let mut run_after = cfg.run_after;
     let mut buf = [0u8; 256];
     loop {
         let mut out: Vec<u8> = Vec::new();
@@ -65,8 +68,12 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
                         log.lock().unwrap().realtime.push(b);
                         match b {
                             b'?' => {
-                                let state = if held { "Hold:0" } else if locked { "Alarm" } else if pending.is_empty() { "Idle" } else { "Run" };
-                                out.extend(format!("<{state}|MPos:0.000,0.000,0.000|Bf:{},{}|FS:0,0>\r\n", 15 - pending.len().min(15), window - in_flight).as_bytes());
+                                let busy = !pending.is_empty() || run_after > 0;
+                                if pending.is_empty() && run_after > 0 && gcode_count > 0 {
+                                    run_after -= 1;
+                                }
+                                let state = if held { "Hold:0" } else if locked { "Alarm" } else if busy { "Run" } else { "Idle" };
+                                out.extend(format!("<{state}|MPos:0.000,0.000,0.000|Bf:{},{}|FS:0,0>\r\n", 15 - pending.len().min(15), window.saturating_sub(in_flight)).as_bytes());
                             }
                             b'!' => held = true,
                             b'~' => held = false,
@@ -98,7 +105,8 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
             _ = tokio::time::sleep(wait) => {
                 // acknowledge 0..=3 of the oldest lines, and now and then push a message
                 if rng.below(5) == 0 {
-                    out.extend(b"[MSG:Pgm End]\r\n<Run|MPos:1.000,2.000,3.000|FS:100,0>\r\n");
+                    let state = if pending.is_empty() && run_after == 0 { "Idle" } else { "Run" };
+                    out.extend(format!("[MSG:Pgm End]\r\n<{state}|MPos:1.000,2.000,3.000|FS:100,0>\r\n").as_bytes());
                 }
                 for _ in 0..rng.below(4) {
                     if locked && !pending.front().is_some_and(|(l, _)| l.starts_with('$')) {
@@ -366,4 +374,39 @@ async fn lines_grbl_would_misread_are_refused_before_anything_is_sent() {
         }
     }
     assert!(log.lock().unwrap().gcode.is_empty());
+}
+
+#[tokio::test(start_paused = true)]
+async fn completion_waits_for_idle_polling_at_most_five_times_a_second() {
+    let (mut link, log) = connect(FakeConfig {
+        window: Some(128),
+        seed: 23,
+        run_after: 20,
+        ..Default::default()
+    })
+    .await;
+    let program = Program::Gcode(lines_of_many_lengths(50, 40, 3));
+    let (etx, mut erx, _ctx, crx) = channels();
+    let start = Instant::now();
+    let end = link.stream(&program, 0, etx, crx).await.unwrap();
+    let elapsed = start.elapsed().as_secs_f64();
+    assert_eq!(end, StreamEnd::Completed);
+    let polls = log
+        .lock()
+        .unwrap()
+        .realtime
+        .iter()
+        .filter(|&&b| b == b'?')
+        .count();
+    // 20 reports said Run after the last ok: the stream waited for Idle ...
+    assert!(polls >= 21, "{polls} polls");
+    // ... without polling faster than 5 Hz (plus the early poll at the last ok)
+    assert!(
+        polls as f64 <= elapsed * 5.0 + 2.0,
+        "{polls} polls in {elapsed:.2} s"
+    );
+    let statuses = std::iter::from_fn(|| erx.try_recv().ok())
+        .filter(|e| matches!(e, LinkEvent::Status(_)))
+        .count();
+    assert!(statuses >= 21);
 }

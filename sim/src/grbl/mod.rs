@@ -209,6 +209,13 @@ fn reader_loop(
                 .min(Duration::from_millis(20)),
             None => Duration::from_millis(20),
         };
+        // poll() counts in milliseconds: wait out shorter UART gaps by sleeping
+        let wait = if wait < Duration::from_millis(1) {
+            std::thread::sleep(wait);
+            Duration::ZERO
+        } else {
+            wait
+        };
         if wait_ready(&master, false, wait).unwrap_or(false) {
             match master.read(&mut buf) {
                 Ok(n) if n > 0 => {
