@@ -1,8 +1,75 @@
-//! `machlink offset`.
+//! `machlink offset`: offset a shape file and write the result as geometry JSON or SVG.
+
+use anyhow::Context;
+use offset_core::geom::Shape;
+use offset_core::offset::{offset_shape, Join, OffsetOptions};
+use std::path::PathBuf;
+
+/// The corner join of `--join`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum JoinArg {
+    /// An exact arc about the corner (the true offset).
+    Round,
+    /// The sides extended to meet, chamfered beyond the miter limit.
+    Miter,
+    /// A straight line across the corner.
+    Chamfer,
+}
 
 #[derive(clap::Args)]
-pub struct OffsetArgs {}
+pub struct OffsetArgs {
+    /// The shape file (.json geometry; other formats as the readers allow).
+    pub file: PathBuf,
+    /// Offset distance in mm: positive grows closed shapes and goes left of open paths,
+    /// negative shrinks closed shapes and goes right of open paths.
+    #[arg(long, short = 'd', allow_negative_numbers = true)]
+    pub distance: f64,
+    /// How convex corners are joined.
+    #[arg(long, value_enum, default_value = "round")]
+    pub join: JoinArg,
+    /// With `--join miter`: the longest miter, as a multiple of the distance, before it is
+    /// chamfered.
+    #[arg(long, default_value_t = 4.0)]
+    pub miter_limit: f64,
+    /// The tolerance of every approximation, mm.
+    #[arg(long, default_value_t = 1e-3)]
+    pub tolerance: f64,
+    /// Where to write: `.svg` draws the input in grey and the offset in colour, anything
+    /// else gets geometry JSON.
+    #[arg(short, long)]
+    pub output: PathBuf,
+}
 
-pub fn run(_args: OffsetArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`machlink offset` is not built yet")
+pub fn run(a: OffsetArgs) -> anyhow::Result<()> {
+    let shape = crate::planning::read_shape(&a.file)?;
+    let opts = OffsetOptions {
+        join: match a.join {
+            JoinArg::Round => Join::Round,
+            JoinArg::Miter => Join::Miter,
+            JoinArg::Chamfer => Join::Chamfer,
+        },
+        miter_limit: a.miter_limit,
+        tolerance: a.tolerance,
+    };
+    let out: Shape = offset_shape(&shape, a.distance, &opts)
+        .with_context(|| format!("cannot offset {}", a.file.display()))?;
+    let is_svg = a
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("svg"));
+    let text = if is_svg {
+        offset_core::io::svg_out::shapes_svg(&[(&shape, "#999999"), (&out, "#d62728")])
+    } else {
+        offset_core::io::json::write(&out)
+    };
+    std::fs::write(&a.output, text)
+        .with_context(|| format!("cannot write {}", a.output.display()))?;
+    eprintln!(
+        "wrote {} ({} paths, {} vertices)",
+        a.output.display(),
+        out.paths.len(),
+        out.paths.iter().map(|p| p.len()).sum::<usize>()
+    );
+    Ok(())
 }

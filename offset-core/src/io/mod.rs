@@ -1,6 +1,7 @@
 //! Importers and exporters of shape files: the geometry JSON of DESIGN.md (and DXF, SVG, STL).
 
 pub mod json;
+pub mod svg_out;
 
 use crate::geom::Shape;
 

@@ -1,0 +1,93 @@
+//! `machlink offset` end to end: the built binary on temporary files.
+
+use std::process::Command;
+
+fn machlink() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_machlink"))
+}
+
+#[test]
+fn offsets_a_square_to_json_and_svg() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("square.json");
+    std::fs::write(
+        &input,
+        r#"{"units":"mm","paths":[{"closed":true,"vertices":[[0,0,0],[10,0,0],[10,10,0],[0,10,0]]}]}"#,
+    )
+    .unwrap();
+    let out = dir.path().join("out.json");
+    let st = machlink()
+        .args(["offset", input.to_str().unwrap(), "--distance", "-1", "-o"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let shape = offset_core::io::json::read(&std::fs::read(&out).unwrap(), "out.json").unwrap();
+    assert_eq!(shape.paths.len(), 1);
+    assert!((shape.paths[0].area() - 64.0).abs() < 1e-9);
+
+    let out = dir.path().join("grown.json");
+    let st = machlink()
+        .args([
+            "offset",
+            input.to_str().unwrap(),
+            "--distance",
+            "1",
+            "--join",
+            "chamfer",
+        ])
+        .arg("-o")
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let shape = offset_core::io::json::read(&std::fs::read(&out).unwrap(), "g.json").unwrap();
+    assert!((shape.paths[0].area() - 142.0).abs() < 1e-9);
+
+    let svg = dir.path().join("out.svg");
+    let st = machlink()
+        .args(["offset", input.to_str().unwrap(), "-d", "2", "-o"])
+        .arg(&svg)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let text = std::fs::read_to_string(&svg).unwrap();
+    assert!(text.starts_with("<svg") && text.matches("<path").count() == 2);
+}
+
+#[test]
+fn bad_input_exits_non_zero_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("bow.json");
+    std::fs::write(
+        &input,
+        r#"{"paths":[{"closed":true,"vertices":[[0,0],[10,10],[10,0],[0,10]]}]}"#,
+    )
+    .unwrap();
+    let out = machlink()
+        .args(["offset", input.to_str().unwrap(), "--distance", "1", "-o"])
+        .arg(dir.path().join("o.json"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("bow.json") && err.contains("crosses itself"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+
+    let missing = machlink()
+        .args([
+            "offset",
+            "/nonexistent/x.json",
+            "--distance",
+            "1",
+            "-o",
+            "/tmp/x.json",
+        ])
+        .output()
+        .unwrap();
+    assert!(!missing.status.success());
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/x.json"));
+}
