@@ -216,8 +216,13 @@ async fn bind_unix(path: &std::path::Path) -> Result<tokio::net::UnixListener, D
         }
         let _ = std::fs::remove_file(path);
     }
-    tokio::net::UnixListener::bind(path).map_err(|source| DaemonError::Listen {
+    let listen_err = |source| DaemonError::Listen {
         what: path.display().to_string(),
         source,
-    })
+    };
+    let l = tokio::net::UnixListener::bind(path).map_err(listen_err)?;
+    // only the daemon's user may talk to it
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).map_err(listen_err)?;
+    Ok(l)
 }

@@ -716,17 +716,11 @@ fn describe_failure(e: &LinkError, program: &Program, acked: usize) -> String {
         LinkError::Rejected { unit, text, reason } => {
             format!("the machine refused line {} `{text}`: {reason}", unit + 1)
         }
-        LinkError::Alarm(msg) => {
-            if acked < program.len() {
-                format!(
-                    "the machine raised an alarm ({msg}) after acknowledging {acked} lines; the next was line {} `{}`",
-                    acked + 1,
-                    program.describe_unit(acked)
-                )
-            } else {
-                format!("the machine raised an alarm ({msg}) after the last line")
-            }
-        }
+        // the GRBL link names the line that was running when the alarm came
+        LinkError::Alarm(msg) => format!(
+            "the machine raised {msg} ({acked} of {} lines had been acknowledged)",
+            program.len()
+        ),
         other => format!(
             "{other} (after {acked} of {} lines were acknowledged)",
             program.len()

@@ -59,8 +59,11 @@ async fn tcp_requests_need_the_token() {
         token: Some("s3cret".into()),
     });
     assert_eq!(c.machines().await.unwrap()[0].name, "bench");
-    // the Unix socket needs no token
+    // the Unix socket needs no token, and only the daemon's user may open it
     assert_eq!(client(&d).machines().await.unwrap()[0].name, "bench");
+    use std::os::unix::fs::PermissionsExt;
+    let mode = std::fs::metadata(&d.socket).unwrap().permissions().mode();
+    assert_eq!(mode & 0o777, 0o600);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -157,22 +157,32 @@ pub fn watch(a: JobArgs) -> anyhow::Result<()> {
 /// Follows a job with a progress bar (lines acknowledged / total, machine state, feed,
 /// ETA) until it ends; an error unless it completed.
 pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
+    let first = client.job(id).await?;
     let mut events = client.events(id).await?;
     let bar = if quiet {
         ProgressBar::hidden()
     } else {
-        ProgressBar::new(0)
+        ProgressBar::new(first.total_units as u64)
     };
+    // fits 80 columns: "job 12 [====>     ] 1234/2000 lines  Run F800 X118.5 Y31.3 Z-1.0  ETA 1m"
     bar.set_style(
         ProgressStyle::with_template(
-            "job {prefix} [{bar:32.cyan/blue}] {pos}/{len} lines  {msg}  ETA {eta}",
+            "job {prefix} [{bar:20.cyan/blue}] {pos}/{len} lines  {msg}  ETA {eta}",
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
     bar.set_prefix(id.to_string());
+    bar.set_position(first.acked_units as u64);
+    bar.set_message(first.state.to_string());
     bar.enable_steady_tick(Duration::from_millis(200));
-    let mut state = String::new();
+    let mut state = first.state;
+    let mut status = String::new();
+    let show = |state: JobState, status: &str| match (state, status.is_empty()) {
+        (JobState::Running, false) => status.to_string(),
+        (_, true) => state.to_string(),
+        (_, false) => format!("{state} {status}"),
+    };
     while let Some(ev) = events.next().await? {
         match ev {
             Event::State {
@@ -183,8 +193,8 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
             } => {
                 bar.set_length(total as u64);
                 bar.set_position(acked as u64);
-                state = s.to_string();
-                bar.set_message(state.clone());
+                state = s;
+                bar.set_message(show(state, &status));
             }
             Event::Progress { acked, total, .. } => {
                 bar.set_length(total as u64);
@@ -195,10 +205,13 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
                 position,
                 feed,
                 ..
-            } => bar.set_message(format!(
-                "{state}  {st} F{feed:.0} X{:.2} Y{:.2} Z{:.2}",
-                position[0], position[1], position[2]
-            )),
+            } => {
+                status = format!(
+                    "{st} F{feed:.0} X{:.1} Y{:.1} Z{:.1}",
+                    position[0], position[1], position[2]
+                );
+                bar.set_message(show(state, &status));
+            }
             Event::Message { text, .. } => bar.println(format!("machine: {text}")),
         }
     }

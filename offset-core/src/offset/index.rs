@@ -238,6 +238,40 @@ impl BoxIndex {
     }
 }
 
+/// Calls `f(i, j)` (i < j) for every pair of overlapping boxes: sweep and prune along the
+/// wider axis, O(n log n) plus the pairs that overlap on that axis.
+pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
+    let mut all = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for b in boxes {
+        all = union(&all, b);
+    }
+    let (lo, hi, olo, ohi) = if all[2] - all[0] >= all[3] - all[1] {
+        (0, 2, 1, 3)
+    } else {
+        (1, 3, 0, 2)
+    };
+    let mut order: Vec<u32> = (0..boxes.len() as u32).collect();
+    order.sort_unstable_by(|&a, &b| boxes[a as usize][lo].total_cmp(&boxes[b as usize][lo]));
+    for (k, &i) in order.iter().enumerate() {
+        let bi = &boxes[i as usize];
+        for &j in &order[k + 1..] {
+            let bj = &boxes[j as usize];
+            if bj[lo] > bi[hi] {
+                break;
+            }
+            if bj[olo] <= bi[ohi] && bi[olo] <= bj[ohi] {
+                let (a, b) = if i < j { (i, j) } else { (j, i) };
+                f(a as usize, b as usize);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -279,6 +313,19 @@ mod tests {
             })
             .collect();
         assert_eq!(got, want);
+        let mut pairs = Vec::new();
+        overlapping_pairs(&boxes, |i, j| pairs.push((i, j)));
+        pairs.sort();
+        let mut brute = Vec::new();
+        for i in 0..boxes.len() {
+            for j in i + 1..boxes.len() {
+                let (a, b) = (boxes[i], boxes[j]);
+                if !(a[0] > b[2] || a[2] < b[0] || a[1] > b[3] || a[3] < b[1]) {
+                    brute.push((i, j));
+                }
+            }
+        }
+        assert_eq!(pairs, brute);
         let mut best = None;
         idx.nearest(
             50.2,

@@ -321,7 +321,6 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
             [b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]
         })
         .collect();
-    let idx = index::BoxIndex::new(&boxes);
     let adjacent = |i: usize, j: usize| -> bool {
         let (pi, ki) = owner[i];
         let (pj, kj) = owner[j];
@@ -332,43 +331,47 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
         let m = segs.len();
         kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
     };
-    let mut err = None;
-    for i in 0..all.len() {
-        idx.query(&boxes[i], |j| {
-            if j <= i {
-                return true;
+    let mut err: Option<(usize, OffsetError)> = None;
+    index::overlapping_pairs(&boxes, |i, j| {
+        if err.as_ref().is_some_and(|(k, _)| *k <= i.min(j)) {
+            return;
+        }
+        let (si, sj) = (&all[i], &all[j]);
+        let h = seg::intersect(si, sj, eps);
+        if h.n == 0 {
+            return;
+        }
+        let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
+        if (adj_ij || adj_ji) && !si.is_arc() && !sj.is_arc() {
+            // lines sharing a vertex: only a spike can overlap, and a spike is allowed
+            let d1 = si.b - si.a;
+            let d2 = sj.b - sj.a;
+            if d1.cross(d2).abs() <= eps * d1.len().max(d2.len()) {
+                return;
             }
-            let (si, sj) = (&all[i], &all[j]);
-            let h = seg::intersect(si, sj, eps);
-            let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
-            if (adj_ij || adj_ji) && !si.is_arc() && !sj.is_arc() {
-                // lines sharing a vertex: only a spike can overlap, and a spike is allowed
-                let d1 = si.b - si.a;
-                let d2 = sj.b - sj.a;
-                if d1.cross(d2).abs() <= eps * d1.len().max(d2.len()) {
-                    return true;
-                }
+        }
+        for (p, _, _) in h.iter() {
+            if adj_ij && p.dist(si.b) <= eps * 4.0 {
+                continue;
             }
-            for (p, _, _) in h.iter() {
-                if adj_ij && p.dist(si.b) <= eps * 4.0 {
-                    continue;
-                }
-                if adj_ji && p.dist(si.a) <= eps * 4.0 {
-                    continue;
-                }
-                err = Some(OffsetError::SelfIntersecting {
+            if adj_ji && p.dist(si.a) <= eps * 4.0 {
+                continue;
+            }
+            // report the crossing met first along the paths
+            err = Some((
+                i.min(j),
+                OffsetError::SelfIntersecting {
                     path: owner[i].0,
                     at: p,
-                });
-                return false;
-            }
-            true
-        });
-        if let Some(e) = err {
-            return Err(e);
+                },
+            ));
+            return;
         }
+    });
+    match err {
+        Some((_, e)) => Err(e),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 /// The first place where `paths` cross themselves or each other, as (path, point); the

@@ -2,7 +2,7 @@
 //! split them there, drop each run that comes nearer the input than |d| (minus a hair), and
 //! stitch the surviving runs end to end into the offset's paths.
 
-use super::index::{BBox, BoxIndex};
+use super::index::{overlapping_pairs, BBox, BoxIndex};
 use super::raw::{Origin, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
@@ -95,44 +95,38 @@ pub fn prune(
     };
     let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
-    let index = BoxIndex::new(&boxes);
-
     // (segment, parameter, point) of every split
     let mut splits: Vec<(u32, f64, Point)> = Vec::new();
-    for i in 0..n {
+    overlapping_pairs(&boxes, |i, j| {
+        if i >= n {
+            return;
+        }
         let si = rs[i];
-        let ni = next(i);
-        index.query(&boxes[i], |j| {
-            if j <= i {
-                return true;
-            }
-            if j >= n {
-                let h = intersect(&si, &splitters[j - n], eps);
-                for (p, t, _) in h.iter() {
-                    splits.push((i as u32, t, p));
-                }
-                return true;
-            }
-            let sj = &rs[j];
-            let h = intersect(&si, sj, eps);
-            if h.n == 0 {
-                return true;
-            }
-            let nj = next(j);
-            for (p, t, u) in h.iter() {
-                // the shared end of neighbours is no crossing
-                if ni == Some(j) && p.dist(si.b) <= eps && u <= 0.5 {
-                    continue;
-                }
-                if nj == Some(i) && p.dist(si.a) <= eps && t <= 0.5 {
-                    continue;
-                }
+        if j >= n {
+            let h = intersect(&si, &splitters[j - n], eps);
+            for (p, t, _) in h.iter() {
                 splits.push((i as u32, t, p));
-                splits.push((j as u32, u, p));
             }
-            true
-        });
-    }
+            return;
+        }
+        let sj = &rs[j];
+        let h = intersect(&si, sj, eps);
+        if h.n == 0 {
+            return;
+        }
+        let (ni, nj) = (next(i), next(j));
+        for (p, t, u) in h.iter() {
+            // the shared end of neighbours is no crossing
+            if ni == Some(j) && p.dist(si.b) <= eps && u <= 0.5 {
+                continue;
+            }
+            if nj == Some(i) && p.dist(si.a) <= eps && t <= 0.5 {
+                continue;
+            }
+            splits.push((i as u32, t, p));
+            splits.push((j as u32, u, p));
+        }
+    });
     splits.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
 
     // pieces per path, with a break flag where a run ends before them

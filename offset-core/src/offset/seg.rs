@@ -16,6 +16,18 @@ pub struct Seg {
     pub sw: f64,
 }
 
+/// Fast Euclidean norm (no overflow guard: coordinates are finite and far below 1e150).
+pub trait Norm {
+    fn norm(self) -> f64;
+}
+
+impl Norm for Point {
+    #[inline]
+    fn norm(self) -> f64 {
+        (self.x * self.x + self.y * self.y).sqrt()
+    }
+}
+
 /// Wraps an angle into [-π, π).
 pub fn wrap(a: f64) -> f64 {
     let mut x = (a + PI) % (2.0 * PI);
@@ -83,7 +95,7 @@ impl Seg {
         if self.is_arc() {
             self.r * self.sw.abs()
         } else {
-            self.a.dist(self.b)
+            (self.b - self.a).norm()
         }
     }
 
@@ -169,17 +181,24 @@ impl Seg {
 
     /// Whether the direction of `p` from the centre lies within the sweep.
     fn within_sweep(&self, p: Point) -> bool {
-        let t = self.param(p);
-        (0.0..=1.0).contains(&t)
+        let v = p - self.c;
+        let s = self.sw.signum();
+        let after_start = s * (self.a - self.c).cross(v) >= 0.0;
+        let before_end = s * v.cross(self.b - self.c) >= 0.0;
+        if self.sw.abs() <= PI {
+            after_start && before_end
+        } else {
+            after_start || before_end
+        }
     }
 
     pub fn closest_point(&self, p: Point) -> Point {
         if self.is_arc() {
             let v = p - self.c;
-            if v.len() > 0.0 && self.within_sweep(p) {
-                return self.c + v * (self.r / v.len());
+            if v.norm() > 0.0 && self.within_sweep(p) {
+                return self.c + v * (self.r / v.norm());
             }
-            if p.dist(self.a) <= p.dist(self.b) {
+            if (p - self.a).norm() <= (p - self.b).norm() {
                 self.a
             } else {
                 self.b
@@ -196,7 +215,7 @@ impl Seg {
     }
 
     pub fn dist(&self, p: Point) -> f64 {
-        p.dist(self.closest_point(p))
+        (p - self.closest_point(p)).norm()
     }
 
     /// Bounding box as [min x, min y, max x, max y].
@@ -298,8 +317,8 @@ fn line_line(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
     let d2 = s2.b - s2.a;
     let a2 = s2.a - o;
     let b2 = s2.b - o;
-    let l1 = d1.len();
-    let l2 = d2.len();
+    let l1 = d1.norm();
+    let l2 = d2.norm();
     if l1 == 0.0 || l2 == 0.0 {
         return h;
     }
@@ -344,7 +363,7 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
     let o = c.c;
     let a = l.a - o;
     let d = l.b - l.a;
-    let len = d.len();
+    let len = d.norm();
     if len == 0.0 {
         return h;
     }
@@ -352,7 +371,7 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
     // foot of the centre on the line, relative to the centre
     let s0 = -a.dot(dir);
     let foot = a + dir * s0;
-    let hd = foot.len();
+    let hd = foot.norm();
     let r = c.r;
     let mut cands: [(f64, bool); 2] = [(0.0, false); 2];
     if hd > r + eps {
@@ -390,7 +409,7 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
 fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
     let mut h = Hits::default();
     let dv = s2.c - s1.c;
-    let d = dv.len();
+    let d = dv.norm();
     let (r1, r2) = (s1.r, s2.r);
     let e1 = slack(s1, eps);
     let e2 = slack(s2, eps);
@@ -400,7 +419,7 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
             let (Some(t), Some(u)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) else {
                 continue;
             };
-            if h.iter().any(|(q, _, _)| q.dist(p) <= eps) {
+            if h.iter().any(|(q, _, _)| (q - p).norm() <= eps) {
                 continue;
             }
             h.push(p, t, u);
