@@ -73,6 +73,19 @@ fn a_pocket_from_svg_plans_posts_and_previews() {
     assert!(ok, "{err}");
     let drawing = std::fs::read_to_string(&over).unwrap();
     assert!(drawing.contains("stroke-dasharray"), "rapids are dashed");
+    assert!(
+        drawing.contains(offset_core::preview::LINEAR_COLOUR),
+        "the planned cuts are drawn over the part"
+    );
+    // without --op the part is drawn alone: no tool path at all
+    let alone = dir.path().join("alone.svg");
+    let (ok, err) = machlink(&["preview", &s(&svg), "-o", &s(&alone)]);
+    assert!(ok, "{err}");
+    let drawing = std::fs::read_to_string(&alone).unwrap();
+    assert!(
+        !drawing.contains("stroke-dasharray")
+            && !drawing.contains(offset_core::preview::LINEAR_COLOUR)
+    );
 }
 
 #[test]

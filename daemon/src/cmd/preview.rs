@@ -6,7 +6,9 @@ use offset_core::preview;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-#[command(mut_arg("op", |a| a.required(false)))]
+// `--op` belongs to preview itself (it is optional here); the plan options' own op
+// argument is hidden and filled in from it.
+#[command(mut_arg("op", |a| a.long("plan-op").hide(true).required(false).default_value("profile")))]
 pub struct PreviewArgs {
     /// What to draw: a shape file (.json, .dxf, .svg) or a G-code program (.nc, .gcode,
     /// .ngc, .tap). With --op, the plan for the shape is drawn over it.
@@ -17,9 +19,12 @@ pub struct PreviewArgs {
     /// Width of the drawing in pixels.
     #[arg(long, default_value_t = 1000)]
     pub width: u32,
-    /// Plan options (as for `machlink plan`): give --op to draw a tool path over the part.
+    /// The operation whose tool path is drawn over the part (none: the part alone).
+    #[arg(long = "op", id = "draw_op", value_enum)]
+    pub op: Option<planning::Op>,
+    /// Plan options, as for `machlink plan`; they take effect with --op.
     #[command(flatten)]
-    pub plan: Option<PlanParams>,
+    pub plan: PlanParams,
 }
 
 pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
@@ -37,14 +42,15 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("{} is not G-code we can draw", a.file.display()))?;
             preview::svg(None, Some(&tp), a.width as f64)
         }
-        _ => match &a.plan {
-            Some(params) => {
-                let shape = planning::read_shape_for(&a.file, params)?;
-                let tp = planning::plan_toolpath(&shape, params)?;
+        _ => match a.op {
+            Some(op) => {
+                let params = PlanParams { op, ..a.plan };
+                let shape = planning::read_shape_for(&a.file, &params)?;
+                let tp = planning::plan_toolpath(&shape, &params)?;
                 preview::svg(Some(&shape), Some(&tp), a.width as f64)
             }
             None => {
-                let shape = planning::read_shape_for(&a.file, &default_read_params())?;
+                let shape = planning::read_shape_for(&a.file, &a.plan)?;
                 preview::svg(Some(&shape), None, a.width as f64)
             }
         },
@@ -64,11 +70,6 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", a.output.display());
     Ok(())
-}
-
-/// Options for reading a shape without a plan: all layers, the default tolerance.
-fn default_read_params() -> PlanParams {
-    PlanParams::defaults(crate::planning::Op::Profile)
 }
 
 /// Renders the drawing to PNG bytes.
