@@ -16,13 +16,6 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch, Notify};
 
-fn machine_on(port: &std::path::Path) -> String {
-    format!(
-        "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"{}\"\n",
-        port.display()
-    )
-}
-
 fn executed(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<String> {
     sim.trace().into_iter().map(|e| e.line).collect()
 }

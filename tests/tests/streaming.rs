@@ -8,13 +8,6 @@ use machlink::daemon::StartOptions;
 use machlink::store::JobState;
 use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
 
-fn machine_on(port: &std::path::Path) -> String {
-    format!(
-        "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"{}\"\n",
-        port.display()
-    )
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_long_job_runs_every_line_exactly_once_in_order() {
     let sim = GrblSim::spawn_pty(GrblSimConfig {

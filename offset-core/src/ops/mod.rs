@@ -19,6 +19,17 @@ pub enum OpError {
     Empty(String),
 }
 
+/// `Ok` when `v` is a positive finite number, else a `BadParam` error naming `what`.
+pub(crate) fn positive(v: f64, what: &str) -> Result<(), OpError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(OpError::BadParam(format!(
+            "{what} must be a positive number, got {v}"
+        )))
+    }
+}
+
 /// Depths of successive passes, from the first step down to `depth` (both positive mm below
 /// the stock top, Z=0), returned as Z values (negative).
 pub fn pass_depths(depth: f64, stepdown: f64) -> Vec<f64> {

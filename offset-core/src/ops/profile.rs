@@ -83,15 +83,7 @@ impl Default for ProfileParams {
 
 impl ProfileParams {
     fn check(&self) -> Result<(), OpError> {
-        let pos = |v: f64, what: &str| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(OpError::BadParam(format!(
-                    "{what} must be a positive number, got {v}"
-                )))
-            }
-        };
+        let pos = super::positive;
         pos(self.tool.diameter, "the tool diameter")?;
         pos(self.stepdown, "the step-down")?;
         pos(self.feed, "the feed")?;

@@ -21,6 +21,14 @@ pub async fn start(dir: &Path, machines: &str, opts: StartOptions) -> Daemon {
     Daemon::start(cfg, opts).await.expect("daemon starts")
 }
 
+/// The config of one GRBL machine called `mill` on `port`.
+pub fn machine_on(port: &Path) -> String {
+    format!(
+        "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"{}\"\n",
+        port.display()
+    )
+}
+
 pub fn client(d: &Daemon) -> Client {
     Client::new(Endpoint::Unix(d.socket.clone()))
 }
