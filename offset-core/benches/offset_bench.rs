@@ -142,6 +142,7 @@ fn case(
     clipper: bool,
 ) {
     let region = Region::new(boundaries[0].clone(), boundaries[1..].to_vec());
+    let verts_in: usize = boundaries.iter().map(|p| p.len()).sum();
     let opts = OffsetOptions::default();
     // machlink
     let (t, (out, last_in)) = time(reps, || {
@@ -163,14 +164,17 @@ fn case(
         .collect();
     let (verts, arcs) = count(&out);
     eprintln!("{name}: machlink {t:?}");
-    rows.push(Row {
-        case: name.into(),
-        lib: "machlink",
-        time: t,
-        verts,
-        arcs,
-        dev: deviation(&last_in, &out, d, check),
-    });
+    push(
+        rows,
+        Row {
+            case: name.into(),
+            lib: "machlink",
+            time: t,
+            verts,
+            arcs,
+            dev: deviation(&last_in, &out, d, check),
+        },
+    );
     // cavalier_contours: positive offsets go inward of counter-clockwise loops
     let shape = CShape::from_plines(region.boundaries().map(to_cav));
     let copts = ShapeOffsetOptions::default();
@@ -193,21 +197,24 @@ fn case(
     let (out, last_in) = (plines(&out), plines(&last_in));
     let (verts, arcs) = count(&out);
     eprintln!("{name}: cavalier {t:?}");
-    rows.push(Row {
-        case: name.into(),
-        lib: "cavalier_contours 0.9",
-        time: t,
-        verts,
-        arcs,
-        dev: deviation(&last_in, &out, d, check),
-    });
+    push(
+        rows,
+        Row {
+            case: name.into(),
+            lib: "cavalier_contours 0.9",
+            time: t,
+            verts,
+            arcs,
+            dev: deviation(&last_in, &out, d, check),
+        },
+    );
     if !clipper {
         return;
     }
     // Clipper2: polygons (arcs flattened to 1e-4), round joins at its default arc tolerance
     let flat: Vec<Vec<(f64, f64)>> = region.boundaries().map(|p| flatten(p, 1e-4)).collect();
     let paths: clipper2::Paths<Fine> = flat.into();
-    let (t, (out, last_in)) = time(reps.min(if check { 3 } else { 1 }), || {
+    let (t, (out, last_in)) = time(reps.min(if verts_in < 50_000 { 3 } else { 1 }), || {
         let mut cur = paths.clone();
         let mut prev = cur.clone();
         for _ in 0..passes {
@@ -236,17 +243,40 @@ fn case(
     let (out, last_in) = (back(out), back(last_in));
     let (verts, arcs) = count(&out);
     eprintln!("{name}: clipper {t:?}");
-    rows.push(Row {
-        case: name.into(),
-        lib: "Clipper2 (clipper2 0.6)",
-        time: t,
-        verts,
-        arcs,
-        dev: deviation(&last_in, &out, d, check),
-    });
+    push(
+        rows,
+        Row {
+            case: name.into(),
+            lib: "Clipper2 (clipper2 0.6)",
+            time: t,
+            verts,
+            arcs,
+            dev: deviation(&last_in, &out, d, check),
+        },
+    );
+}
+
+fn push(rows: &mut Vec<Row>, r: Row) {
+    print(&r);
+    rows.push(r);
+}
+
+fn print(r: &Row) {
+    println!(
+        "| {} | {} | {:.1} ms | {} | {} | {} |",
+        r.case,
+        r.lib,
+        r.time.as_secs_f64() * 1e3,
+        r.verts,
+        r.arcs,
+        r.dev
+            .map_or("not checked".to_string(), |d| format!("{d:.2e}"))
+    );
 }
 
 fn main() {
+    println!("| case | kernel | time | output vertices | arcs | worst deviation (mm) |");
+    println!("|---|---|---:|---:|---:|---:|");
     let quick = std::env::args().any(|a| a == "quick");
     let mut rows = Vec::new();
     let mut sizes = vec![1_000usize, 10_000, 100_000];
@@ -270,26 +300,12 @@ fn main() {
         let name = format!("gear {n} + 10 islands, d = -1");
         case(&mut rows, &name, b, -1.0, 1, reps, check, clip);
     }
-    let (c, d) = dense_circle(100_000);
-    let name = "dense circle 100k, to 1e-3 of collapse";
-    case(&mut rows, name, vec![c], d, 1, 3, false, true);
+    let (c, d) = dense_circle(30_000);
+    // Clipper2 did not finish this one within minutes: left out
+    let name = "dense circle 30k, to 1e-3 of collapse";
+    case(&mut rows, name, vec![c], d, 1, 3, false, false);
     let mut b = vec![gear(10_000)];
     b.extend(islands());
     let name = "20 pocket passes, gear 10k + islands, d = -1";
     case(&mut rows, name, b, -1.0, 20, 1, true, true);
-
-    println!("| case | kernel | time | output vertices | arcs | worst deviation (mm) |");
-    println!("|---|---|---:|---:|---:|---:|");
-    for r in rows {
-        println!(
-            "| {} | {} | {:.1} ms | {} | {} | {} |",
-            r.case,
-            r.lib,
-            r.time.as_secs_f64() * 1e3,
-            r.verts,
-            r.arcs,
-            r.dev
-                .map_or("not checked".to_string(), |d| format!("{d:.2e}"))
-        );
-    }
 }

@@ -90,6 +90,9 @@ pub fn offset_polyline(
                 .collect();
             return Ok(out);
         }
+        if shrinks_away(&segs, distance) {
+            return Ok(Vec::new());
+        }
         let loops = run(&[(segs, true)], &[], -distance, opts, eps);
         Ok(loops
             .into_iter()
@@ -163,6 +166,9 @@ pub fn offset_region(
     }
     let views: Vec<(&[Seg], bool)> = loops.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     check_crossings(&views, eps)?;
+    if shrinks_away(&loops[0].0, distance) {
+        return Ok(Vec::new());
+    }
     let polys: Vec<Polyline> = if distance == 0.0 {
         loops
             .into_iter()
@@ -232,6 +238,32 @@ pub fn offset_shape(
         out.extend(offset_polyline(p, distance, opts)?);
     }
     Ok(Shape::new(out))
+}
+
+/// Whether shrinking the loop by -`distance` leaves nothing: every point inside a loop lies
+/// within half the smaller side of its bounding box of the loop (walk towards the nearer
+/// side of the box and you leave the loop), so a larger shrink is empty. Answering this up
+/// front spares the collapse of a dense loop into a knot of crossing offsets.
+fn shrinks_away(outer: &[Seg], distance: f64) -> bool {
+    if distance >= 0.0 {
+        return false;
+    }
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for s in outer {
+        let sb = s.bbox();
+        b = [
+            b[0].min(sb[0]),
+            b[1].min(sb[1]),
+            b[2].max(sb[2]),
+            b[3].max(sb[3]),
+        ];
+    }
+    -distance >= 0.5 * (b[2] - b[0]).min(b[3] - b[1])
 }
 
 fn check_args(distance: f64, opts: &OffsetOptions) -> Result<(), OffsetError> {

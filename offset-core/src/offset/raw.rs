@@ -57,7 +57,27 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         let concave = th * o > 0.0 && th.abs() < PI - 1e-12;
         if concave {
             // pair-wise interference: trim both to their meeting point nearest the corner
-            let h = intersect(&off[k], &off[k2], eps);
+            let h =
+                if !off[k].is_arc() && !off[k2].is_arc() && !segs[k].is_arc() && !segs[k2].is_arc()
+                {
+                    // two lines: their offsets meet on the corner's bisector, at the miter point;
+                    // computed directly it stays exact for nearly parallel neighbours
+                    let (n1, n2) = (t1.perp(), t2.perp());
+                    let x = v + (n1 + n2) * (o / (1.0 + n1.dot(n2)));
+                    let (t, u) = (off[k].param(x), off[k2].param(x));
+                    let (e1, e2) = (
+                        eps / off[k].length().max(eps),
+                        eps / off[k2].length().max(eps),
+                    );
+                    let mut h = super::seg::Hits::default();
+                    if t >= -e1 && t <= 1.0 + e1 && u >= -e2 && u <= 1.0 + e2 {
+                        h.n = 1;
+                        h.p[0] = (x, t.clamp(0.0, 1.0), u.clamp(0.0, 1.0));
+                    }
+                    h
+                } else {
+                    intersect(&off[k], &off[k2], eps)
+                };
             let best = h
                 .iter()
                 .filter(|&(_, t, u)| t >= 0.0 && u >= 0.0)
