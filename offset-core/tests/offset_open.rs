@@ -126,7 +126,7 @@ fn walk(steps: &[(f64, f64, f64)]) -> Polyline {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 1000, ..ProptestConfig::default() })]
 
     #[test]
     fn random_open_paths_keep_their_distance(
