@@ -23,19 +23,11 @@ fn executed(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<String> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pause_holds_the_machine_and_resume_finishes_every_line_once() {
     // slow enough that the job is still running when it is paused
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 10.0,
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let lines = zigzag(400);
     let job = submit_gcode(&c, "mill", "zigzag", &lines).await;
     wait_until(&c, job.id, |j| j.acked_units >= 100).await;
@@ -75,19 +67,11 @@ async fn pause_holds_the_machine_and_resume_finishes_every_line_once() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_stops_the_machine_and_the_next_job_runs() {
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 10.0,
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let lines = zigzag(2000);
     let job = submit_gcode(&c, "mill", "long", &lines).await;
     let queued = submit_gcode(&c, "mill", "queued", &zigzag(50)).await;
@@ -257,19 +241,11 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cancelled_job_restarts_from_the_line_the_operator_names() {
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 10.0,
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let lines = zigzag(500);
     let job = submit_gcode(&c, "mill", "long", &lines).await;
     wait_until(&c, job.id, |j| j.acked_units >= 150).await;

@@ -4,25 +4,16 @@
 mod common;
 
 use common::*;
-use machlink::daemon::StartOptions;
 use machlink::store::JobState;
-use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
+use machlink_sim::grbl::{GrblFault, GrblSimConfig};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_long_job_runs_every_line_exactly_once_in_order() {
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, d, c) = grbl_cell(GrblSimConfig {
         time_scale: 400.0,
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let lines = zigzag(2400);
     let job = submit_gcode(&c, "mill", "zigzag", &lines).await;
     assert_eq!(job.total_units, 2400);
@@ -40,7 +31,7 @@ async fn a_long_job_runs_every_line_exactly_once_in_order() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_error_fails_the_job_naming_the_line_and_the_next_job_completes() {
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 400.0,
         faults: vec![GrblFault::ErrorAtLine {
             line: 150,
@@ -48,15 +39,7 @@ async fn an_error_fails_the_job_naming_the_line_and_the_next_job_completes() {
         }],
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let first = zigzag(400);
     let a = submit_gcode(&c, "mill", "first", &first).await;
     let second = zigzag(300);
@@ -82,20 +65,12 @@ async fn an_error_fails_the_job_naming_the_line_and_the_next_job_completes() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 400.0,
         faults: vec![GrblFault::AlarmAtLine { line: 120, code: 1 }],
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let first = zigzag(400);
     let a = submit_gcode(&c, "mill", "first", &first).await;
     let a = wait_end(&c, a.id).await;
@@ -127,19 +102,11 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
         })
         .collect();
     let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });
-    let sim = GrblSim::spawn_pty(GrblSimConfig {
+    let (sim, _dir, d, c) = grbl_cell(GrblSimConfig {
         time_scale: 1000.0,
         ..Default::default()
     })
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions::default(),
-    )
     .await;
-    let c = client(&d);
     let params = machlink::planning::PlanParams {
         depth: 0.5,
         stepdown: 0.5,

@@ -29,6 +29,28 @@ pub fn machine_on(port: &Path) -> String {
     )
 }
 
+/// A simulated GRBL on a pty and a daemon (store and socket in a fresh temp dir, kept
+/// alive by the returned handle) with one machine `mill` on it, and its client.
+pub async fn grbl_cell(
+    cfg: machlink_sim::grbl::GrblSimConfig,
+) -> (
+    machlink_sim::grbl::GrblSimHandle,
+    tempfile::TempDir,
+    Daemon,
+    Client,
+) {
+    let sim = machlink_sim::grbl::GrblSim::spawn_pty(cfg).expect("the simulator starts");
+    let dir = tempfile::tempdir().expect("a temp dir");
+    let d = start(
+        dir.path(),
+        &machine_on(&sim.port()),
+        StartOptions::default(),
+    )
+    .await;
+    let c = client(&d);
+    (sim, dir, d, c)
+}
+
 pub fn client(d: &Daemon) -> Client {
     Client::new(Endpoint::Unix(d.socket.clone()))
 }
