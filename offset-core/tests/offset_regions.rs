@@ -152,3 +152,21 @@ fn island_touching_the_outer_at_one_point_offsets_both_ways() {
     let err = offset_region(&Region::new(outer, vec![island]), -1.0, &opts()).unwrap_err();
     assert!(matches!(err, OffsetError::SelfIntersecting { .. }), "{err}");
 }
+
+#[test]
+fn a_pass_whose_island_just_meets_the_wall_can_be_offset_again() {
+    // island 20 from the wall, pass of 10: the island (radius 20) exactly meets the shrunk
+    // wall at x = 10, and that region is the next pass's input
+    let outer = Polyline::rect(Point::new(0.0, 0.0), Point::new(100.0, 100.0));
+    let region = Region::new(outer, vec![Polyline::circle(Point::new(30.0, 50.0), 10.0)]);
+    let first = check(&region, -10.0);
+    assert_eq!(first.len(), 1);
+    assert_eq!(first[0].islands.len(), 1, "touching, still an island");
+    // the next pass: the 78 × 78 square less the disc of radius 21 (centre 19 from x = 11)
+    let out = check(&first[0], -1.0);
+    assert_eq!(out.len(), 1);
+    assert!(out[0].islands.is_empty());
+    let cap = 441.0 * (19.0f64 / 21.0).acos() - 19.0 * 80f64.sqrt();
+    let want = 78.0 * 78.0 - (441.0 * PI - cap);
+    assert!((out[0].outer.area() - want).abs() < 1e-6, "{out:?}");
+}

@@ -253,3 +253,35 @@ proptest! {
         let _ = offset_shape(&Shape::new(vec![p.clone(), Polyline::rect(Point::new(-5.0, -5.0), Point::new(5.0, 5.0))]), d, &o);
     }
 }
+
+#[test]
+fn loop_touching_itself_at_one_vertex_offsets_both_ways() {
+    // two squares meeting at one corner, drawn as one loop through that corner twice (what
+    // a pocket pass on round numbers can hand the next): a touch, not a crossing
+    let p = Point::new;
+    let pl = Polyline::from_points(
+        &[
+            p(0.0, 0.0),
+            p(10.0, 0.0),
+            p(10.0, 10.0),
+            p(20.0, 10.0),
+            p(20.0, 20.0),
+            p(10.0, 20.0),
+            p(10.0, 10.0),
+            p(0.0, 10.0),
+        ],
+        true,
+    );
+    let input = std::slice::from_ref(&pl);
+    let out = offset_polyline(&pl, -1.0, &opts()).unwrap();
+    assert_eq!(out.len(), 2, "the two squares shrink apart");
+    assert!(out.iter().all(|l| (l.area() - 64.0).abs() < 1e-9));
+    assert_offset(input, &out, -1.0, 1e-3);
+    // grown, they overlap round the shared corner: two 10 × 10 squares grown by 1 less the
+    // 2 × 2 square there with the two corners outside both rounded joins
+    let out = offset_polyline(&pl, 1.0, &opts()).unwrap();
+    assert_eq!(out.len(), 1);
+    let want = 2.0 * (100.0 + 40.0 + PI) - (2.0 + PI / 2.0);
+    assert!((out[0].area() - want).abs() < 1e-9, "{}", out[0].area());
+    assert_offset(input, &out, 1.0, 1e-3);
+}
