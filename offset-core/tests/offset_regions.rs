@@ -3,8 +3,9 @@
 
 mod common;
 use common::*;
+use offset_core::check::first_crossing;
 use offset_core::geom::{Point, Polyline, Region};
-use offset_core::offset::{offset_region, OffsetOptions};
+use offset_core::offset::{offset_region, OffsetError, OffsetOptions};
 use proptest::prelude::*;
 use std::f64::consts::PI;
 
@@ -120,4 +121,52 @@ proptest! {
         prop_assume!(offset_core::check::first_crossing(&all, 1e-3).is_none());
         check(&region, d);
     }
+}
+
+#[test]
+fn island_touching_the_outer_at_one_point_offsets_both_ways() {
+    // an island touching the outer wall (not crossing it) is a valid region: it used to be
+    // rejected as crossing itself. Touching at a vertex of the island (x = 0) and inside one
+    // of its arcs (y = 0).
+    let outer = Polyline::rect(Point::new(0.0, 0.0), Point::new(100.0, 100.0));
+    for centre in [Point::new(10.0, 50.0), Point::new(50.0, 10.0)] {
+        let island = Polyline::circle(centre, 10.0);
+        let region = Region::new(outer.clone(), vec![island.clone()]);
+        assert_eq!(first_crossing(&[outer.clone(), island.clone()], 1e-3), None);
+        // inward the island (radius 11) grows through the shrunk wall (1 from it): the
+        // pocket is the 98 × 98 square less the part of the disc inside it, no island
+        let out = check(&region, -1.0);
+        assert_eq!(out.len(), 1, "{out:?}");
+        assert!(out[0].islands.is_empty());
+        let cap = 121.0 * (9.0f64 / 11.0).acos() - 9.0 * 40f64.sqrt();
+        let want = 98.0 * 98.0 - (121.0 * PI - cap);
+        assert!((out[0].outer.area() - want).abs() < 1e-6, "{out:?}");
+        // outward the island (radius 9) comes off the wall
+        let out = check(&region, 1.0);
+        assert_eq!(out.len(), 1);
+        assert_eq!(out[0].islands.len(), 1);
+        assert!((out[0].islands[0].area() + 81.0 * PI).abs() < 1e-6);
+    }
+    // an island reaching 1e-3 past the wall still crosses it
+    let island = Polyline::circle(Point::new(9.999, 50.0), 10.0);
+    let err = offset_region(&Region::new(outer, vec![island]), -1.0, &opts()).unwrap_err();
+    assert!(matches!(err, OffsetError::SelfIntersecting { .. }), "{err}");
+}
+
+#[test]
+fn a_pass_whose_island_just_meets_the_wall_can_be_offset_again() {
+    // island 20 from the wall, pass of 10: the island (radius 20) exactly meets the shrunk
+    // wall at x = 10, and that region is the next pass's input
+    let outer = Polyline::rect(Point::new(0.0, 0.0), Point::new(100.0, 100.0));
+    let region = Region::new(outer, vec![Polyline::circle(Point::new(30.0, 50.0), 10.0)]);
+    let first = check(&region, -10.0);
+    assert_eq!(first.len(), 1);
+    assert_eq!(first[0].islands.len(), 1, "touching, still an island");
+    // the next pass: the 78 × 78 square less the disc of radius 21 (centre 19 from x = 11)
+    let out = check(&first[0], -1.0);
+    assert_eq!(out.len(), 1);
+    assert!(out[0].islands.is_empty());
+    let cap = 441.0 * (19.0f64 / 21.0).acos() - 19.0 * 80f64.sqrt();
+    let want = 78.0 * 78.0 - (441.0 * PI - cap);
+    assert!((out[0].outer.area() - want).abs() < 1e-6, "{out:?}");
 }

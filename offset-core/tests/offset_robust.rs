@@ -89,6 +89,30 @@ fn dense_circle_offset_to_near_collapse_is_a_tiny_circle() {
 }
 
 #[test]
+fn denser_circle_whose_tiny_offset_has_sides_shorter_than_epsilon_still_closes() {
+    // 63,000 points: the tiny offset polygon's sides are 2e-3 tan(π/n) ≈ 0.997e-7 long,
+    // just under the kernel's ε (1e-7 at the default tolerance), so segments two apart come
+    // within ε of each other. Those near touches used to split every piece into its own run
+    // and the stitching closed each after a few pieces into a loop with no area: empty.
+    let n = 63_000;
+    let r = 10.0;
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    let c = Polyline::from_points(&pts, true);
+    let inr = r * (PI / n as f64).cos();
+    let d = -(inr - 1e-3);
+    let out = offset_polyline(&c, d, &opts()).unwrap();
+    assert_eq!(out.len(), 1, "the answer is a tiny circle, not nothing");
+    let a = out[0].area();
+    assert!((a - PI * 1e-6).abs() < 0.05 * PI * 1e-6, "{a}");
+    assert_offset(std::slice::from_ref(&c), &out, d, 1e-3);
+}
+
+#[test]
 fn rectangle_offset_by_half_its_width_is_empty() {
     // the result degenerates to the centre line, which encloses nothing: no loop
     let r = Polyline::rect(Point::new(0.0, 0.0), Point::new(10.0, 4.0));
@@ -228,4 +252,36 @@ proptest! {
         let _ = offset_polyline(&p, d, &o);
         let _ = offset_shape(&Shape::new(vec![p.clone(), Polyline::rect(Point::new(-5.0, -5.0), Point::new(5.0, 5.0))]), d, &o);
     }
+}
+
+#[test]
+fn loop_touching_itself_at_one_vertex_offsets_both_ways() {
+    // two squares meeting at one corner, drawn as one loop through that corner twice (what
+    // a pocket pass on round numbers can hand the next): a touch, not a crossing
+    let p = Point::new;
+    let pl = Polyline::from_points(
+        &[
+            p(0.0, 0.0),
+            p(10.0, 0.0),
+            p(10.0, 10.0),
+            p(20.0, 10.0),
+            p(20.0, 20.0),
+            p(10.0, 20.0),
+            p(10.0, 10.0),
+            p(0.0, 10.0),
+        ],
+        true,
+    );
+    let input = std::slice::from_ref(&pl);
+    let out = offset_polyline(&pl, -1.0, &opts()).unwrap();
+    assert_eq!(out.len(), 2, "the two squares shrink apart");
+    assert!(out.iter().all(|l| (l.area() - 64.0).abs() < 1e-9));
+    assert_offset(input, &out, -1.0, 1e-3);
+    // grown, they overlap round the shared corner: two 10 × 10 squares grown by 1 less the
+    // 2 × 2 square there with the two corners outside both rounded joins
+    let out = offset_polyline(&pl, 1.0, &opts()).unwrap();
+    assert_eq!(out.len(), 1);
+    let want = 2.0 * (100.0 + 40.0 + PI) - (2.0 + PI / 2.0);
+    assert!((out[0].area() - want).abs() < 1e-9, "{}", out[0].area());
+    assert_offset(input, &out, 1.0, 1e-3);
 }

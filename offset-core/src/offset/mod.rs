@@ -382,11 +382,14 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
                 return;
             }
         }
-        for (p, _, _) in h.iter() {
+        for (p, t, u) in h.iter() {
             if adj_ij && p.dist(si.b) <= eps * 4.0 {
                 continue;
             }
             if adj_ji && p.dist(si.a) <= eps * 4.0 {
+                continue;
+            }
+            if !adj_ij && !adj_ji && touches(paths, owner[i], t, owner[j], u, p, eps) {
                 continue;
             }
             // report the crossing met first along the paths
@@ -403,6 +406,105 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
     match err {
         Some((_, e)) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// Where the boundary runs on either side of `p`, a point of segment `k` of `path` at
+/// parameter `t`: the segment and parameter just before `p` and just after it, and how much
+/// length each side has to sample from. None at an open path's end.
+fn sides(
+    paths: &[(&[Seg], bool)],
+    (path, k): (usize, usize),
+    t: f64,
+    p: Point,
+    eps: f64,
+) -> Option<[(Seg, f64, f64); 2]> {
+    let (segs, closed) = paths[path];
+    let m = segs.len();
+    let s = segs[k];
+    let prev = if k > 0 {
+        Some(segs[k - 1])
+    } else if closed {
+        Some(segs[m - 1])
+    } else {
+        None
+    };
+    let next = if k + 1 < m {
+        Some(segs[k + 1])
+    } else if closed {
+        Some(segs[0])
+    } else {
+        None
+    };
+    let len = s.length();
+    if p.dist(s.b) <= eps * 4.0 {
+        let n = next?;
+        Some([(s, 1.0, len), (n, 0.0, n.length())])
+    } else if p.dist(s.a) <= eps * 4.0 {
+        let q = prev?;
+        Some([(q, 1.0, q.length()), (s, 0.0, len)])
+    } else {
+        Some([(s, t, t * len), (s, t, (1.0 - t) * len)])
+    }
+}
+
+/// Whether the boundaries only touch at `p` (segment `a` at parameter `ta`, segment `b` at
+/// `tb`) rather than cross there: the boundary of `b` stays on one side of the boundary of
+/// `a` just before and just after `p`, as sampled at the same length along both. An
+/// island touching the outer at one point is a valid region (its offset inward is pinched
+/// off there); overlaps and undecidable cases count as crossings.
+fn touches(
+    paths: &[(&[Seg], bool)],
+    a: (usize, usize),
+    ta: f64,
+    b: (usize, usize),
+    tb: f64,
+    p: Point,
+    eps: f64,
+) -> bool {
+    let (Some(sa), Some(sb)) = (sides(paths, a, ta, p, eps), sides(paths, b, tb, p, eps)) else {
+        return false;
+    };
+    let rho = 0.25
+        * sa.iter()
+            .chain(sb.iter())
+            .map(|&(_, _, l)| l)
+            .fold(f64::INFINITY, f64::min);
+    if rho <= eps * 100.0 {
+        return false;
+    }
+    // the point `rho` back (side 0) or on (side 1) from the hit along one boundary
+    let at = |side: usize, (s, t, _): (Seg, f64, f64)| -> Point {
+        let dt = rho / s.length();
+        if side == 0 {
+            s.point_at(t - dt)
+        } else {
+            s.point_at(t + dt)
+        }
+    };
+    let (a0, a1) = (at(0, sa[0]) - p, at(1, sa[1]) - p);
+    let ccw = |from: Point, to: Point| -> f64 {
+        let x = from.cross(to).atan2(from.dot(to));
+        if x < 0.0 {
+            x + std::f64::consts::TAU
+        } else {
+            x
+        }
+    };
+    // the side of `a` left of its travel: counter-clockwise from its way on to its way back
+    let wedge = ccw(a1, a0);
+    let margin = 1e-9;
+    let side = |q: Point| -> Option<bool> {
+        let x = ccw(a1, q);
+        if x <= margin || (x - wedge).abs() <= margin || x >= std::f64::consts::TAU - margin {
+            None
+        } else {
+            Some(x < wedge)
+        }
+    };
+    match (side(at(0, sb[0]) - p), side(at(1, sb[1]) - p)) {
+        (Some(x), Some(y)) => x == y,
+        _ => false,
     }
 }
 

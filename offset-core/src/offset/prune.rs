@@ -93,6 +93,28 @@ pub fn prune(
             None
         }
     };
+    // Some(length between them) when raw segment `j` follows `i` after at most
+    // NEAR_STEPS - 1 segments in between, all of them together no longer than NEAR_LEN ε
+    const NEAR_STEPS: usize = 8;
+    const NEAR_LEN: f64 = 4.0;
+    let gap = |i: usize, j: usize| -> Option<f64> {
+        let mut g = next(i)?;
+        let mut len = 0.0;
+        for _ in 1..NEAR_STEPS {
+            if g == i {
+                return None;
+            }
+            len += rs[g].length();
+            if len > NEAR_LEN * eps {
+                return None;
+            }
+            g = next(g)?;
+            if g == j {
+                return Some(len);
+            }
+        }
+        None
+    };
     let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
     // (segment, parameter, point) of every split
@@ -115,12 +137,22 @@ pub fn prune(
             return;
         }
         let (ni, nj) = (next(i), next(j));
+        // segments a few sub-ε pieces apart along the curve (a dense loop shrunk almost to a
+        // point leaves pieces shorter than ε): where they meet near the stretch between them
+        // they only touch through it, no loop of any size lies between them
+        let (gij, gji) = (gap(i, j), gap(j, i));
         for (p, t, u) in h.iter() {
             // the shared end of neighbours is no crossing
             if ni == Some(j) && p.dist(si.b) <= eps && u <= 0.5 {
                 continue;
             }
             if nj == Some(i) && p.dist(si.a) <= eps && t <= 0.5 {
+                continue;
+            }
+            if gij.is_some_and(|g| p.dist(si.b) <= eps + g && p.dist(sj.a) <= eps + g) {
+                continue;
+            }
+            if gji.is_some_and(|g| p.dist(si.a) <= eps + g && p.dist(sj.b) <= eps + g) {
                 continue;
             }
             splits.push((i as u32, t, p));
@@ -239,7 +271,8 @@ pub fn prune(
         &pieces[if idx >= b { idx - (b - a) } else { idx }]
     };
 
-    // validity: the midpoint of the run's longest piece must keep its distance
+    // validity: the midpoint and the quarter point of the run's longest piece must keep
+    // their distance
     let thr = dist - valid_eps;
     let valid: Vec<bool> = runs
         .iter()
@@ -254,8 +287,11 @@ pub fn prune(
             if best.0 <= 0.0 {
                 return false;
             }
-            let p = piece_at(r, best.1).seg.point_at(0.5);
-            !input.any_closer(p, thr)
+            // two samples: a run may pass through a point exactly |d| from two boundaries
+            // (where an island touches the outer, its offset's crossing with the outer's
+            // lies symmetric about that point) while the rest of it comes nearer
+            let s = piece_at(r, best.1).seg;
+            !input.any_closer(s.point_at(0.5), thr) && !input.any_closer(s.point_at(0.25), thr)
         })
         .collect();
 
