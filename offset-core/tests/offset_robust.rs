@@ -64,9 +64,10 @@ fn far_coordinates_keep_their_precision() {
     assert!((out[0].area() - 22.0 * 2.0).abs() < 1e-3 * 50.0);
 }
 
-#[test]
-fn dense_circle_offset_to_near_collapse_is_a_tiny_circle() {
-    let n = 1_000;
+/// n points on a circle of radius 10, offset inward to within 1e-3 of the polygon's
+/// inradius: the answer must be one tiny loop of area π·1e-6 (within 5 %) that passes the
+/// checker, not nothing. Returns the polygon and its inradius.
+fn dense_circle_closes_near_collapse(n: usize) -> (Polyline, f64) {
     let r = 10.0;
     let pts: Vec<Point> = (0..n)
         .map(|i| {
@@ -79,10 +80,23 @@ fn dense_circle_offset_to_near_collapse_is_a_tiny_circle() {
     let inr = r * (PI / n as f64).cos();
     let d = -(inr - 1e-3);
     let out = offset_polyline(&c, d, &opts()).unwrap();
-    assert_eq!(out.len(), 1, "the answer is a tiny circle, not nothing");
+    assert_eq!(
+        out.len(),
+        1,
+        "n = {n}: the answer is a tiny circle, not nothing"
+    );
     let a = out[0].area();
-    assert!((a - PI * 1e-6).abs() < 0.05 * PI * 1e-6, "{a}");
+    assert!(
+        (a - PI * 1e-6).abs() < 0.05 * PI * 1e-6,
+        "n = {n}: area {a}"
+    );
     assert_offset(std::slice::from_ref(&c), &out, d, 1e-3);
+    (c, inr)
+}
+
+#[test]
+fn dense_circle_offset_to_near_collapse_is_a_tiny_circle() {
+    let (c, inr) = dense_circle_closes_near_collapse(1_000);
     assert!(offset_polyline(&c, -(inr + 1e-3), &opts())
         .unwrap()
         .is_empty());
@@ -94,22 +108,7 @@ fn denser_circle_whose_tiny_offset_has_sides_shorter_than_epsilon_still_closes()
     // just under the kernel's ε (1e-7 at the default tolerance), so segments two apart come
     // within ε of each other. Those near touches used to split every piece into its own run
     // and the stitching closed each after a few pieces into a loop with no area: empty.
-    let n = 63_000;
-    let r = 10.0;
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            Point::new(r * a.cos(), r * a.sin())
-        })
-        .collect();
-    let c = Polyline::from_points(&pts, true);
-    let inr = r * (PI / n as f64).cos();
-    let d = -(inr - 1e-3);
-    let out = offset_polyline(&c, d, &opts()).unwrap();
-    assert_eq!(out.len(), 1, "the answer is a tiny circle, not nothing");
-    let a = out[0].area();
-    assert!((a - PI * 1e-6).abs() < 0.05 * PI * 1e-6, "{a}");
-    assert_offset(std::slice::from_ref(&c), &out, d, 1e-3);
+    dense_circle_closes_near_collapse(63_000);
 }
 
 #[test]
