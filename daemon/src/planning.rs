@@ -189,6 +189,21 @@ impl PlanParams {
     }
 }
 
+/// The tool, depths, feeds and heights of a milling operation, from the options.
+fn cutting(params: &PlanParams) -> offset_core::ops::Cutting {
+    offset_core::ops::Cutting {
+        tool: Tool::flat(params.tool_diameter),
+        depth: params.depth,
+        stepdown: params.stepdown,
+        feed: params.feed,
+        plunge_feed: params.plunge_feed,
+        safe_z: params.safe_z,
+        climb: !params.conventional,
+        spindle_rpm: params.spindle,
+        tolerance: params.tolerance,
+    }
+}
+
 /// Plans the tool path of `params.op` on `shape`.
 pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolpath> {
     match params.op {
@@ -199,35 +214,19 @@ pub fn plan_toolpath(shape: &Shape, params: &PlanParams) -> anyhow::Result<Toolp
                     SideArg::Inside => Side::Inside,
                     SideArg::On => Side::On,
                 },
-                tool: Tool::flat(params.tool_diameter),
-                depth: params.depth,
-                stepdown: params.stepdown,
-                feed: params.feed,
-                plunge_feed: params.plunge_feed,
-                safe_z: params.safe_z,
-                climb: !params.conventional,
-                spindle_rpm: params.spindle,
-                tolerance: params.tolerance,
                 lead_in: params.lead_in,
                 lead_out: params.lead_out.unwrap_or(params.lead_in),
                 tabs: params.tabs,
                 tab_width: params.tab_width,
                 tab_height: params.tab_height,
+                cut: cutting(params),
             };
             Ok(profile(shape, &p).context("cannot plan the profile")?)
         }
         Op::Pocket => {
             let p = PocketParams {
-                tool: Tool::flat(params.tool_diameter),
                 stepover: params.stepover,
-                depth: params.depth,
-                stepdown: params.stepdown,
-                feed: params.feed,
-                plunge_feed: params.plunge_feed,
-                safe_z: params.safe_z,
-                climb: !params.conventional,
-                spindle_rpm: params.spindle,
-                tolerance: params.tolerance,
+                cut: cutting(params),
             };
             Ok(pocket(shape, &p).context("cannot plan the pocket")?)
         }

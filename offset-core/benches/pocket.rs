@@ -35,17 +35,19 @@ fn shape() -> Shape {
 fn main() {
     let shape = shape();
     let p = PocketParams {
-        tool: Tool::flat(6.0),
         stepover: Stepover::Percent(40.0),
-        depth: 1.0,
-        stepdown: 1.0,
-        tolerance: 1e-3,
-        ..Default::default()
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(6.0),
+            depth: 1.0,
+            stepdown: 1.0,
+            tolerance: 1e-3,
+            ..PocketParams::default().cut
+        },
     };
     println!("| offsets | time (ms) | of which offsetting (ms) | moves | cut length (mm) | rapid length (mm) |");
     println!("|---|---|---|---|---|---|");
     let opts = OffsetOptions {
-        tolerance: p.tolerance,
+        tolerance: p.cut.tolerance,
         ..Default::default()
     };
     let spent = Cell::new(0.0f64);

@@ -56,12 +56,14 @@ fn l_shape() -> Shape {
 
 fn params(stepover: Stepover) -> PocketParams {
     PocketParams {
-        tool: Tool::flat(6.0),
         stepover,
-        depth: 2.0,
-        stepdown: 1.0,
-        tolerance: 1e-3,
-        ..Default::default()
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(6.0),
+            depth: 2.0,
+            stepdown: 1.0,
+            tolerance: 1e-3,
+            ..PocketParams::default().cut
+        },
     }
 }
 
@@ -69,16 +71,16 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
     let tp = if use_kernel {
         pocket(shape, p).unwrap()
     } else {
-        let tol = p.tolerance;
+        let tol = p.cut.tolerance;
         pocket_with(shape, p, &|r: &Region, d: f64| clipper_offset(r, d, tol)).unwrap()
     };
     let region = &shape.regions()[0];
-    let r = p.tool.radius();
+    let r = p.cut.tool.radius();
     // both depth passes reach the bottom, and nothing goes below it
     let b = tp.bounds().unwrap();
-    assert!((b.min.z + p.depth).abs() < 1e-9, "{name}: {b:?}");
+    assert!((b.min.z + p.cut.depth).abs() < 1e-9, "{name}: {b:?}");
     // the chord tolerance of Clipper's round joins and of the pass arcs
-    let c = check_coverage(region, &tp, r, -p.depth, 0.1, 0.01);
+    let c = check_coverage(region, &tp, r, -p.cut.depth, 0.1, 0.01);
     assert_eq!(
         c.gouges, 0,
         "{name}: tool enters a wall or island at {:?}",
@@ -93,7 +95,7 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
     tp.walk(P3::default(), |from, m, to| {
         if let Move::Rapid { .. } = m {
             assert!(
-                to.z >= p.safe_z - 1e-9 || (from.xy().dist(to.xy()) < 1e-9),
+                to.z >= p.cut.safe_z - 1e-9 || (from.xy().dist(to.xy()) < 1e-9),
                 "{name}: rapid through material to {to:?}"
             );
         }
@@ -146,7 +148,7 @@ fn conventional_runs_the_other_way() {
     let mut p = params(Stepover::Percent(40.0));
     let off = |r: &Region, d: f64| clipper_offset(r, d, 1e-3);
     let climb = pocket_with(&shape, &p, &off).unwrap();
-    p.climb = false;
+    p.cut.climb = false;
     let conv = pocket_with(&shape, &p, &off).unwrap();
     // signed area swept by the first loop's cutting moves: ccw for climb on a wall
     let area = |tp: &offset_core::Toolpath| {
@@ -187,10 +189,12 @@ fn passes_that_touch_the_wall_exactly_still_plan_and_cover() {
         Polyline::circle(Point::new(36.0, 20.0), 5.0),
     ]);
     let p = PocketParams {
-        tool: Tool::flat(3.0),
         stepover: Stepover::Percent(40.0),
-        depth: 1.0,
-        ..params(Stepover::Percent(40.0))
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(3.0),
+            depth: 1.0,
+            ..params(Stepover::Percent(40.0)).cut
+        },
     };
     check("touching", &shape, &p, true);
 }

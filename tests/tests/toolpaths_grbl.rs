@@ -68,12 +68,14 @@ fn part() -> Shape {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_pocket_with_an_island_runs_on_grbl_within_the_tolerance() {
     let p = PocketParams {
-        tool: Tool::flat(6.0),
         stepover: Stepover::Percent(40.0),
-        depth: 2.0,
-        stepdown: 1.0,
-        tolerance: TOLERANCE,
-        ..Default::default()
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(6.0),
+            depth: 2.0,
+            stepdown: 1.0,
+            tolerance: TOLERANCE,
+            ..PocketParams::default().cut
+        },
     };
     let tp = pocket(&part(), &p).unwrap();
     run_on_grbl("pocket", &tp).await;
@@ -84,16 +86,18 @@ async fn profiles_with_tabs_and_lead_ins_run_on_grbl_within_the_tolerance() {
     for side in [Side::Outside, Side::Inside] {
         let p = ProfileParams {
             side,
-            tool: Tool::flat(3.0),
-            depth: 2.0,
-            stepdown: 1.0,
             lead_in: 2.0,
             lead_out: 2.0,
             tabs: 3,
             tab_width: 2.0,
             tab_height: 0.8,
-            tolerance: TOLERANCE,
-            ..Default::default()
+            cut: offset_core::ops::Cutting {
+                tool: Tool::flat(3.0),
+                depth: 2.0,
+                stepdown: 1.0,
+                tolerance: TOLERANCE,
+                ..ProfileParams::default().cut
+            },
         };
         let tp = profile(&part(), &p).unwrap();
         run_on_grbl(&format!("profile {side:?}"), &tp).await;

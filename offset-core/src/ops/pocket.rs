@@ -22,7 +22,7 @@
 //! - Climb milling (M3 spindle) runs the passes around the walls counter-clockwise and
 //!   around the islands clockwise; conventional the other way.
 
-use super::{pass_depths, OpError};
+use super::{pass_depths, Cutting, OpError};
 use crate::geom::{Point, Polyline, Region, Segment, Shape, Vertex};
 use crate::offset::{offset_region, OffsetError, OffsetOptions};
 use crate::ops::profile::cut;
@@ -81,68 +81,34 @@ impl FromStr for Stepover {
 /// Everything a pocket needs besides the shape.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PocketParams {
-    pub tool: Tool,
+    /// Tool, depths, feeds and heights.
+    #[serde(flatten)]
+    pub cut: Cutting,
+    /// Distance between neighbouring passes.
     pub stepover: Stepover,
-    /// How far below the stock top (Z=0) the last pass cuts, mm (positive).
-    pub depth: f64,
-    /// The most each depth pass goes down, mm.
-    pub stepdown: f64,
-    /// Cutting feed, mm/min.
-    pub feed: f64,
-    /// Plunge feed, mm/min.
-    pub plunge_feed: f64,
-    /// Height for rapids above the stock, mm.
-    pub safe_z: f64,
-    /// Climb milling (true) or conventional (false), for a clockwise (M3) spindle.
-    pub climb: bool,
-    /// Spindle speed, rpm (0 leaves the spindle alone).
-    pub spindle_rpm: f64,
-    pub tolerance: f64,
 }
 
 impl Default for PocketParams {
     fn default() -> Self {
         PocketParams {
-            tool: Tool::flat(6.0),
+            cut: Cutting {
+                tool: Tool::flat(6.0),
+                ..Cutting::default()
+            },
             stepover: Stepover::Percent(40.0),
-            depth: 1.0,
-            stepdown: 1.0,
-            feed: 800.0,
-            plunge_feed: 300.0,
-            safe_z: 5.0,
-            climb: true,
-            spindle_rpm: 12000.0,
-            tolerance: 1e-3,
         }
     }
 }
 
 impl PocketParams {
     fn check(&self) -> Result<(), OpError> {
-        let pos = super::positive;
-        pos(self.tool.diameter, "the tool diameter")?;
-        pos(self.stepdown, "the step-down")?;
-        pos(self.feed, "the feed")?;
-        pos(self.plunge_feed, "the plunge feed")?;
-        pos(self.tolerance, "the tolerance")?;
-        let s = self.stepover.mm(self.tool.diameter);
-        pos(s, "the step-over")?;
-        if s > self.tool.diameter {
+        self.cut.check()?;
+        let s = self.stepover.mm(self.cut.tool.diameter);
+        super::positive(s, "the step-over")?;
+        if s > self.cut.tool.diameter {
             return Err(OpError::BadParam(format!(
                 "the step-over {s} mm is more than the tool diameter {} mm: material would stay between passes",
-                self.tool.diameter
-            )));
-        }
-        if !(self.depth.is_finite() && self.depth >= 0.0) {
-            return Err(OpError::BadParam(format!(
-                "the depth must be 0 or more, got {}",
-                self.depth
-            )));
-        }
-        if !(self.safe_z.is_finite() && self.safe_z > 0.0) {
-            return Err(OpError::BadParam(format!(
-                "the safe Z must be above the stock (> 0), got {}",
-                self.safe_z
+                self.cut.tool.diameter
             )));
         }
         Ok(())
@@ -155,7 +121,7 @@ pub type RegionOffset<'a> = dyn Fn(&Region, f64) -> Result<Vec<Region>, OffsetEr
 /// Plans a pocket of every region of `shape` with the offset kernel.
 pub fn pocket(shape: &Shape, p: &PocketParams) -> Result<Toolpath, OpError> {
     let opts = OffsetOptions {
-        tolerance: p.tolerance,
+        tolerance: p.cut.tolerance,
         ..Default::default()
     };
     pocket_with(shape, p, &|r: &Region, d: f64| offset_region(r, d, &opts))
@@ -281,8 +247,8 @@ pub fn pocket_with(
     off: &RegionOffset,
 ) -> Result<Toolpath, OpError> {
     p.check()?;
-    let r = p.tool.radius();
-    let s = p.stepover.mm(p.tool.diameter);
+    let r = p.cut.tool.radius();
+    let s = p.stepover.mm(p.cut.tool.diameter);
     let regions = shape.regions();
     if regions.is_empty() {
         return Err(OpError::Empty(
@@ -293,28 +259,30 @@ pub fn pocket_with(
     let mut budget = 100_000usize;
     for region in &regions {
         for first in off(region, -r)? {
-            trees.push(build(first, s, r, p.tolerance, off, &mut budget)?);
+            trees.push(build(first, s, r, p.cut.tolerance, off, &mut budget)?);
         }
     }
     if trees.is_empty() {
         return Err(OpError::Empty(format!(
             "a {} mm tool does not fit in the pocket",
-            p.tool.diameter
+            p.cut.tool.diameter
         )));
     }
     let mut tp = Toolpath::new("pocket");
-    tp.tool = Some(p.tool);
+    tp.tool = Some(p.cut.tool);
     let mut em = Emitter {
         tp: &mut tp,
         p,
         s,
-        at: P3::new(0.0, 0.0, p.safe_z),
+        at: P3::new(0.0, 0.0, p.cut.safe_z),
     };
     em.tp.push(Move::Rapid { to: em.at });
-    if p.spindle_rpm > 0.0 {
-        em.tp.push(Move::Spindle { rpm: p.spindle_rpm });
+    if p.cut.spindle_rpm > 0.0 {
+        em.tp.push(Move::Spindle {
+            rpm: p.cut.spindle_rpm,
+        });
     }
-    let depths = pass_depths(p.depth, p.stepdown);
+    let depths = pass_depths(p.cut.depth, p.cut.stepdown);
     for tree in &trees {
         for &z in &depths {
             em.retract();
@@ -322,7 +290,7 @@ pub fn pocket_with(
         }
     }
     em.retract();
-    if p.spindle_rpm > 0.0 {
+    if p.cut.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
     Ok(tp)
@@ -344,9 +312,9 @@ impl Emitter<'_> {
     }
 
     fn retract(&mut self) {
-        if self.at.z < self.p.safe_z {
+        if self.at.z < self.p.cut.safe_z {
             self.push(Move::Rapid {
-                to: P3::at_z(self.at.xy(), self.p.safe_z),
+                to: P3::at_z(self.at.xy(), self.p.cut.safe_z),
             });
         }
     }
@@ -360,20 +328,20 @@ impl Emitter<'_> {
             return;
         }
         let inside = within.is_some_and(|reg| segment_inside(here, q, reg));
-        if at_depth && inside && here.dist(q) <= 1.5 * self.s + self.p.tolerance {
+        if at_depth && inside && here.dist(q) <= 1.5 * self.s + self.p.cut.tolerance {
             self.push(Move::Linear {
                 to: P3::at_z(q, z),
-                feed: self.p.feed,
+                feed: self.p.cut.feed,
             });
             return;
         }
         self.retract();
         self.push(Move::Rapid {
-            to: P3::at_z(q, self.p.safe_z),
+            to: P3::at_z(q, self.p.cut.safe_z),
         });
         self.push(Move::Linear {
             to: P3::at_z(q, z),
-            feed: self.p.plunge_feed,
+            feed: self.p.cut.plunge_feed,
         });
     }
 
@@ -389,7 +357,7 @@ impl Emitter<'_> {
                 .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
             let li = todo.remove(k);
             let pl = boundary(&n.region, li);
-            let pl = if self.p.climb {
+            let pl = if self.p.cut.climb {
                 pl.clone()
             } else {
                 pl.reversed()
@@ -397,7 +365,7 @@ impl Emitter<'_> {
             let (pl, start) = start_near(&pl, here);
             self.link(start, z, parent.or(Some(&n.region)));
             for seg in pl.segments() {
-                self.push(cut(seg, z, self.p.feed));
+                self.push(cut(seg, z, self.p.cut.feed));
             }
         }
         // clean-up stretches, the nearest end first
@@ -421,7 +389,7 @@ impl Emitter<'_> {
             };
             self.link(start, z, Some(&n.region));
             for seg in pl.segments() {
-                self.push(cut(seg, z, self.p.feed));
+                self.push(cut(seg, z, self.p.cut.feed));
             }
         }
         let mut kids: Vec<&PassNode> = n.children.iter().collect();

@@ -1,10 +1,10 @@
 //! Profile: cut along a shape's outline with the tool outside, inside or on the line, with lead-in/lead-out arcs and holding tabs.
 
-use super::{pass_depths, OpError};
+use super::{pass_depths, Cutting, OpError};
 use crate::geom::Shape;
 use crate::geom::{Point, Polyline, Segment};
 use crate::offset::{offset_region, OffsetOptions};
-use crate::toolpath::{Move, Tool, Toolpath, P3};
+use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 
 /// Which side of the outline the tool runs on.
@@ -24,22 +24,9 @@ pub enum Side {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ProfileParams {
     pub side: Side,
-    pub tool: Tool,
-    /// How far below the stock top (Z=0) the last pass cuts, mm (positive).
-    pub depth: f64,
-    /// The most each pass goes down, mm.
-    pub stepdown: f64,
-    /// Cutting feed, mm/min.
-    pub feed: f64,
-    /// Plunge feed, mm/min.
-    pub plunge_feed: f64,
-    /// Height for rapids above the stock, mm.
-    pub safe_z: f64,
-    /// Climb milling (true) or conventional (false), for a clockwise (M3) spindle.
-    pub climb: bool,
-    /// Spindle speed, rpm (0 leaves the spindle alone).
-    pub spindle_rpm: f64,
-    pub tolerance: f64,
+    /// Tool, depths, feeds and heights.
+    #[serde(flatten)]
+    pub cut: Cutting,
     /// Radius of the tangent lead-in arc onto each closed loop, mm (0: plunge on the loop).
     /// The arc lies on the side away from the material that stays.
     #[serde(default)]
@@ -63,15 +50,7 @@ impl Default for ProfileParams {
     fn default() -> Self {
         ProfileParams {
             side: Side::Outside,
-            tool: Tool::flat(3.0),
-            depth: 1.0,
-            stepdown: 1.0,
-            feed: 800.0,
-            plunge_feed: 300.0,
-            safe_z: 5.0,
-            climb: true,
-            spindle_rpm: 12000.0,
-            tolerance: 1e-3,
+            cut: Cutting::default(),
             lead_in: 0.0,
             lead_out: 0.0,
             tabs: 0,
@@ -83,24 +62,7 @@ impl Default for ProfileParams {
 
 impl ProfileParams {
     fn check(&self) -> Result<(), OpError> {
-        let pos = super::positive;
-        pos(self.tool.diameter, "the tool diameter")?;
-        pos(self.stepdown, "the step-down")?;
-        pos(self.feed, "the feed")?;
-        pos(self.plunge_feed, "the plunge feed")?;
-        pos(self.tolerance, "the tolerance")?;
-        if !(self.depth.is_finite() && self.depth >= 0.0) {
-            return Err(OpError::BadParam(format!(
-                "the depth must be 0 or more, got {}",
-                self.depth
-            )));
-        }
-        if !(self.safe_z.is_finite() && self.safe_z > 0.0) {
-            return Err(OpError::BadParam(format!(
-                "the safe Z must be above the stock (> 0), got {}",
-                self.safe_z
-            )));
-        }
+        self.cut.check()?;
         for (v, what) in [
             (self.lead_in, "the lead-in radius"),
             (self.lead_out, "the lead-out radius"),
@@ -118,10 +80,10 @@ impl ProfileParams {
                 "tabs need a width and a height above 0".into(),
             ));
         }
-        if self.tabs > 0 && self.tab_height >= self.depth {
+        if self.tabs > 0 && self.tab_height >= self.cut.depth {
             return Err(OpError::BadParam(format!(
                 "a tab height of {} mm would not cut below the stock top at depth {} mm",
-                self.tab_height, self.depth
+                self.tab_height, self.cut.depth
             )));
         }
         Ok(())
@@ -135,7 +97,7 @@ impl ProfileParams {
 pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     p.check()?;
     let opts = OffsetOptions {
-        tolerance: p.tolerance,
+        tolerance: p.cut.tolerance,
         ..Default::default()
     };
     // (loop, whether the material to keep lies inside the loop)
@@ -148,9 +110,9 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
             }
             Side::Outside | Side::Inside => {
                 let d = if p.side == Side::Outside {
-                    p.tool.radius()
+                    p.cut.tool.radius()
                 } else {
-                    -p.tool.radius()
+                    -p.cut.tool.radius()
                 };
                 for r in offset_region(&region, d, &opts)? {
                     // Outside: the part is inside the outer loop; Inside: the part (the
@@ -168,41 +130,43 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     if loops.is_empty() {
         return Err(OpError::Empty(format!(
             "a {:?} profile with a {} mm tool leaves no path",
-            p.side, p.tool.diameter
+            p.side, p.cut.tool.diameter
         )));
     }
 
     let mut tp = Toolpath::new(format!("profile {:?}", p.side).to_lowercase());
-    tp.tool = Some(p.tool);
+    tp.tool = Some(p.cut.tool);
     tp.push(Move::Rapid {
-        to: P3::new(0.0, 0.0, p.safe_z),
+        to: P3::new(0.0, 0.0, p.cut.safe_z),
     });
-    if p.spindle_rpm > 0.0 {
-        tp.push(Move::Spindle { rpm: p.spindle_rpm });
+    if p.cut.spindle_rpm > 0.0 {
+        tp.push(Move::Spindle {
+            rpm: p.cut.spindle_rpm,
+        });
     }
-    let depths = pass_depths(p.depth, p.stepdown);
-    let tab_z = -p.depth + p.tab_height;
+    let depths = pass_depths(p.cut.depth, p.cut.stepdown);
+    let tab_z = -p.cut.depth + p.tab_height;
     for (pl, material_inside) in loops {
-        let pl = oriented(pl, material_inside, p.climb);
+        let pl = oriented(pl, material_inside, p.cut.climb);
         let start = pl.vertices[0].pos();
         if !pl.closed {
             tp.push(Move::Rapid {
-                to: P3::at_z(start, p.safe_z),
+                to: P3::at_z(start, p.cut.safe_z),
             });
             for &z in &depths {
                 tp.push(Move::Linear {
                     to: P3::at_z(start, z),
-                    feed: p.plunge_feed,
+                    feed: p.cut.plunge_feed,
                 });
                 for seg in pl.segments() {
-                    tp.push(cut(seg, z, p.feed));
+                    tp.push(cut(seg, z, p.cut.feed));
                 }
                 // back to the start at the safe height for the next pass of an open path
                 tp.push(Move::Rapid {
-                    to: P3::at_z(pl.vertices[pl.len() - 1].pos(), p.safe_z),
+                    to: P3::at_z(pl.vertices[pl.len() - 1].pos(), p.cut.safe_z),
                 });
                 tp.push(Move::Rapid {
-                    to: P3::at_z(start, p.safe_z),
+                    to: P3::at_z(start, p.cut.safe_z),
                 });
             }
             continue;
@@ -216,7 +180,7 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         let lead_out =
             (p.lead_out > 0.0).then(|| lead_arc(start, t_end, p.lead_out, free_left, false));
         let tabs = if p.tabs > 0 {
-            tab_spans(pl.length(), p.tabs, p.tab_width + p.tool.diameter)
+            tab_spans(pl.length(), p.tabs, p.tab_width + p.cut.tool.diameter)
         } else {
             Vec::new()
         };
@@ -226,26 +190,26 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
             let entry = lead_in.map_or(start, |(a, _, _)| a);
             if k == 0 || !in_place {
                 tp.push(Move::Rapid {
-                    to: P3::at_z(entry, p.safe_z),
+                    to: P3::at_z(entry, p.cut.safe_z),
                 });
             }
             tp.push(Move::Linear {
                 to: P3::at_z(entry, z),
-                feed: p.plunge_feed,
+                feed: p.cut.plunge_feed,
             });
             if let Some((_, center, ccw)) = lead_in {
                 tp.push(Move::Arc {
                     to: P3::at_z(start, z),
                     center,
                     ccw,
-                    feed: p.feed,
+                    feed: p.cut.feed,
                 });
             }
             if z < tab_z - 1e-9 && !tabs.is_empty() {
                 cut_with_tabs(&mut tp, &pl, &tabs, z, tab_z, p);
             } else {
                 for seg in pl.segments() {
-                    tp.push(cut(seg, z, p.feed));
+                    tp.push(cut(seg, z, p.cut.feed));
                 }
             }
             let mut exit = start;
@@ -254,18 +218,18 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                     to: P3::at_z(b, z),
                     center,
                     ccw,
-                    feed: p.feed,
+                    feed: p.cut.feed,
                 });
                 exit = b;
             }
             if !in_place || k + 1 == depths.len() {
                 tp.push(Move::Rapid {
-                    to: P3::at_z(exit, p.safe_z),
+                    to: P3::at_z(exit, p.cut.safe_z),
                 });
             }
         }
     }
-    if p.spindle_rpm > 0.0 {
+    if p.cut.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
     Ok(tp)
@@ -351,11 +315,11 @@ fn cut_with_tabs(
                     let here = piece.start();
                     tp.push(Move::Linear {
                         to: P3::at_z(here, if tab { tab_z } else { z }),
-                        feed: p.plunge_feed,
+                        feed: p.cut.plunge_feed,
                     });
                     on_tab = tab;
                 }
-                tp.push(cut(piece, if tab { tab_z } else { z }, p.feed));
+                tp.push(cut(piece, if tab { tab_z } else { z }, p.cut.feed));
             }
             from = c;
         }
@@ -365,7 +329,7 @@ fn cut_with_tabs(
         let end = pl.vertices[0].pos();
         tp.push(Move::Linear {
             to: P3::at_z(end, z),
-            feed: p.plunge_feed,
+            feed: p.cut.plunge_feed,
         });
     }
 }
@@ -410,8 +374,11 @@ mod tests {
         let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(10.0, 10.0));
         let p = ProfileParams {
             side: Side::On,
-            depth: 2.0,
-            stepdown: 0.8,
+            cut: Cutting {
+                depth: 2.0,
+                stepdown: 0.8,
+                ..ProfileParams::default().cut
+            },
             ..Default::default()
         };
         let tp = profile(&Shape::new(vec![sq]), &p).unwrap();
@@ -434,7 +401,10 @@ mod tests {
     fn bad_parameters_are_errors() {
         let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(10.0, 10.0));
         let p = ProfileParams {
-            stepdown: 0.0,
+            cut: Cutting {
+                stepdown: 0.0,
+                ..ProfileParams::default().cut
+            },
             ..Default::default()
         };
         assert!(matches!(
@@ -451,7 +421,10 @@ mod tests {
                 side: Side::On,
                 lead_in: 3.0,
                 lead_out: 2.0,
-                climb,
+                cut: Cutting {
+                    climb,
+                    ..ProfileParams::default().cut
+                },
                 ..Default::default()
             };
             let tp = profile(&Shape::new(vec![sq.clone()]), &p).unwrap();
@@ -496,11 +469,14 @@ mod tests {
         let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(40.0, 40.0));
         let p = ProfileParams {
             side: Side::On,
-            depth: 3.0,
-            stepdown: 1.0,
             tabs: 4,
             tab_width: 2.0,
             tab_height: 1.5,
+            cut: Cutting {
+                depth: 3.0,
+                stepdown: 1.0,
+                ..ProfileParams::default().cut
+            },
             ..Default::default()
         };
         let tp = profile(&Shape::new(vec![sq]), &p).unwrap();
