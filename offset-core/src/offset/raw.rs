@@ -3,7 +3,7 @@
 //! trimmed to their intersection (the pair-wise interference step, which removes the
 //! local invalid loops before the curve exists), and round joins at convex corners.
 
-use super::seg::{intersect, wrap, Seg};
+use super::seg::{intersect, wrap, Norm, Seg};
 use crate::geom::Point;
 use std::f64::consts::PI;
 
@@ -30,86 +30,251 @@ fn turn(t1: Point, t2: Point) -> f64 {
 
 /// Offsets one cleaned path's segments by `o` to the left of travel (negative: right).
 /// `closed` joins the last segment to the first. `eps` is the geometric tolerance.
+///
+/// Corners between two lines that turn towards the offset side are resolved with a stack
+/// (the pair-wise interference step of Choi & Park 1999): each new offset line meets the
+/// last one kept, and a kept line whose meeting point falls before its own start is
+/// dominated by its neighbours (the whole of it lies nearer the input than |o|) and is
+/// popped. Over a stretch that turns one way by less than π this is the intersection of the
+/// offset half-planes, i.e. the exact local offset, so the local invalid loops of a curve
+/// whose curvature radius falls below |o| never reach the global stage. Anything else
+/// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
+/// old pair-wise way and left to the global stage.
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
     let m = segs.len();
-    let mut off: Vec<Seg> = segs.iter().map(|s| offset_seg(s, o)).collect();
     if m == 0 {
         return Vec::new();
     }
-    // joins[k]: what connects off[k] to off[k+1]
-    let mut joins: Vec<Option<Seg>> = vec![None; m];
     let corners = if closed { m } else { m - 1 };
-    for k in 0..corners {
+    let turns: Vec<f64> = (0..corners)
+        .map(|k| turn(segs[k].tangent_at(1.0), segs[(k + 1) % m].tangent_at(0.0)))
+        .collect();
+    let stackable = |k: usize| -> bool {
+        let th = turns[k];
+        !segs[k].is_arc()
+            && !segs[(k + 1) % m].is_arc()
+            && th * o > 0.0
+            && th.abs() > 1e-9
+            && th.abs() < PI - 1e-9
+    };
+    // a closed path starts after a corner the stack does not handle, so no run wraps
+    let s0 = if closed {
+        (0..m).find(|&k| !stackable(k)).map_or(0, |k| (k + 1) % m)
+    } else {
+        0
+    };
+    let mut out: Vec<RawSeg> = Vec::with_capacity(2 * m);
+    out.push(RawSeg {
+        seg: offset_seg(&segs[s0], o),
+        origin: Origin::Offset,
+    });
+    let mut step = 0;
+    // corners before this one are joined the pair-wise way (a run the stack could not resolve)
+    let mut pairwise_until = 0;
+    while step < corners {
+        let k = (s0 + step) % m;
+        let closing = closed && step == m - 1;
+        if !closing && step >= pairwise_until && stackable(k) {
+            // the longest run of stackable corners from here, turning less than the cap
+            let mut end = step;
+            let mut total = 0.0;
+            while end < corners
+                && !(closed && end == m - 1)
+                && stackable((s0 + end) % m)
+                && total + turns[(s0 + end) % m].abs() < MAX_RUN_TURN
+            {
+                total += turns[(s0 + end) % m].abs();
+                end += 1;
+            }
+            if end > step {
+                let floor = out
+                    .pop()
+                    .map(|r| r.seg)
+                    .unwrap_or_else(|| offset_seg(&segs[k], o));
+                if let Some(run) = stack_run(segs, s0, step, end, floor, o, eps) {
+                    out.extend(run.into_iter().map(|seg| RawSeg {
+                        seg,
+                        origin: Origin::Offset,
+                    }));
+                    step = end;
+                    continue;
+                }
+                out.push(RawSeg {
+                    seg: floor,
+                    origin: Origin::Offset,
+                });
+                pairwise_until = end;
+            }
+        }
+        // the old pair-wise way for this one corner
         let k2 = (k + 1) % m;
-        let v = segs[k].b;
-        let t1 = segs[k].tangent_at(1.0);
-        let t2 = segs[k2].tangent_at(0.0);
-        let th = turn(t1, t2);
-        let p1 = off[k].b;
-        let p2 = off[k2].a;
-        let collinear = th.abs() <= 1e-12 || (p1.dist(p2) <= eps && th.abs() < PI * 0.5);
-        if collinear {
-            if p1.dist(p2) > 0.0 {
-                joins[k] = Some(Seg::line(p1, p2));
-            }
-            continue;
-        }
-        let concave = th * o > 0.0 && th.abs() < PI - 1e-12;
-        if concave {
-            // pair-wise interference: trim both to their meeting point nearest the corner
-            let h =
-                if !off[k].is_arc() && !off[k2].is_arc() && !segs[k].is_arc() && !segs[k2].is_arc()
-                {
-                    // two lines: their offsets meet on the corner's bisector, at the miter point;
-                    // computed directly it stays exact for nearly parallel neighbours
-                    let (n1, n2) = (t1.perp(), t2.perp());
-                    let x = v + (n1 + n2) * (o / (1.0 + n1.dot(n2)));
-                    let (t, u) = (off[k].param(x), off[k2].param(x));
-                    let (e1, e2) = (
-                        eps / off[k].length().max(eps),
-                        eps / off[k2].length().max(eps),
-                    );
-                    let mut h = super::seg::Hits::default();
-                    if t >= -e1 && t <= 1.0 + e1 && u >= -e2 && u <= 1.0 + e2 {
-                        h.n = 1;
-                        h.p[0] = (x, t.clamp(0.0, 1.0), u.clamp(0.0, 1.0));
-                    }
-                    h
-                } else {
-                    intersect(&off[k], &off[k2], eps)
-                };
-            let best = h
-                .iter()
-                .filter(|&(_, t, u)| t >= 0.0 && u >= 0.0)
-                .min_by(|x, y| x.0.dist(v).total_cmp(&y.0.dist(v)));
-            if let Some((x, t, u)) = best {
-                let a = &off[k];
-                off[k] = a.sub(0.0, a.a, t, x);
-                let b = &off[k2];
-                off[k2] = b.sub(u, x, 1.0, b.b);
-                continue;
-            }
-        }
-        joins[k] = Some(join_arc(v, p1, p2, o, concave));
-    }
-    let mut out = Vec::with_capacity(2 * m);
-    for k in 0..m {
-        if off[k].length() > eps * 1e-3 {
+        let mut next = if closing {
+            out[0].seg
+        } else {
+            offset_seg(&segs[k2], o)
+        };
+        let last = out.len() - 1;
+        let mut prev = out[last].seg;
+        let join = pair_corner(&segs[k], &segs[k2], &mut prev, &mut next, turns[k], o, eps);
+        out[last].seg = prev;
+        if let Some(j) = join {
             out.push(RawSeg {
-                seg: off[k],
+                seg: j,
+                origin: Origin::Join,
+            });
+        }
+        if closing {
+            out[0].seg = next;
+        } else {
+            out.push(RawSeg {
+                seg: next,
                 origin: Origin::Offset,
             });
         }
-        if let Some(j) = joins[k] {
-            if j.length() > eps * 1e-3 {
-                out.push(RawSeg {
-                    seg: j,
-                    origin: Origin::Join,
-                });
+        step += 1;
+    }
+    out.retain(|r| r.seg.length() > eps * 1e-3);
+    out
+}
+
+/// The stack over the corners `from..to` (counted from segment `s0`), starting with `floor`,
+/// the offset of the segment before corner `from` as it stands. Returns the kept lines, the
+/// first being `floor` trimmed; None when the run does not resolve into lines each kept
+/// within its own offset segment (then the corners are joined the pair-wise way).
+fn stack_run(
+    segs: &[Seg],
+    s0: usize,
+    from: usize,
+    to: usize,
+    floor: Seg,
+    o: f64,
+    eps: f64,
+) -> Option<Vec<Seg>> {
+    let m = segs.len();
+    // (kept part, the whole offset segment it is part of)
+    let mut stack: Vec<(Seg, Seg)> = Vec::with_capacity(to - from + 1);
+    stack.push((floor, offset_seg(&segs[(s0 + from) % m], o)));
+    for step in from..to {
+        let k = (s0 + step) % m;
+        let k2 = (k + 1) % m;
+        let whole = offset_seg(&segs[k2], o);
+        let mut next = whole;
+        let mut adjacent = true;
+        loop {
+            let (top, top_whole) = stack[stack.len() - 1];
+            let x = if adjacent {
+                // the neighbours' offsets meet on the corner's bisector: computed from the
+                // corner it stays exact for nearly parallel neighbours
+                let (n1, n2) = (
+                    segs[k].tangent_at(1.0).perp(),
+                    segs[k2].tangent_at(0.0).perp(),
+                );
+                segs[k].b + (n1 + n2) * (o / (1.0 + n1.dot(n2)))
+            } else {
+                line_meet(&top_whole, &whole)?
+            };
+            // how far past the kept line's start, along its own direction
+            let ahead = (x - top.a).dot(top_whole.b - top_whole.a) / top_whole.length();
+            if ahead > eps * 1e-3 {
+                let last = stack.len() - 1;
+                stack[last].0 = Seg::line(top.a, x);
+                next = Seg::line(x, next.b);
+                break;
             }
+            if stack.len() == 1 {
+                return None;
+            }
+            // dominated by its neighbours: every point of it lies too near the input
+            stack.pop();
+            adjacent = false;
+        }
+        stack.push((next, whole));
+    }
+    // every kept line must lie, in its own direction, within its own offset segment
+    let n = stack.len();
+    for (i, (kept, whole)) in stack.iter().enumerate() {
+        let e = eps / whole.length().max(eps);
+        let (ta, tb) = (whole.param(kept.a), whole.param(kept.b));
+        let start_ok = i == 0 || ta >= -e;
+        let end_ok = i == n - 1 || tb <= 1.0 + e;
+        if !(start_ok && end_ok && tb > ta) {
+            return None;
         }
     }
-    out
+    Some(stack.into_iter().map(|(kept, _)| kept).collect())
+}
+
+/// How far one stack run may turn: the stack is exact for a stretch turning one way by
+/// less than π; a margin keeps the meeting points well conditioned.
+const MAX_RUN_TURN: f64 = 0.9 * PI;
+
+/// Where the lines through `top` and `next` meet.
+/// None when they are parallel.
+fn line_meet(top: &Seg, next: &Seg) -> Option<Point> {
+    let d1 = top.b - top.a;
+    let d2 = next.b - next.a;
+    let den = d1.cross(d2);
+    if den.abs() <= 1e-14 * d1.norm() * d2.norm() {
+        return None;
+    }
+    let t = (next.a - top.a).cross(d2) / den;
+    Some(top.a + d1 * t)
+}
+
+/// The old pair-wise handling of one corner between `prev` (the offset of `s1`, maybe
+/// trimmed at its start) and `next` (the offset of `s2`): trims both to their meeting point
+/// when they interfere, else returns the arc (or line) that joins them.
+fn pair_corner(
+    s1: &Seg,
+    s2: &Seg,
+    prev: &mut Seg,
+    next: &mut Seg,
+    th: f64,
+    o: f64,
+    eps: f64,
+) -> Option<Seg> {
+    let v = s1.b;
+    let t1 = s1.tangent_at(1.0);
+    let t2 = s2.tangent_at(0.0);
+    let p1 = prev.b;
+    let p2 = next.a;
+    let collinear = th.abs() <= 1e-12 || (p1.dist(p2) <= eps && th.abs() < PI * 0.5);
+    if collinear {
+        if p1.dist(p2) > 0.0 {
+            return Some(Seg::line(p1, p2));
+        }
+        return None;
+    }
+    let concave = th * o > 0.0 && th.abs() < PI - 1e-12;
+    if concave {
+        // pair-wise interference: trim both to their meeting point nearest the corner
+        let h = if !prev.is_arc() && !next.is_arc() && !s1.is_arc() && !s2.is_arc() {
+            // two lines: their offsets meet on the corner's bisector, at the miter point;
+            // computed directly it stays exact for nearly parallel neighbours
+            let (n1, n2) = (t1.perp(), t2.perp());
+            let x = v + (n1 + n2) * (o / (1.0 + n1.dot(n2)));
+            let (t, u) = (prev.param(x), next.param(x));
+            let (e1, e2) = (eps / prev.length().max(eps), eps / next.length().max(eps));
+            let mut h = super::seg::Hits::default();
+            if t >= -e1 && t <= 1.0 + e1 && u >= -e2 && u <= 1.0 + e2 {
+                h.n = 1;
+                h.p[0] = (x, t.clamp(0.0, 1.0), u.clamp(0.0, 1.0));
+            }
+            h
+        } else {
+            intersect(prev, next, eps)
+        };
+        let best = h
+            .iter()
+            .filter(|&(_, t, u)| t >= 0.0 && u >= 0.0)
+            .min_by(|x, y| x.0.dist(v).total_cmp(&y.0.dist(v)));
+        if let Some((x, t, u)) = best {
+            *prev = prev.sub(0.0, prev.a, t, x);
+            *next = next.sub(u, x, 1.0, next.b);
+            return None;
+        }
+    }
+    Some(join_arc(v, p1, p2, o, concave))
 }
 
 /// The arc about the corner `v` from `p1` to `p2`: the convex way for `o` when `concave` is
@@ -167,5 +332,76 @@ pub fn offset_seg(s: &Seg, o: f64) -> Seg {
     } else {
         let n = (s.b - s.a).unit().perp() * o;
         Seg::line(s.a + n, s.b + n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A long line, a dense bend of radius `rho` turning `turn` radians to the left, and a
+    /// long line out: the inside of the bend is to the left.
+    fn bend(rho: f64, turn: f64, n: usize) -> Vec<Seg> {
+        let mut pts = vec![Point::new(-20.0, -rho)];
+        for i in 0..=n {
+            let a = -PI / 2.0 + turn * i as f64 / n as f64;
+            pts.push(Point::new(rho * a.cos(), rho * a.sin()));
+        }
+        let a = -PI / 2.0 + turn;
+        let last = pts[pts.len() - 1];
+        pts.push(last + Point::new(-a.sin(), a.cos()) * 20.0);
+        pts.windows(2).map(|w| Seg::line(w[0], w[1])).collect()
+    }
+
+    fn dist_to(segs: &[Seg], p: Point) -> f64 {
+        segs.iter().map(|s| s.dist(p)).fold(f64::INFINITY, f64::min)
+    }
+
+    #[test]
+    fn the_stack_removes_the_local_loops_of_a_bend_tighter_than_the_distance() {
+        // curvature radius 0.3 and 0.6 against a distance of 1: the offset of the bend
+        // folds back on itself (a swallowtail); a sparse and a dense sampling of it
+        for (rho, n) in [(0.3, 12), (0.3, 400), (0.6, 50), (0.6, 2000)] {
+            let segs = bend(rho, 2.0, n);
+            let d = 1.0;
+            let raw = raw_offset(&segs, false, d, 1e-7);
+            // nothing of the raw offset is nearer the input than d: the loop is gone
+            for r in &raw {
+                for t in [0.0, 0.25, 0.5, 0.75, 1.0] {
+                    let p = r.seg.point_at(t);
+                    let got = dist_to(&segs, p);
+                    assert!(
+                        got > d - 1e-9,
+                        "rho {rho} n {n}: {p:?} is {got} from the input"
+                    );
+                }
+            }
+            // and no two raw pieces cross: the global stage has nothing to do
+            for i in 0..raw.len() {
+                for j in i + 2..raw.len() {
+                    let h = intersect(&raw[i].seg, &raw[j].seg, 1e-9);
+                    assert_eq!(h.n, 0, "rho {rho} n {n}: pieces {i} and {j} cross");
+                }
+            }
+            // the two long lines' offsets meet inside the bend, at distance d from both
+            let first = raw[0].seg;
+            let last = raw[raw.len() - 1].seg;
+            assert!((dist_to(&segs, first.b) - d).abs() < 1e-9);
+            assert!(
+                first.b.dist(last.a) < 1e-9,
+                "one corner: {first:?} {last:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_bend_wider_than_the_distance_keeps_every_offset_segment() {
+        let segs = bend(3.0, 2.0, 40);
+        let raw = raw_offset(&segs, false, 1.0, 1e-7);
+        assert_eq!(raw.len(), segs.len());
+        for (r, s) in raw.iter().zip(&segs) {
+            let mid = r.seg.point_at(0.5);
+            assert!((s.dist(mid) - 1.0).abs() < 1e-9);
+        }
     }
 }

@@ -1,0 +1,50 @@
+//! Offsets the benchmark's wavy gear (n vertices, optionally with 10 islands) `reps` times,
+//! for profiling: `cargo run --release -p offset-core --example gear_offset -- 100000 20 [islands]`.
+
+use offset_core::geom::{Point, Polyline, Region};
+use offset_core::offset::{offset_region, OffsetOptions};
+use std::time::Instant;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let n: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(100_000);
+    let reps: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
+    let with_islands = args.iter().any(|a| a == "islands");
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            let r = 50.0 + 2.0 * (60.0 * a).sin();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    let islands = if with_islands {
+        (0..10)
+            .map(|k| {
+                let a = k as f64 / 10.0 * std::f64::consts::TAU;
+                Polyline::circle(Point::new(a.cos(), a.sin()) * 30.0, 4.0).reversed()
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let region = Region {
+        outer: Polyline::from_points(&pts, true),
+        islands,
+    };
+    let opts = OffsetOptions::default();
+    let mut best = f64::INFINITY;
+    let mut verts = 0;
+    for _ in 0..reps {
+        let t = Instant::now();
+        let out = offset_region(&region, -1.0, &opts).expect("offset");
+        best = best.min(t.elapsed().as_secs_f64());
+        verts = out
+            .iter()
+            .map(|r| r.outer.len() + r.islands.iter().map(|i| i.len()).sum::<usize>())
+            .sum();
+    }
+    println!(
+        "n = {n}: best {:.1} ms, {verts} output vertices",
+        best * 1e3
+    );
+}
