@@ -115,10 +115,27 @@ impl BoxIndex {
             .collect();
         keyed.sort_unstable();
         let items: Vec<u32> = keyed.iter().map(|k| k.1).collect();
-        let mut boxes: Vec<BBox> = items.iter().map(|&i| item_boxes[i as usize]).collect();
+        let boxes: Vec<BBox> = items.iter().map(|&i| item_boxes[i as usize]).collect();
+        BoxIndex::pack(boxes, items)
+    }
+
+    /// The tree over boxes already in a spatially coherent order (the segments of paths,
+    /// one after another), packed as they come: O(n), no sort.
+    pub fn in_order(item_boxes: &[BBox]) -> BoxIndex {
+        let n = item_boxes.len();
+        if n == 0 {
+            return BoxIndex::default();
+        }
+        let mut boxes: Vec<BBox> = Vec::with_capacity(n + n / (NODE - 1) + 2);
+        boxes.extend_from_slice(item_boxes);
+        BoxIndex::pack(boxes, (0..n as u32).collect())
+    }
+
+    /// Adds the levels above the leaves (`boxes` holds the leaves in order).
+    fn pack(mut boxes: Vec<BBox>, items: Vec<u32>) -> BoxIndex {
         let mut levels = vec![0usize];
         let mut start = 0;
-        let mut count = n;
+        let mut count = items.len();
         while count > 1 {
             let end = start + count;
             let mut k = start;
@@ -239,7 +256,8 @@ impl BoxIndex {
 }
 
 /// Calls `f(i, j)` (i < j) for every pair of overlapping boxes: sweep and prune along the
-/// wider axis, O(n log n) plus the pairs that overlap on that axis.
+/// wider axis, O(n log n) plus the pairs that overlap on that axis. The boxes are copied
+/// in sweep order first, so the inner loop reads memory in sequence.
 pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
     let mut all = [
         f64::INFINITY,
@@ -255,16 +273,30 @@ pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
     } else {
         (1, 3, 0, 2)
     };
-    let mut order: Vec<u32> = (0..boxes.len() as u32).collect();
-    order.sort_unstable_by(|&a, &b| boxes[a as usize][lo].total_cmp(&boxes[b as usize][lo]));
-    for (k, &i) in order.iter().enumerate() {
-        let bi = &boxes[i as usize];
-        for &j in &order[k + 1..] {
-            let bj = &boxes[j as usize];
-            if bj[lo] > bi[hi] {
+    let mut keys: Vec<(f64, u32)> = boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (b[lo], i as u32))
+        .collect();
+    keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    // [sweep-axis max, other-axis min, other-axis max] in sweep order, beside the keys
+    let rest: Vec<[f64; 3]> = keys
+        .iter()
+        .map(|&(_, i)| {
+            let b = &boxes[i as usize];
+            [b[hi], b[olo], b[ohi]]
+        })
+        .collect();
+    for k in 0..keys.len() {
+        let [hi_i, olo_i, ohi_i] = rest[k];
+        let i = keys[k].1;
+        for m in k + 1..keys.len() {
+            if keys[m].0 > hi_i {
                 break;
             }
-            if bj[olo] <= bi[ohi] && bi[olo] <= bj[ohi] {
+            let [_, olo_j, ohi_j] = rest[m];
+            if olo_j <= ohi_i && olo_i <= ohi_j {
+                let j = keys[m].1;
                 let (a, b) = if i < j { (i, j) } else { (j, i) };
                 f(a as usize, b as usize);
             }

@@ -7,7 +7,7 @@ mod prune;
 mod raw;
 pub mod seg;
 
-use crate::geom::{Point, Polyline, Region, Shape, Vertex};
+use crate::geom::{Bounds, Point, Polyline, Region, Shape, Vertex};
 use prune::{prune, Chain, InputSet, RawPath};
 use seg::Seg;
 use serde::{Deserialize, Serialize};
@@ -85,7 +85,7 @@ pub fn offset_polyline(
         check_crossings(&[(&segs, true)], eps)?;
         if distance == 0.0 {
             let out = build(segs, true, eps)
-                .map(|p| if ccw { p } else { p.reversed() })
+                .map(|l| if ccw { l.poly } else { l.poly.reversed() })
                 .into_iter()
                 .collect();
             return Ok(out);
@@ -96,12 +96,15 @@ pub fn offset_polyline(
         let loops = run(&[(segs, true)], &[], -distance, opts, eps);
         Ok(loops
             .into_iter()
-            .map(|p| if ccw { p } else { p.reversed() })
+            .map(|l| if ccw { l.poly } else { l.poly.reversed() })
             .collect())
     } else {
         check_crossings(&[(&segs, false)], eps)?;
         if distance == 0.0 {
-            return Ok(build(segs, false, eps).into_iter().collect());
+            return Ok(build(segs, false, eps)
+                .map(|l| l.poly)
+                .into_iter()
+                .collect());
         }
         let r = distance.abs();
         let mut splitters = Vec::new();
@@ -128,7 +131,10 @@ pub fn offset_polyline(
                 .into_iter()
                 .map(|r| r.seg),
         );
-        Ok(run(&[(segs, false)], &splitters, distance, opts, eps))
+        Ok(run(&[(segs, false)], &splitters, distance, opts, eps)
+            .into_iter()
+            .map(|l| l.poly)
+            .collect())
     }
 }
 
@@ -169,7 +175,7 @@ pub fn offset_region(
     if shrinks_away(&loops[0].0, distance) {
         return Ok(Vec::new());
     }
-    let polys: Vec<Polyline> = if distance == 0.0 {
+    let polys: Vec<Loop> = if distance == 0.0 {
         loops
             .into_iter()
             .filter_map(|(s, c)| build(s, c, eps))
@@ -183,16 +189,14 @@ pub fn offset_region(
 /// Sorts loops into regions: counter-clockwise loops are outers, clockwise ones islands of
 /// the smallest outer around them. An island with no outer around it is what is left of an
 /// island whose offset swallowed the outer's (Park 2001): it goes.
-fn assemble(polys: Vec<Polyline>) -> Vec<Region> {
-    let mut outers: Vec<(Polyline, f64, crate::geom::Bounds)> = Vec::new();
+fn assemble(polys: Vec<Loop>) -> Vec<Region> {
+    let mut outers: Vec<(Polyline, f64, Bounds)> = Vec::new();
     let mut islands = Vec::new();
-    for p in polys {
-        let a = p.area();
-        if a > 0.0 {
-            let b = p.bounds();
-            outers.push((p, a, b));
+    for l in polys {
+        if l.area > 0.0 {
+            outers.push((l.poly, l.area, l.bounds));
         } else {
-            islands.push(p);
+            islands.push(l.poly);
         }
     }
     let mut regions: Vec<Region> = outers
@@ -369,11 +373,16 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
             return;
         }
         let (si, sj) = (&all[i], &all[j]);
+        let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
+        if (adj_ij && prune::meet_only_at_the_joint(si, sj, eps))
+            || (adj_ji && prune::meet_only_at_the_joint(sj, si, eps))
+        {
+            return;
+        }
         let h = seg::intersect(si, sj, eps);
         if h.n == 0 {
             return;
         }
-        let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
         if (adj_ij || adj_ji) && !si.is_arc() && !sj.is_arc() {
             // lines sharing a vertex: only a spike can overlap, and a spike is allowed
             let d1 = si.b - si.a;
@@ -528,7 +537,7 @@ fn run(
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
-) -> Vec<Polyline> {
+) -> Vec<Loop> {
     let raws: Vec<RawPath> = paths
         .iter()
         .map(|(segs, closed)| RawPath {
@@ -554,9 +563,17 @@ fn run(
     out
 }
 
+/// A finished path with its signed area (0 when open) and bounds, measured from its
+/// segments while they are at hand.
+struct Loop {
+    poly: Polyline,
+    area: f64,
+    bounds: Bounds,
+}
+
 /// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
 /// co-circular arcs merged, loops with no area (a region offset to a line) dropped.
-fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Polyline> {
+fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     let tiny = eps * 1e-2;
     let mut out: Vec<Seg> = Vec::with_capacity(segs.len());
     for s in segs {
@@ -582,12 +599,20 @@ fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Polyline> {
                 None => break,
             }
         }
-        let len: f64 = out.iter().map(|s| s.length()).sum();
-        let area: f64 = out.iter().map(|s| s.area2()).sum::<f64>() * 0.5;
-        if out.len() < 2 || area.abs() <= eps * len {
-            return None;
-        }
     } else if out.is_empty() {
+        return None;
+    }
+    let (mut len, mut area2) = (0.0, 0.0);
+    let mut bounds = Bounds::EMPTY;
+    for s in &out {
+        len += s.length();
+        area2 += s.area2();
+        let b = s.bbox();
+        bounds.add_point(Point::new(b[0], b[1]));
+        bounds.add_point(Point::new(b[2], b[3]));
+    }
+    let area = if closed { area2 * 0.5 } else { 0.0 };
+    if closed && (out.len() < 2 || area.abs() <= eps * len) {
         return None;
     }
     let mut vs: Vec<Vertex> = out
@@ -598,7 +623,11 @@ fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Polyline> {
         let e = out[out.len() - 1].b;
         vs.push(Vertex::new(e.x, e.y, 0.0));
     }
-    Some(Polyline::new(vs, closed))
+    Some(Loop {
+        poly: Polyline::new(vs, closed),
+        area,
+        bounds,
+    })
 }
 
 /// `s1` followed by `s2` as one segment, when they lie on one line or one arc.

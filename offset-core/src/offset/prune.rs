@@ -15,10 +15,12 @@ pub struct InputSet {
 }
 
 impl InputSet {
+    /// `segs` are the input paths one after another: neighbours along a path lie side by
+    /// side, so the tree packs them in this order without sorting.
     pub fn new(segs: Vec<Seg>) -> InputSet {
         let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
         InputSet {
-            index: BoxIndex::new(&boxes),
+            index: BoxIndex::in_order(&boxes),
             segs,
         }
     }
@@ -53,6 +55,21 @@ pub struct Chain {
     /// per segment: it is a whole round join (one a miter or chamfer may replace)
     pub whole_join: Vec<bool>,
     pub closed: bool,
+}
+
+/// Whether `s1` followed by `s2` (joined end to start) can meet nowhere but at their joint:
+/// two lines going on at less than a right angle, or a line and an arc tangent at the
+/// joint (a tangent line touches a circle once; the slack allows for the arc's radius).
+pub fn meet_only_at_the_joint(s1: &Seg, s2: &Seg, eps: f64) -> bool {
+    match (s1.is_arc(), s2.is_arc()) {
+        (false, false) => (s1.b - s1.a).dot(s2.b - s2.a) > 0.0,
+        (true, true) => false,
+        _ => {
+            let (t1, t2) = (s1.tangent_at(1.0), s2.tangent_at(0.0));
+            let r = if s1.is_arc() { s1.r } else { s2.r };
+            t1.dot(t2) > 0.0 && t1.cross(t2).abs() * r <= eps * 0.25
+        }
+    }
 }
 
 fn grow(b: BBox, e: f64) -> BBox {
@@ -132,11 +149,16 @@ pub fn prune(
             return;
         }
         let sj = &rs[j];
+        let (ni, nj) = (next(i), next(j));
+        if (ni == Some(j) && meet_only_at_the_joint(&si, sj, eps))
+            || (nj == Some(i) && meet_only_at_the_joint(sj, &si, eps))
+        {
+            return;
+        }
         let h = intersect(&si, sj, eps);
         if h.n == 0 {
             return;
         }
-        let (ni, nj) = (next(i), next(j));
         // segments a few sub-ε pieces apart along the curve (a dense loop shrunk almost to a
         // point leaves pieces shorter than ε): where they meet near the stretch between them
         // they only touch through it, no loop of any size lies between them

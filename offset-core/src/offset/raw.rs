@@ -295,15 +295,18 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
         }
     }
     let r = (v1.len() + v2.len()) * 0.5;
-    if r == 0.0 || sw == 0.0 {
+    if r == 0.0 || sw == 0.0 || p1 == p2 {
         return Seg::line(p1, p2);
     }
-    // the arc through p1 and p2 with this sweep (centre at v when both are at distance r)
-    let chord = p1.dist(p2);
-    if chord == 0.0 {
-        return Seg::line(p1, p2);
+    // both ends lie |o| from the corner: the arc is about it
+    Seg {
+        a: p1,
+        b: p2,
+        c: v,
+        r,
+        sa: v1.y.atan2(v1.x),
+        sw,
     }
-    Seg::from_bulge(p1, p2, (sw / 4.0).tan())
 }
 
 /// One segment moved by `o` to its left. An arc whose radius would fall to zero or below
