@@ -304,6 +304,45 @@ pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
     }
 }
 
+/// `overlapping_pairs` for boxes in path order (each next to the one before, as the
+/// segments of paths one after another): groups of `GROUP` consecutive boxes are swept as
+/// one box each, and only overlapping groups are compared box by box. Same pairs, a sort
+/// of n / `GROUP` keys instead of n.
+pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
+    const GROUP: usize = 8;
+    let overlap = |a: &BBox, b: &BBox| !(a[0] > b[2] || a[2] < b[0] || a[1] > b[3] || a[3] < b[1]);
+    let groups: Vec<BBox> = boxes
+        .chunks(GROUP)
+        .map(|c| c[1..].iter().fold(c[0], |u, b| union(&u, b)))
+        .collect();
+    for g in 0..groups.len() {
+        let end = ((g + 1) * GROUP).min(boxes.len());
+        for i in g * GROUP..end {
+            for j in i + 1..end {
+                if overlap(&boxes[i], &boxes[j]) {
+                    f(i, j);
+                }
+            }
+        }
+    }
+    overlapping_pairs(&groups, |g, h| {
+        let (g_end, h_end) = (
+            ((g + 1) * GROUP).min(boxes.len()),
+            ((h + 1) * GROUP).min(boxes.len()),
+        );
+        for i in g * GROUP..g_end {
+            if !overlap(&boxes[i], &groups[h]) {
+                continue;
+            }
+            for j in h * GROUP..h_end {
+                if overlap(&boxes[i], &boxes[j]) {
+                    f(i, j);
+                }
+            }
+        }
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -358,6 +397,10 @@ mod tests {
             }
         }
         assert_eq!(pairs, brute);
+        let mut grouped = Vec::new();
+        overlapping_pairs_in_order(&boxes, |i, j| grouped.push((i, j)));
+        grouped.sort();
+        assert_eq!(grouped, brute);
         let mut best = None;
         idx.nearest(
             50.2,

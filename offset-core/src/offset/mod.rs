@@ -368,7 +368,7 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
         kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
     };
     let mut err: Option<(usize, OffsetError)> = None;
-    index::overlapping_pairs(&boxes, |i, j| {
+    index::overlapping_pairs_in_order(&boxes, |i, j| {
         if err.as_ref().is_some_and(|(k, _)| *k <= i.min(j)) {
             return;
         }

@@ -2,7 +2,7 @@
 //! split them there, drop each run that comes nearer the input than |d| (minus a hair), and
 //! stitch the surviving runs end to end into the offset's paths.
 
-use super::index::{overlapping_pairs, BBox, BoxIndex};
+use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
 use super::raw::{Origin, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
@@ -136,7 +136,7 @@ pub fn prune(
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
     // (segment, parameter, point) of every split
     let mut splits: Vec<(u32, f64, Point)> = Vec::new();
-    overlapping_pairs(&boxes, |i, j| {
+    overlapping_pairs_in_order(&boxes, |i, j| {
         if i >= n {
             return;
         }

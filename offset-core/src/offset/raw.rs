@@ -46,16 +46,25 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         return Vec::new();
     }
     let corners = if closed { m } else { m - 1 };
-    let turns: Vec<f64> = (0..corners)
-        .map(|k| turn(segs[k].tangent_at(1.0), segs[(k + 1) % m].tangent_at(0.0)))
+    // per corner: the unit tangents in and out
+    let tangents: Vec<(Point, Point)> = (0..corners)
+        .map(|k| (segs[k].tangent_at(1.0), segs[(k + 1) % m].tangent_at(0.0)))
         .collect();
     let stackable = |k: usize| -> bool {
-        let th = turns[k];
+        let (t1, t2) = tangents[k];
+        let (cr, dt) = (t1.cross(t2), t1.dot(t2));
+        // two lines turning towards the offset side, neither straight on nor reversing
         !segs[k].is_arc()
             && !segs[(k + 1) % m].is_arc()
-            && th * o > 0.0
-            && th.abs() > 1e-9
-            && th.abs() < PI - 1e-9
+            && cr * o > 0.0
+            && (cr.abs() > 1e-9 || dt < 0.0)
+            && !(dt < 0.0 && cr.abs() < 1e-9)
+    };
+    // whether the line after corner k has turned less than MAX_RUN_TURN from `first`, the
+    // run's first line (the run turns one way, checked at every corner, so it cannot wrap)
+    let within_cap = |first: Point, k: usize| -> bool {
+        let t = tangents[k].1;
+        first.cross(t) * o >= 0.0 && first.dot(t) > MAX_RUN_TURN.cos()
     };
     // a closed path starts after a corner the stack does not handle, so no run wraps
     let s0 = if closed {
@@ -76,14 +85,13 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         let closing = closed && step == m - 1;
         if !closing && step >= pairwise_until && stackable(k) {
             // the longest run of stackable corners from here, turning less than the cap
+            let first = tangents[k].0;
             let mut end = step;
-            let mut total = 0.0;
             while end < corners
                 && !(closed && end == m - 1)
                 && stackable((s0 + end) % m)
-                && total + turns[(s0 + end) % m].abs() < MAX_RUN_TURN
+                && within_cap(first, (s0 + end) % m)
             {
-                total += turns[(s0 + end) % m].abs();
                 end += 1;
             }
             if end > step {
@@ -115,7 +123,16 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         };
         let last = out.len() - 1;
         let mut prev = out[last].seg;
-        let join = pair_corner(&segs[k], &segs[k2], &mut prev, &mut next, turns[k], o, eps);
+        let (t1, t2) = tangents[k];
+        let join = pair_corner(
+            &segs[k],
+            &segs[k2],
+            &mut prev,
+            &mut next,
+            turn(t1, t2),
+            o,
+            eps,
+        );
         out[last].seg = prev;
         if let Some(j) = join {
             out.push(RawSeg {

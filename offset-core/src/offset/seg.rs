@@ -135,8 +135,14 @@ impl Seg {
     /// Unit tangent in the direction of travel at parameter t.
     pub fn tangent_at(&self, t: f64) -> Point {
         if self.is_arc() {
-            let ang = self.sa + self.sw * t;
-            let rad = Point::new(ang.cos(), ang.sin());
+            let rad = if t <= 0.0 {
+                (self.a - self.c) * (1.0 / self.r)
+            } else if t >= 1.0 {
+                (self.b - self.c) * (1.0 / self.r)
+            } else {
+                let ang = self.sa + self.sw * t;
+                Point::new(ang.cos(), ang.sin())
+            };
             if self.sw > 0.0 {
                 rad.perp()
             } else {
