@@ -10,6 +10,7 @@ fn main() {
     let n: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(100_000);
     let reps: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(10);
     let with_islands = args.iter().any(|a| a == "islands");
+    let check = args.iter().any(|a| a == "check");
     let pts: Vec<Point> = (0..n)
         .map(|i| {
             let a = i as f64 / n as f64 * std::f64::consts::TAU;
@@ -33,18 +34,24 @@ fn main() {
     };
     let opts = OffsetOptions::default();
     let mut best = f64::INFINITY;
-    let mut verts = 0;
+    let mut out = Vec::new();
     for _ in 0..reps {
         let t = Instant::now();
-        let out = offset_region(&region, -1.0, &opts).expect("offset");
+        out = offset_region(&region, -1.0, &opts).expect("offset");
         best = best.min(t.elapsed().as_secs_f64());
-        verts = out
-            .iter()
-            .map(|r| r.outer.len() + r.islands.iter().map(|i| i.len()).sum::<usize>())
-            .sum();
     }
+    let paths: Vec<Polyline> = out.iter().flat_map(|r| r.boundaries().cloned()).collect();
+    let verts: usize = paths.iter().map(|p| p.len()).sum();
     println!(
-        "n = {n}: best {:.1} ms, {verts} output vertices",
-        best * 1e3
+        "n = {n}: best {:.1} ms, {} loops, {verts} output vertices",
+        best * 1e3,
+        paths.len()
     );
+    if check {
+        let input: Vec<Polyline> = region.boundaries().cloned().collect();
+        let worst = offset_core::check::Checker::new(&input)
+            .check(&paths, -1.0, opts.tolerance)
+            .worst();
+        println!("worst deviation {worst:.2e}");
+    }
 }

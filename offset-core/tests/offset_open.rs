@@ -148,3 +148,23 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn a_walk_whose_right_offset_starts_where_its_end_circle_cuts() {
+    // found by the random walks: the offset's first piece came back crossing itself
+    let steps = [
+        (0.5, 0.0, 0.0),
+        (0.5, 0.44571565547278147, 0.0),
+        (4.400773994670923, -0.0714947558979202, 0.0),
+        (0.8326614143580268, -0.986822752038798, 0.0),
+        (2.280116119192527, -0.28326746373578926, 0.0),
+        (1.347333388389351, -0.4532769082286158, 0.0),
+        (5.618704331282952, -1.1239364130671954, 0.0),
+        (5.72943537030147, -0.07168044342875574, -0.16484776887977634),
+        (0.5, 0.0, 0.0),
+    ];
+    let p = walk(&steps);
+    let d = -3.467918780382937;
+    let out = offset_polyline(&p, d, &OffsetOptions::default()).unwrap();
+    assert_offset(std::slice::from_ref(&p), &out, d, 1e-3);
+}

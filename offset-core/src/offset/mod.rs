@@ -545,9 +545,9 @@ fn run(
             closed: *closed,
         })
         .collect();
-    let input = InputSet::new(paths.iter().flat_map(|(s, _)| s.iter().copied()).collect());
+    let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = (opts.tolerance * 0.01).max(eps * 10.0);
-    let chains = prune(&raws, splitters, &input, o.abs(), eps, valid_eps);
+    let chains = prune(&raws, splitters, &mut input, o.abs(), eps, valid_eps);
     let mut out = Vec::with_capacity(chains.len());
     for Chain {
         segs,
@@ -555,6 +555,11 @@ fn run(
         closed,
     } in chains
     {
+        // an open piece no longer than the validity slack is a sliver at a crossing (three
+        // curves meeting almost at one point), not a path of its own
+        if !closed && segs.iter().map(|s| s.length()).sum::<f64>() <= valid_eps {
+            continue;
+        }
         let segs = joins::apply(segs, &whole_join, opts);
         if let Some(p) = build(segs, closed, eps) {
             out.push(p);

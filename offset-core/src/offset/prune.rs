@@ -8,20 +8,28 @@ use super::seg::{intersect, Seg};
 use crate::geom::Point;
 use std::collections::HashMap;
 
-/// The input segments with their R-tree, for distance questions.
-pub struct InputSet {
-    pub segs: Vec<Seg>,
-    index: BoxIndex,
+/// The input paths' segments, for distance questions. A handful of questions is answered
+/// by scanning every segment; for more, an R-tree is built first (packed in path order:
+/// neighbours along a path lie side by side, so no sort).
+pub struct InputSet<'a> {
+    paths: Vec<&'a [Seg]>,
+    index: Option<(BoxIndex, Vec<&'a Seg>)>,
 }
 
-impl InputSet {
-    /// `segs` are the input paths one after another: neighbours along a path lie side by
-    /// side, so the tree packs them in this order without sorting.
-    pub fn new(segs: Vec<Seg>) -> InputSet {
-        let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
-        InputSet {
-            index: BoxIndex::in_order(&boxes),
-            segs,
+/// Up to this many questions a scan is cheaper than building the tree.
+const SCANS: usize = 4;
+
+impl<'a> InputSet<'a> {
+    pub fn new(paths: Vec<&'a [Seg]>) -> InputSet<'a> {
+        InputSet { paths, index: None }
+    }
+
+    /// Prepares for about `questions` distance questions.
+    pub fn expect(&mut self, questions: usize) {
+        if questions > SCANS && self.index.is_none() {
+            let segs: Vec<&Seg> = self.paths.iter().flat_map(|p| p.iter()).collect();
+            let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
+            self.index = Some((BoxIndex::in_order(&boxes), segs));
         }
     }
 
@@ -31,9 +39,22 @@ impl InputSet {
             return false;
         }
         let q = [p.x - thr, p.y - thr, p.x + thr, p.y + thr];
+        let Some((index, segs)) = &self.index else {
+            return self.paths.iter().any(|segs| {
+                segs.iter().any(|s| {
+                    // the ends' box first: a line wholly outside the query square is
+                    // skipped without a distance (an arc may bulge into it)
+                    let out = s.a.x.min(s.b.x) > q[2]
+                        || s.a.x.max(s.b.x) < q[0]
+                        || s.a.y.min(s.b.y) > q[3]
+                        || s.a.y.max(s.b.y) < q[1];
+                    !(out && !s.is_arc()) && s.dist(p) < thr
+                })
+            });
+        };
         let mut found = false;
-        self.index.query(&q, |i| {
-            if self.segs[i].dist(p) < thr {
+        index.query(&q, |i| {
+            if segs[i].dist(p) < thr {
                 found = true;
                 return false;
             }
@@ -82,7 +103,7 @@ fn grow(b: BBox, e: f64) -> BBox {
 pub fn prune(
     paths: &[RawPath],
     splitters: &[Seg],
-    input: &InputSet,
+    input: &mut InputSet,
     dist: f64,
     eps: f64,
     valid_eps: f64,
@@ -189,11 +210,28 @@ pub fn prune(
         brk: bool,
         whole_join: bool,
     }
+    let mut chains = Vec::new();
+    // a closed raw curve that nothing crosses is one run: kept whole or dropped whole
+    let mut uncut = vec![false; paths.len()];
+    let mut sp = 0;
+    for (pi, p) in paths.iter().enumerate() {
+        let (a, b) = (start[pi], start[pi + 1]);
+        while sp < splits.len() && (splits[sp].0 as usize) < a {
+            sp += 1;
+        }
+        if !p.closed || b == a || (sp < splits.len() && (splits[sp].0 as usize) < b) {
+            continue;
+        }
+        uncut[pi] = true;
+    }
     let mut pieces: Vec<Piece> = Vec::with_capacity(n + splits.len());
     let mut pstart: Vec<usize> = Vec::with_capacity(paths.len() + 1);
     let mut sp = 0;
     for (pi, p) in paths.iter().enumerate() {
         pstart.push(pieces.len());
+        if uncut[pi] {
+            continue;
+        }
         let first = pieces.len();
         let mut brk = false;
         for g in start[pi]..start[pi + 1] {
@@ -293,9 +331,33 @@ pub fn prune(
         &pieces[if idx >= b { idx - (b - a) } else { idx }]
     };
 
-    // validity: the midpoint and the quarter point of the run's longest piece must keep
-    // their distance
+    let uncut_count = uncut.iter().filter(|&&u| u).count();
+    input.expect(2 * (uncut_count + runs.len()));
+    let input = &*input;
+    // the validity test of a run: the midpoint and the quarter point of its longest piece
+    // must keep their distance (two samples: a run may pass through a point exactly |d|
+    // from two boundaries, where an island touches the outer, its offset's crossing with
+    // the outer's lies symmetric about that point, while the rest of it comes nearer)
     let thr = dist - valid_eps;
+    let keeps_distance = |longest: &Seg| -> bool {
+        !input.any_closer(longest.point_at(0.5), thr)
+            && !input.any_closer(longest.point_at(0.25), thr)
+    };
+    for (pi, _) in paths.iter().enumerate().filter(|&(pi, _)| uncut[pi]) {
+        let (a, b) = (start[pi], start[pi + 1]);
+        let longest = rs[a..b]
+            .iter()
+            .max_by(|x, y| x.length().total_cmp(&y.length()))
+            .filter(|s| s.length() > 0.0);
+        if longest.is_some_and(keeps_distance) {
+            let keep: Vec<usize> = (a..b).filter(|&g| rs[g].length() > 0.0).collect();
+            chains.push(Chain {
+                segs: keep.iter().map(|&g| rs[g]).collect(),
+                whole_join: keep.iter().map(|&g| is_join[g]).collect(),
+                closed: true,
+            });
+        }
+    }
     let valid: Vec<bool> = runs
         .iter()
         .map(|r| {
@@ -306,14 +368,7 @@ pub fn prune(
                     best = (l, k);
                 }
             }
-            if best.0 <= 0.0 {
-                return false;
-            }
-            // two samples: a run may pass through a point exactly |d| from two boundaries
-            // (where an island touches the outer, its offset's crossing with the outer's
-            // lies symmetric about that point) while the rest of it comes nearer
-            let s = piece_at(r, best.1).seg;
-            !input.any_closer(s.point_at(0.5), thr) && !input.any_closer(s.point_at(0.25), thr)
+            best.0 > 0.0 && keeps_distance(&piece_at(r, best.1).seg)
         })
         .collect();
 
@@ -326,7 +381,6 @@ pub fn prune(
             }
         }
     };
-    let mut chains = Vec::new();
     let run_start = |r: &Run| piece_at(r, 0).seg.a;
     let run_end = |r: &Run| piece_at(r, r.count - 1).seg.b;
     let mut used = vec![false; runs.len()];
