@@ -1,6 +1,6 @@
 //! DXF import against real files written by other software, and fuzzing of both readers.
 
-use offset_core::geom::Segment;
+use offset_core::geom::{Point, Segment};
 use offset_core::io::dxf::{read_with, DxfOptions};
 use offset_core::io::{read_shape, svg};
 use proptest::prelude::*;
@@ -193,4 +193,68 @@ proptest! {
         let _ = read_shape(&b, "r.dxf");
         let _ = read_shape(&b, "r.svg");
     }
+}
+
+/// An ENTITIES section holding just `entity` (group pairs, each line ending in `\n`).
+fn one_entity(entity: &str) -> Vec<u8> {
+    format!("0\nSECTION\n2\nENTITIES\n0\n{entity}0\nENDSEC\n0\nEOF\n").into_bytes()
+}
+
+#[test]
+fn huge_angles_are_refused_not_wound_down_forever() {
+    // found by the digit-swap fuzzer: one "5" of the full-turn end parameter turned into
+    // an "e", making it 6.28e86 radians; unwinding that by 2π at a time never ended
+    let e = read_shape(
+        &one_entity("ELLIPSE\n10\n0\n20\n0\n11\n5\n21\n0\n40\n0.5\n41\n0\n42\n6.283185307179e86\n"),
+        "e.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("e.dxf: ELLIPSE (line 5)"), "{e}");
+    assert!(
+        e.contains("group 42") && e.contains("6.283185307179e86"),
+        "{e}"
+    );
+    // an ARC's angles (degrees) go through the same unwinding
+    let e = read_shape(
+        &one_entity("ARC\n10\n0\n20\n0\n40\n5\n50\n-1e30\n51\n90\n"),
+        "a.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("a.dxf: ARC (line 5)"), "{e}");
+    assert!(e.contains("group 50") && e.contains("-1e30"), "{e}");
+    // angles of a few turns are still fine: -270° to 540° is the quarter from 90° to 180°
+    let s = read_shape(
+        &one_entity("ARC\n10\n0\n20\n0\n40\n5\n50\n-270\n51\n540\n"),
+        "a.dxf",
+    )
+    .unwrap();
+    assert_eq!(s.paths.len(), 1);
+    let p = &s.paths[0];
+    assert!((p.length() - 2.5 * std::f64::consts::PI).abs() < 1e-9);
+    let (a, b) = (p.vertices[0].pos(), p.vertices[p.len() - 1].pos());
+    assert!(a.dist(Point::new(0.0, 5.0)) < 1e-9 && b.dist(Point::new(-5.0, 0.0)) < 1e-9);
+}
+
+#[test]
+fn a_curve_too_big_for_the_tolerance_is_refused_by_name() {
+    // a 1000 km ellipse within 0.001 mm would take tens of millions of points
+    let e = read_shape(
+        &one_entity("ELLIPSE\n5\n3F\n10\n0\n20\n0\n11\n1e9\n21\n0\n40\n0.5\n"),
+        "big.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("big.dxf: ELLIPSE (handle 3F, line 5)"), "{e}");
+    assert!(e.contains("more than 200000 points"), "{e}");
+    // the same ellipse at 100 m is read, within the tolerance
+    let d = read_with(
+        &one_entity("ELLIPSE\n10\n0\n20\n0\n11\n1e5\n21\n0\n40\n0.5\n"),
+        "ok.dxf",
+        &DxfOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    assert!(d.shape.paths[0].closed);
 }

@@ -42,7 +42,8 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
     let height = tree.size().height() as f64;
     let mut pieces = Vec::new();
     let mut warnings = Vec::new();
-    collect(tree.root(), height, tol, &mut pieces, &mut warnings);
+    collect(tree.root(), height, tol, &mut pieces, &mut warnings)
+        .map_err(|m| ImportError::invalid(file, m))?;
     let paths = chain(pieces, tol, &mut warnings);
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
@@ -66,19 +67,39 @@ fn collect(
     tol: f64,
     out: &mut Vec<Polyline>,
     warnings: &mut Vec<String>,
-) {
+) -> Result<(), String> {
     for node in g.children() {
         match node {
-            usvg::Node::Group(g) => collect(g, height, tol, out, warnings),
-            usvg::Node::Path(p) => path(p, height, tol, out),
+            usvg::Node::Group(g) => collect(g, height, tol, out, warnings)?,
+            usvg::Node::Path(p) => path(p, height, tol, out).map_err(|e| {
+                let what = match e {
+                    flatten::FlattenError::TooManyPoints { .. } => format!(
+                        "would need more than {} points to stay within {tol} mm of the curve; check its size or use a coarser tolerance",
+                        flatten::MAX_POINTS
+                    ),
+                    other => other.to_string(),
+                };
+                if p.id().is_empty() {
+                    format!("a path {what}")
+                } else {
+                    format!("path \"{}\" {what}", p.id())
+                }
+            })?,
             usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
             #[allow(unreachable_patterns)]
             _ => warnings.push(format!("text {} skipped", node.id())),
         }
     }
+    Ok(())
 }
 
-fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
+/// The subpaths of `p` as polylines in mm; a curve that cannot be flattened is refused.
+fn path(
+    p: &usvg::Path,
+    height: f64,
+    tol: f64,
+    out: &mut Vec<Polyline>,
+) -> Result<(), flatten::FlattenError> {
     let ts = p.abs_transform();
     let to_mm = |q: usvg::tiny_skia_path::Point| {
         let mut q = q;
@@ -131,12 +152,12 @@ fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
             }
             PathSegment::QuadTo(a, b) => {
                 let (a, b) = (to_mm(a), to_mm(b));
-                curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0));
+                curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0)?);
                 last = b;
             }
             PathSegment::CubicTo(a, b, c) => {
                 let (a, b, c) = (to_mm(a), to_mm(b), to_mm(c));
-                curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0));
+                curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0)?);
                 last = c;
             }
             PathSegment::Close => {
@@ -149,6 +170,7 @@ fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
         }
     }
     finish(&mut cur, false, out);
+    Ok(())
 }
 
 #[cfg(test)]
