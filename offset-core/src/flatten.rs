@@ -10,6 +10,11 @@ use std::f64::consts::{PI, TAU};
 /// The most points one curve may be flattened into.
 pub const MAX_POINTS: usize = 200_000;
 
+/// The most points the readers flatten the curves of one drawing into (a few thousand
+/// curves of a few hundred points each, and 32 MB at most): a small file of huge curves
+/// must not fill the memory.
+pub const MAX_DRAWING_POINTS: usize = 2_000_000;
+
 /// The largest angle or ellipse parameter taken, radians (a million radians still places a
 /// point to within 2e-10 radians).
 pub const MAX_ANGLE: f64 = 1e6;

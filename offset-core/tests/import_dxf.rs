@@ -258,3 +258,86 @@ fn a_curve_too_big_for_the_tolerance_is_refused_by_name() {
     assert_eq!(d.shape.paths.len(), 1);
     assert!(d.shape.paths[0].closed);
 }
+
+#[test]
+fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
+    // each 3 km ellipse takes about 130 000 points within 0.001 mm; sixteen of them pass
+    // the drawing's budget of two million
+    let e: String = (0..16)
+        .map(|i| {
+            format!(
+                "0\nELLIPSE\n10\n{}\n20\n0\n11\n3e6\n21\n0\n40\n0.5\n",
+                i as f64 * 1e7
+            )
+        })
+        .collect();
+    let b = format!("0\nSECTION\n2\nENTITIES\n{e}0\nENDSEC\n0\nEOF\n");
+    let e = read_shape(b.as_bytes(), "many.dxf")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("many.dxf: the drawing's curves would need more than 2000000 points in all"),
+        "{e}"
+    );
+    assert!(e.contains("(reached at ELLIPSE (line "), "{e}");
+    // within 0.1 mm they are read
+    let d = read_with(
+        b.as_bytes(),
+        "many.dxf",
+        &DxfOptions {
+            tolerance: 0.1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 16);
+    assert!(d.shape.paths.iter().all(|p| p.closed));
+}
+
+#[test]
+fn a_polyline_of_a_hundred_thousand_vertices_is_read_whole() {
+    // the handle of the entity was looked up for every number read: quadratic in its size
+    let n = 100_000;
+    let mut e = String::from("LWPOLYLINE\n5\nA1\n70\n1\n");
+    for i in 0..n {
+        let a = std::f64::consts::TAU * i as f64 / n as f64;
+        e.push_str(&format!(
+            "10\n{}\n20\n{}\n",
+            500.0 * a.cos(),
+            500.0 * a.sin()
+        ));
+    }
+    let s = read_shape(&one_entity(&e), "ring.dxf").unwrap();
+    assert_eq!(s.paths.len(), 1);
+    assert!(s.paths[0].closed && s.paths[0].len() == n);
+}
+
+#[test]
+fn fifty_thousand_lines_from_one_centre_chain_in_pairs() {
+    // every chain rescanned the used ends at the centre, and every open end was compared
+    // with every other for gaps: quadratic in the number of lines
+    let n = 50_000;
+    let mut e = String::new();
+    for i in 0..n {
+        e.push_str(&format!("0\nLINE\n10\n0\n20\n0\n11\n{}\n21\n1\n", i + 1));
+    }
+    let b = format!("0\nSECTION\n2\nENTITIES\n{e}0\nENDSEC\n0\nEOF\n");
+    let d = read_with(b.as_bytes(), "star.dxf", &DxfOptions::default()).unwrap();
+    assert_eq!(d.shape.paths.len(), n / 2);
+    assert!(d.shape.paths.iter().all(|p| !p.closed
+        && p.segment_count() == 2
+        && p.vertices[1].pos() == Point::new(0.0, 0.0)));
+    // the far ends lie 1 mm apart: no gaps to report, every pair is an open contour
+    assert!(
+        !d.warnings.iter().any(|w| w.starts_with("gap")),
+        "{:?}",
+        &d.warnings[..3]
+    );
+    assert_eq!(
+        d.warnings
+            .iter()
+            .filter(|w| w.starts_with("open contour"))
+            .count(),
+        n / 2
+    );
+}

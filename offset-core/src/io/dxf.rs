@@ -264,6 +264,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     let ftol = tol / scale; // flattening tolerance in drawing units
     let mut pieces: Vec<Polyline> = Vec::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
+    let mut curve_points = 0; // points flattened from ELLIPSEs and SPLINEs so far
     let mut k = 0;
     while k < records.len() {
         let e = &records[k];
@@ -384,10 +385,14 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                     pl = mirror_x(pl);
                 }
                 close_if_full(&mut pl, ftol);
+                spend(&mut curve_points, pl.len(), e, file, tol)?;
                 pieces.push(pl);
             }
             "SPLINE" => match spline(e, file, ftol, tol)? {
-                Some(pl) => pieces.push(pl),
+                Some(pl) => {
+                    spend(&mut curve_points, pl.len(), e, file, tol)?;
+                    pieces.push(pl)
+                }
                 None => warnings.push(format!(
                     "{} has inconsistent knots, weights or points and was skipped",
                     e.handle()
@@ -436,6 +441,23 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
         scale,
         warnings,
     })
+}
+
+/// Counts the `n` points entity `e` was flattened into against the drawing's budget of
+/// [`flatten::MAX_DRAWING_POINTS`] (`tol`: the tolerance, mm, for the message).
+fn spend(total: &mut usize, n: usize, e: &Entity, file: &str, tol: f64) -> Result<(), ImportError> {
+    *total += n;
+    if *total > flatten::MAX_DRAWING_POINTS {
+        return Err(ImportError::invalid(
+            file,
+            format!(
+                "the drawing's curves would need more than {} points in all to stay within {tol} mm (reached at {}); use a coarser tolerance",
+                flatten::MAX_DRAWING_POINTS,
+                e.handle()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// mm per drawing unit from the header's `$INSUNITS` (group 70 after it).
