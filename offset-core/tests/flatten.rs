@@ -115,3 +115,60 @@ fn a_rational_nurbs_quarter_circle_lies_on_the_circle() {
     assert!(nurbs(2, &knots, &ctrl, &[1.0, -1.0, 1.0], tol).is_err());
     assert!(nurbs(0, &knots, &ctrl, &[], tol).is_err());
 }
+
+#[test]
+fn sweeps_wrap_and_what_cannot_be_flattened_is_refused() {
+    use offset_core::flatten::{FlattenError, MAX_POINTS};
+    let (c, major) = (Point::new(0.0, 0.0), Point::new(4.0, 0.0));
+    let end = |t0: f64, t1: f64| {
+        let v = elliptical_arc(c, major, 0.5, t0, t1, 1e-3).unwrap();
+        (
+            v[0].pos(),
+            v[v.len() - 1].pos(),
+            Polyline::new(v, false).length(),
+        )
+    };
+    // two turns and a quarter is a quarter; an end before the start wraps once; equal ends
+    // (or two whole turns) are the whole ellipse
+    let quarter = end(0.0, PI / 2.0);
+    let (a, b, l) = end(0.0, 4.0 * PI + PI / 2.0);
+    assert!(a.dist(quarter.0) < 1e-9 && b.dist(quarter.1) < 1e-9 && (l - quarter.2).abs() < 1e-6);
+    let (_, b, l) = end(PI / 2.0, 0.0);
+    assert!(b.dist(Point::new(4.0, 0.0)) < 1e-9 && (l - 3.0 * quarter.2).abs() < 1e-3);
+    for t1 in [1.0, 4.0 * PI + 1.0] {
+        let (a, b, l) = end(1.0, t1);
+        assert!(
+            a.dist(b) < 1e-9 && (l - 4.0 * quarter.2).abs() < 1e-3,
+            "{t1}"
+        );
+    }
+    // a parameter so large that 2π is lost in its rounding
+    assert_eq!(
+        elliptical_arc(c, major, 0.5, 0.0, 6.3e86, 1e-3),
+        Err(FlattenError::AngleOutOfRange(6.3e86))
+    );
+    assert!(elliptical_arc(c, major, 0.5, f64::NAN, 1.0, 1e-3).is_err());
+    // a curve that would take more points than allowed, rather than a coarse one
+    let big = 1e12;
+    let r = cubic(
+        Point::new(0.0, 0.0),
+        Point::new(big, big),
+        Point::new(2.0 * big, -big),
+        Point::new(3.0 * big, 0.0),
+        1e-3,
+    );
+    assert!(
+        matches!(r, Err(FlattenError::TooManyPoints { .. })),
+        "{r:?}"
+    );
+    let n = cubic(
+        Point::new(0.0, 0.0),
+        Point::new(1e4, 1e4),
+        Point::new(2e4, -1e4),
+        Point::new(3e4, 0.0),
+        1e-3,
+    )
+    .unwrap()
+    .len();
+    assert!(n > 100 && n < MAX_POINTS, "{n}");
+}
