@@ -341,3 +341,18 @@ fn fifty_thousand_lines_from_one_centre_chain_in_pairs() {
         n / 2
     );
 }
+
+#[test]
+fn ends_far_out_do_not_overflow_the_chaining_grid() {
+    // found by fuzzing with extreme values: 1e300 / the tolerance saturates the grid cell
+    // to i64::MAX, and looking at its neighbour overflowed
+    let b = one_entity(
+        "LINE\n10\n1e300\n20\n-1e300\n11\n0\n21\n0\n0\nLINE\n10\n0\n20\n0\n11\n1\n21\n1\n",
+    );
+    let d = read_with(&b, "far.dxf", &DxfOptions::default()).unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    let p = &d.shape.paths[0];
+    assert_eq!(p.len(), 3);
+    assert!(!p.closed);
+    assert_eq!(p.vertices[0].pos(), Point::new(1e300, -1e300));
+}

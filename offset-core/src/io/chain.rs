@@ -78,7 +78,9 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
         let mut best: Option<(usize, bool, f64)> = None;
         for dx in -1..=1 {
             for dy in -1..=1 {
-                if let Some((skip, v)) = grid.get_mut(&(cx + dx, cy + dy)) {
+                if let Some((skip, v)) =
+                    grid.get_mut(&(cx.saturating_add(dx), cy.saturating_add(dy)))
+                {
                     while *skip < v.len() && used[v[*skip].0] {
                         *skip += 1;
                     }
@@ -168,7 +170,9 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
                 let (cx, cy) = gap_cell(p);
                 for dx in -1..=1 {
                     for dy in -1..=1 {
-                        if let Some(v) = gap_grid.get(&(cx + dx, cy + dy)) {
+                        if let Some(v) =
+                            gap_grid.get(&(cx.saturating_add(dx), cy.saturating_add(dy)))
+                        {
                             near.extend(v);
                         }
                     }
