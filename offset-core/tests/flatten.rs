@@ -33,7 +33,7 @@ proptest! {
             let u = 1.0 - t;
             p0 * (u * u * u) + p1 * (3.0 * u * u * t) + p2 * (3.0 * u * t * t) + p3 * (t * t * t)
         };
-        let pts = cubic(p0, p1, p2, p3, tol);
+        let pts = cubic(p0, p1, p2, p3, tol).unwrap();
         prop_assert!(pts[0] == p0 && *pts.last().unwrap() == p3);
         // the dense reference itself is a polyline: allow its own chord error
         let d = deviation(&c, &pts);
@@ -42,7 +42,7 @@ proptest! {
             let u = 1.0 - t;
             p0 * (u * u) + p1 * (2.0 * u * t) + p2 * (t * t)
         };
-        let pts = quadratic(p0, p1, p2, tol);
+        let pts = quadratic(p0, p1, p2, tol).unwrap();
         prop_assert!(deviation(&q, &pts) <= tol * 1.01 + 1e-4);
     }
 
@@ -51,7 +51,7 @@ proptest! {
         let tol = 10f64.powf(e);
         let major = Point::new(a * rot.cos(), a * rot.sin());
         let c = Point::new(3.0, -2.0);
-        let v = elliptical_arc(c, major, ratio, t0, t0 + span, tol);
+        let v = elliptical_arc(c, major, ratio, t0, t0 + span, tol).unwrap();
         let pts: Vec<Point> = v.iter().map(|v| v.pos()).collect();
         let minor = major.perp() * ratio;
         let curve = |s: f64| { let t = t0 + span * s; c + major * t.cos() + minor * t.sin() };
@@ -69,7 +69,8 @@ fn a_circular_elliptical_arc_is_bulge_arcs() {
         0.0,
         PI * 1.5,
         0.01,
-    );
+    )
+    .unwrap();
     let pl = Polyline::new(v, false);
     assert!(pl.segment_count() >= 3);
     for s in pl.segments() {
@@ -110,7 +111,64 @@ fn a_rational_nurbs_quarter_circle_lies_on_the_circle() {
         assert!(10.0 - (100.0 - c * c / 4.0).sqrt() <= tol);
     }
     // bad data is refused, not a panic
-    assert!(nurbs(2, &knots[..5], &ctrl, &w, tol).is_none());
-    assert!(nurbs(2, &knots, &ctrl, &[1.0, -1.0, 1.0], tol).is_none());
-    assert!(nurbs(0, &knots, &ctrl, &[], tol).is_none());
+    assert!(nurbs(2, &knots[..5], &ctrl, &w, tol).is_err());
+    assert!(nurbs(2, &knots, &ctrl, &[1.0, -1.0, 1.0], tol).is_err());
+    assert!(nurbs(0, &knots, &ctrl, &[], tol).is_err());
+}
+
+#[test]
+fn sweeps_wrap_and_what_cannot_be_flattened_is_refused() {
+    use offset_core::flatten::{FlattenError, MAX_POINTS};
+    let (c, major) = (Point::new(0.0, 0.0), Point::new(4.0, 0.0));
+    let end = |t0: f64, t1: f64| {
+        let v = elliptical_arc(c, major, 0.5, t0, t1, 1e-3).unwrap();
+        (
+            v[0].pos(),
+            v[v.len() - 1].pos(),
+            Polyline::new(v, false).length(),
+        )
+    };
+    // two turns and a quarter is a quarter; an end before the start wraps once; equal ends
+    // (or two whole turns) are the whole ellipse
+    let quarter = end(0.0, PI / 2.0);
+    let (a, b, l) = end(0.0, 4.0 * PI + PI / 2.0);
+    assert!(a.dist(quarter.0) < 1e-9 && b.dist(quarter.1) < 1e-9 && (l - quarter.2).abs() < 1e-6);
+    let (_, b, l) = end(PI / 2.0, 0.0);
+    assert!(b.dist(Point::new(4.0, 0.0)) < 1e-9 && (l - 3.0 * quarter.2).abs() < 1e-3);
+    for t1 in [1.0, 4.0 * PI + 1.0] {
+        let (a, b, l) = end(1.0, t1);
+        assert!(
+            a.dist(b) < 1e-9 && (l - 4.0 * quarter.2).abs() < 1e-3,
+            "{t1}"
+        );
+    }
+    // a parameter so large that 2π is lost in its rounding
+    assert_eq!(
+        elliptical_arc(c, major, 0.5, 0.0, 6.3e86, 1e-3),
+        Err(FlattenError::AngleOutOfRange(6.3e86))
+    );
+    assert!(elliptical_arc(c, major, 0.5, f64::NAN, 1.0, 1e-3).is_err());
+    // a curve that would take more points than allowed, rather than a coarse one
+    let big = 1e12;
+    let r = cubic(
+        Point::new(0.0, 0.0),
+        Point::new(big, big),
+        Point::new(2.0 * big, -big),
+        Point::new(3.0 * big, 0.0),
+        1e-3,
+    );
+    assert!(
+        matches!(r, Err(FlattenError::TooManyPoints { .. })),
+        "{r:?}"
+    );
+    let n = cubic(
+        Point::new(0.0, 0.0),
+        Point::new(1e4, 1e4),
+        Point::new(2e4, -1e4),
+        Point::new(3e4, 0.0),
+        1e-3,
+    )
+    .unwrap()
+    .len();
+    assert!(n > 100 && n < MAX_POINTS, "{n}");
 }

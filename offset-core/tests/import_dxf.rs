@@ -1,6 +1,6 @@
 //! DXF import against real files written by other software, and fuzzing of both readers.
 
-use offset_core::geom::Segment;
+use offset_core::geom::{Point, Segment};
 use offset_core::io::dxf::{read_with, DxfOptions};
 use offset_core::io::{read_shape, svg};
 use proptest::prelude::*;
@@ -193,4 +193,166 @@ proptest! {
         let _ = read_shape(&b, "r.dxf");
         let _ = read_shape(&b, "r.svg");
     }
+}
+
+/// An ENTITIES section holding just `entity` (group pairs, each line ending in `\n`).
+fn one_entity(entity: &str) -> Vec<u8> {
+    format!("0\nSECTION\n2\nENTITIES\n0\n{entity}0\nENDSEC\n0\nEOF\n").into_bytes()
+}
+
+#[test]
+fn huge_angles_are_refused_not_wound_down_forever() {
+    // found by the digit-swap fuzzer: one "5" of the full-turn end parameter turned into
+    // an "e", making it 6.28e86 radians; unwinding that by 2π at a time never ended
+    let e = read_shape(
+        &one_entity("ELLIPSE\n10\n0\n20\n0\n11\n5\n21\n0\n40\n0.5\n41\n0\n42\n6.283185307179e86\n"),
+        "e.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("e.dxf: ELLIPSE (line 5)"), "{e}");
+    assert!(
+        e.contains("group 42") && e.contains("6.283185307179e86"),
+        "{e}"
+    );
+    // an ARC's angles (degrees) go through the same unwinding
+    let e = read_shape(
+        &one_entity("ARC\n10\n0\n20\n0\n40\n5\n50\n-1e30\n51\n90\n"),
+        "a.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("a.dxf: ARC (line 5)"), "{e}");
+    assert!(e.contains("group 50") && e.contains("-1e30"), "{e}");
+    // angles of a few turns are still fine: -270° to 540° is the quarter from 90° to 180°
+    let s = read_shape(
+        &one_entity("ARC\n10\n0\n20\n0\n40\n5\n50\n-270\n51\n540\n"),
+        "a.dxf",
+    )
+    .unwrap();
+    assert_eq!(s.paths.len(), 1);
+    let p = &s.paths[0];
+    assert!((p.length() - 2.5 * std::f64::consts::PI).abs() < 1e-9);
+    let (a, b) = (p.vertices[0].pos(), p.vertices[p.len() - 1].pos());
+    assert!(a.dist(Point::new(0.0, 5.0)) < 1e-9 && b.dist(Point::new(-5.0, 0.0)) < 1e-9);
+}
+
+#[test]
+fn a_curve_too_big_for_the_tolerance_is_refused_by_name() {
+    // a 1000 km ellipse within 0.001 mm would take tens of millions of points
+    let e = read_shape(
+        &one_entity("ELLIPSE\n5\n3F\n10\n0\n20\n0\n11\n1e9\n21\n0\n40\n0.5\n"),
+        "big.dxf",
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.starts_with("big.dxf: ELLIPSE (handle 3F, line 5)"), "{e}");
+    assert!(e.contains("more than 200000 points"), "{e}");
+    // the same ellipse at 100 m is read, within the tolerance
+    let d = read_with(
+        &one_entity("ELLIPSE\n10\n0\n20\n0\n11\n1e5\n21\n0\n40\n0.5\n"),
+        "ok.dxf",
+        &DxfOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    assert!(d.shape.paths[0].closed);
+}
+
+#[test]
+fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
+    // each 3 km ellipse takes about 130 000 points within 0.001 mm; sixteen of them pass
+    // the drawing's budget of two million
+    let e: String = (0..16)
+        .map(|i| {
+            format!(
+                "0\nELLIPSE\n10\n{}\n20\n0\n11\n3e6\n21\n0\n40\n0.5\n",
+                i as f64 * 1e7
+            )
+        })
+        .collect();
+    let b = format!("0\nSECTION\n2\nENTITIES\n{e}0\nENDSEC\n0\nEOF\n");
+    let e = read_shape(b.as_bytes(), "many.dxf")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("many.dxf: the drawing's curves would need more than 2000000 points in all"),
+        "{e}"
+    );
+    assert!(e.contains("(reached at ELLIPSE (line "), "{e}");
+    // within 0.1 mm they are read
+    let d = read_with(
+        b.as_bytes(),
+        "many.dxf",
+        &DxfOptions {
+            tolerance: 0.1,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 16);
+    assert!(d.shape.paths.iter().all(|p| p.closed));
+}
+
+#[test]
+fn a_polyline_of_a_hundred_thousand_vertices_is_read_whole() {
+    // the handle of the entity was looked up for every number read: quadratic in its size
+    let n = 100_000;
+    let mut e = String::from("LWPOLYLINE\n5\nA1\n70\n1\n");
+    for i in 0..n {
+        let a = std::f64::consts::TAU * i as f64 / n as f64;
+        e.push_str(&format!(
+            "10\n{}\n20\n{}\n",
+            500.0 * a.cos(),
+            500.0 * a.sin()
+        ));
+    }
+    let s = read_shape(&one_entity(&e), "ring.dxf").unwrap();
+    assert_eq!(s.paths.len(), 1);
+    assert!(s.paths[0].closed && s.paths[0].len() == n);
+}
+
+#[test]
+fn fifty_thousand_lines_from_one_centre_chain_in_pairs() {
+    // every chain rescanned the used ends at the centre, and every open end was compared
+    // with every other for gaps: quadratic in the number of lines
+    let n = 50_000;
+    let mut e = String::new();
+    for i in 0..n {
+        e.push_str(&format!("0\nLINE\n10\n0\n20\n0\n11\n{}\n21\n1\n", i + 1));
+    }
+    let b = format!("0\nSECTION\n2\nENTITIES\n{e}0\nENDSEC\n0\nEOF\n");
+    let d = read_with(b.as_bytes(), "star.dxf", &DxfOptions::default()).unwrap();
+    assert_eq!(d.shape.paths.len(), n / 2);
+    assert!(d.shape.paths.iter().all(|p| !p.closed
+        && p.segment_count() == 2
+        && p.vertices[1].pos() == Point::new(0.0, 0.0)));
+    // the far ends lie 1 mm apart: no gaps to report, every pair is an open contour
+    assert!(
+        !d.warnings.iter().any(|w| w.starts_with("gap")),
+        "{:?}",
+        &d.warnings[..3]
+    );
+    assert_eq!(
+        d.warnings
+            .iter()
+            .filter(|w| w.starts_with("open contour"))
+            .count(),
+        n / 2
+    );
+}
+
+#[test]
+fn ends_far_out_do_not_overflow_the_chaining_grid() {
+    // found by fuzzing with extreme values: 1e300 / the tolerance saturates the grid cell
+    // to i64::MAX, and looking at its neighbour overflowed
+    let b = one_entity(
+        "LINE\n10\n1e300\n20\n-1e300\n11\n0\n21\n0\n0\nLINE\n10\n0\n20\n0\n11\n1\n21\n1\n",
+    );
+    let d = read_with(&b, "far.dxf", &DxfOptions::default()).unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    let p = &d.shape.paths[0];
+    assert_eq!(p.len(), 3);
+    assert!(!p.closed);
+    assert_eq!(p.vertices[0].pos(), Point::new(1e300, -1e300));
 }

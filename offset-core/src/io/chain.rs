@@ -54,9 +54,11 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
         .filter_map(|(p, k)| k.then_some(p))
         .collect();
 
-    // ends in a grid of cells `tol` wide: (piece, is_end)
+    // ends in a grid of cells `tol` wide: (piece, is_end), behind the number of leading
+    // entries already used (where many ends meet, skipping those keeps chaining linear)
     let cell = |p: Point| ((p.x / tol).floor() as i64, (p.y / tol).floor() as i64);
-    let mut grid: HashMap<(i64, i64), Vec<(usize, bool)>> = HashMap::new();
+    type Grid = HashMap<(i64, i64), (usize, Vec<(usize, bool)>)>;
+    let mut grid: Grid = HashMap::new();
     let end_of = |p: &Polyline, is_end: bool| {
         if is_end {
             p.vertices[p.len() - 1].pos()
@@ -66,23 +68,32 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
     };
     for (i, p) in open.iter().enumerate() {
         for e in [false, true] {
-            grid.entry(cell(end_of(p, e))).or_default().push((i, e));
+            grid.entry(cell(end_of(p, e))).or_default().1.push((i, e));
         }
     }
     let mut used = vec![false; open.len()];
-    let find = |at: Point, used: &Vec<bool>, grid: &HashMap<(i64, i64), Vec<(usize, bool)>>| {
+    // the nearest unused end within `tol` of `at` (the first found of equally near ones)
+    let find = |at: Point, used: &Vec<bool>, grid: &mut Grid| {
         let (cx, cy) = cell(at);
         let mut best: Option<(usize, bool, f64)> = None;
         for dx in -1..=1 {
             for dy in -1..=1 {
-                if let Some(v) = grid.get(&(cx + dx, cy + dy)) {
-                    for &(i, e) in v {
+                if let Some((skip, v)) =
+                    grid.get_mut(&(cx.saturating_add(dx), cy.saturating_add(dy)))
+                {
+                    while *skip < v.len() && used[v[*skip].0] {
+                        *skip += 1;
+                    }
+                    for &(i, e) in &v[*skip..] {
                         if used[i] {
                             continue;
                         }
                         let d = end_of(&open[i], e).dist(at);
                         if d <= tol && best.is_none_or(|b| d < b.2) {
                             best = Some((i, e, d));
+                            if d == 0.0 {
+                                return best; // none can be nearer
+                            }
                         }
                     }
                 }
@@ -103,7 +114,7 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
                 if c.vertices[0].pos().dist(at) <= tol && c.segment_count() >= 2 {
                     break;
                 }
-                let Some((i, is_end, _)) = find(at, &used, &grid) else {
+                let Some((i, is_end, _)) = find(at, &used, &mut grid) else {
                     break;
                 };
                 used[i] = true;
@@ -131,6 +142,17 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
         .filter(|(_, c)| !c.closed)
         .flat_map(|(i, c)| [(i, c.vertices[0].pos()), (i, c.vertices[c.len() - 1].pos())])
         .collect();
+    // open ends in a grid of cells as wide as the largest gap reported
+    let gap_cell = |p: Point| {
+        (
+            (p.x / (100.0 * tol)).floor() as i64,
+            (p.y / (100.0 * tol)).floor() as i64,
+        )
+    };
+    let mut gap_grid: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    for (k, &(_, q)) in open_ends.iter().enumerate() {
+        gap_grid.entry(gap_cell(q)).or_default().push(k);
+    }
     for (i, c) in chains.iter().enumerate() {
         if !c.closed {
             let (a, b) = (c.vertices[0].pos(), c.vertices[c.len() - 1].pos());
@@ -142,7 +164,24 @@ pub fn chain(pieces: Vec<Polyline>, tol: f64, warnings: &mut Vec<String>) -> Vec
                 b.x,
                 b.y
             ));
-            for &(j, q) in &open_ends {
+            // the open ends near a or b, in the order of open_ends
+            let mut near: Vec<usize> = Vec::new();
+            for p in [a, b] {
+                let (cx, cy) = gap_cell(p);
+                for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        if let Some(v) =
+                            gap_grid.get(&(cx.saturating_add(dx), cy.saturating_add(dy)))
+                        {
+                            near.extend(v);
+                        }
+                    }
+                }
+            }
+            near.sort_unstable();
+            near.dedup();
+            for k in near {
+                let (j, q) = open_ends[k];
                 if j != i {
                     for p in [a, b] {
                         let d = p.dist(q);

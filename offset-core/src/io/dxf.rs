@@ -129,13 +129,50 @@ impl Entity<'_> {
     fn num(&self, code: i32, file: &str) -> Result<Option<f64>, ImportError> {
         match self.groups.iter().find(|g| g.code == code) {
             None => Ok(None),
-            Some(g) => parse_num(g, file, &self.handle()).map(Some),
+            Some(g) => parse_num(g, file, self).map(Some),
         }
     }
     fn req(&self, code: i32, file: &str) -> Result<f64, ImportError> {
         self.num(code, file)?.ok_or_else(|| {
             ImportError::invalid(file, format!("{} has no group {code}", self.handle()))
         })
+    }
+    /// An angle (or ellipse parameter) in `unit`s, refused beyond ±[`flatten::MAX_ANGLE`]:
+    /// so far out, a turn is lost in the rounding.
+    fn angle(&self, code: i32, file: &str, unit: &str) -> Result<Option<f64>, ImportError> {
+        let Some(g) = self.groups.iter().find(|g| g.code == code) else {
+            return Ok(None);
+        };
+        let v = parse_num(g, file, self)?;
+        if v.abs() > flatten::MAX_ANGLE {
+            return Err(ImportError::invalid(
+                file,
+                format!(
+                    "{} has an angle of {} {unit} (group {code} on line {}), beyond ±{} {unit}",
+                    self.handle(),
+                    g.value.chars().take(40).collect::<String>(),
+                    g.line + 1,
+                    flatten::MAX_ANGLE
+                ),
+            ));
+        }
+        Ok(Some(v))
+    }
+    fn req_angle(&self, code: i32, file: &str, unit: &str) -> Result<f64, ImportError> {
+        self.angle(code, file, unit)?.ok_or_else(|| {
+            ImportError::invalid(file, format!("{} has no group {code}", self.handle()))
+        })
+    }
+    /// What went wrong flattening this entity, in one sentence (`tol`: the tolerance, mm).
+    fn curve_error(&self, file: &str, err: flatten::FlattenError, tol: f64) -> ImportError {
+        let what = match err {
+            flatten::FlattenError::TooManyPoints { .. } => format!(
+                "would need more than {} points to stay within {tol} mm of the curve; check its size or use a coarser tolerance",
+                flatten::MAX_POINTS
+            ),
+            other => other.to_string(),
+        };
+        ImportError::invalid(file, format!("{} {what}", self.handle()))
     }
     fn int(&self, code: i32) -> i64 {
         self.groups
@@ -153,13 +190,16 @@ impl Entity<'_> {
     }
 }
 
-fn parse_num(g: &Group, file: &str, what: &str) -> Result<f64, ImportError> {
+/// The number in group `g` of entity `e` (named only in the error: finding the handle
+/// takes a walk over the entity's groups).
+fn parse_num(g: &Group, file: &str, e: &Entity) -> Result<f64, ImportError> {
     match g.value.parse::<f64>() {
         Ok(v) if v.is_finite() => Ok(v),
         _ => Err(ImportError::invalid(
             file,
             format!(
-                "{what}: group {} on line {} is not a number: \"{}\"",
+                "{}: group {} on line {} is not a number: \"{}\"",
+                e.handle(),
                 g.code,
                 g.line + 1,
                 g.value.chars().take(40).collect::<String>()
@@ -224,6 +264,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     let ftol = tol / scale; // flattening tolerance in drawing units
     let mut pieces: Vec<Polyline> = Vec::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
+    let mut curve_points = 0; // points flattened from ELLIPSEs and SPLINEs so far
     let mut k = 0;
     while k < records.len() {
         let e = &records[k];
@@ -286,13 +327,16 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 if e.kind == "CIRCLE" {
                     pieces.push(Polyline::circle(c, r));
                 } else {
-                    let (mut a0, mut a1) =
-                        (e.req(50, file)?.to_radians(), e.req(51, file)?.to_radians());
+                    let (mut a0, mut a1) = (
+                        e.req_angle(50, file, "degrees")?.to_radians(),
+                        e.req_angle(51, file, "degrees")?.to_radians(),
+                    );
                     if sx < 0.0 {
                         // mirrored OCS: the arc runs clockwise in world coordinates
                         (a0, a1) = (std::f64::consts::PI - a1, std::f64::consts::PI - a0);
                     }
-                    let v = flatten::elliptical_arc(c, Point::new(r, 0.0), 1.0, a0, a1, ftol);
+                    let v = flatten::elliptical_arc(c, Point::new(r, 0.0), 1.0, a0, a1, ftol)
+                        .map_err(|err| e.curve_error(file, err, tol))?;
                     pieces.push(Polyline::new(v, false));
                 }
             }
@@ -300,15 +344,15 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 let mut vs: Vec<Vertex> = Vec::new();
                 for g in e.groups {
                     match g.code {
-                        10 => vs.push(Vertex::new(parse_num(g, file, &e.handle())?, 0.0, 0.0)),
+                        10 => vs.push(Vertex::new(parse_num(g, file, e)?, 0.0, 0.0)),
                         20 => {
                             if let Some(v) = vs.last_mut() {
-                                v.y = parse_num(g, file, &e.handle())?;
+                                v.y = parse_num(g, file, e)?;
                             }
                         }
                         42 => {
                             if let Some(v) = vs.last_mut() {
-                                v.bulge = parse_num(g, file, &e.handle())?;
+                                v.bulge = parse_num(g, file, e)?;
                             }
                         }
                         _ => {}
@@ -320,8 +364,10 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 let c = Point::new(e.req(10, file)?, e.req(20, file)?);
                 let major = Point::new(e.req(11, file)?, e.req(21, file)?);
                 let ratio = e.req(40, file)?;
-                let t0 = e.num(41, file)?.unwrap_or(0.0);
-                let t1 = e.num(42, file)?.unwrap_or(std::f64::consts::TAU);
+                let t0 = e.angle(41, file, "radians")?.unwrap_or(0.0);
+                let t1 = e
+                    .angle(42, file, "radians")?
+                    .unwrap_or(std::f64::consts::TAU);
                 if major.len() <= 0.0 || ratio <= 0.0 || ratio > 1.0 + 1e-9 {
                     return Err(ImportError::invalid(
                         file,
@@ -332,16 +378,21 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                     ));
                 }
                 let sx = e.ocs_x(file)?;
-                let v = flatten::elliptical_arc(c, major, ratio * sx, t0, t1, ftol);
+                let v = flatten::elliptical_arc(c, major, ratio * sx, t0, t1, ftol)
+                    .map_err(|err| e.curve_error(file, err, tol))?;
                 let mut pl = Polyline::new(v, false);
                 if sx < 0.0 {
                     pl = mirror_x(pl);
                 }
                 close_if_full(&mut pl, ftol);
+                spend(&mut curve_points, pl.len(), e, file, tol)?;
                 pieces.push(pl);
             }
-            "SPLINE" => match spline(e, file, ftol)? {
-                Some(pl) => pieces.push(pl),
+            "SPLINE" => match spline(e, file, ftol, tol)? {
+                Some(pl) => {
+                    spend(&mut curve_points, pl.len(), e, file, tol)?;
+                    pieces.push(pl)
+                }
                 None => warnings.push(format!(
                     "{} has inconsistent knots, weights or points and was skipped",
                     e.handle()
@@ -390,6 +441,23 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
         scale,
         warnings,
     })
+}
+
+/// Counts the `n` points entity `e` was flattened into against the drawing's budget of
+/// [`flatten::MAX_DRAWING_POINTS`] (`tol`: the tolerance, mm, for the message).
+fn spend(total: &mut usize, n: usize, e: &Entity, file: &str, tol: f64) -> Result<(), ImportError> {
+    *total += n;
+    if *total > flatten::MAX_DRAWING_POINTS {
+        return Err(ImportError::invalid(
+            file,
+            format!(
+                "the drawing's curves would need more than {} points in all to stay within {tol} mm (reached at {}); use a coarser tolerance",
+                flatten::MAX_DRAWING_POINTS,
+                e.handle()
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// mm per drawing unit from the header's `$INSUNITS` (group 70 after it).
@@ -463,7 +531,8 @@ fn close_if_full(pl: &mut Polyline, tol: f64) {
 
 /// A SPLINE as a polyline: the NURBS from its control points, or its fit points when it
 /// has none.
-fn spline(e: &Entity, file: &str, tol: f64) -> Result<Option<Polyline>, ImportError> {
+/// `tol` is in drawing units, `tol_mm` the same in mm (for messages).
+fn spline(e: &Entity, file: &str, tol: f64, tol_mm: f64) -> Result<Option<Polyline>, ImportError> {
     let degree = e.int(71).clamp(0, 32) as usize;
     let mut knots = Vec::new();
     let mut weights = Vec::new();
@@ -471,18 +540,18 @@ fn spline(e: &Entity, file: &str, tol: f64) -> Result<Option<Polyline>, ImportEr
     let mut fit: Vec<Point> = Vec::new();
     for g in e.groups {
         match g.code {
-            40 => knots.push(parse_num(g, file, &e.handle())?),
-            41 => weights.push(parse_num(g, file, &e.handle())?),
-            10 => ctrl.push(Point::new(parse_num(g, file, &e.handle())?, 0.0)),
+            40 => knots.push(parse_num(g, file, e)?),
+            41 => weights.push(parse_num(g, file, e)?),
+            10 => ctrl.push(Point::new(parse_num(g, file, e)?, 0.0)),
             20 => {
                 if let Some(p) = ctrl.last_mut() {
-                    p.y = parse_num(g, file, &e.handle())?;
+                    p.y = parse_num(g, file, e)?;
                 }
             }
-            11 => fit.push(Point::new(parse_num(g, file, &e.handle())?, 0.0)),
+            11 => fit.push(Point::new(parse_num(g, file, e)?, 0.0)),
             21 => {
                 if let Some(p) = fit.last_mut() {
-                    p.y = parse_num(g, file, &e.handle())?;
+                    p.y = parse_num(g, file, e)?;
                 }
             }
             _ => {}
@@ -490,8 +559,9 @@ fn spline(e: &Entity, file: &str, tol: f64) -> Result<Option<Polyline>, ImportEr
     }
     let pts = if !ctrl.is_empty() {
         match flatten::nurbs(degree, &knots, &ctrl, &weights, tol) {
-            Some(p) => p,
-            None => return Ok(None),
+            Ok(p) => p,
+            Err(flatten::FlattenError::NotACurve) => return Ok(None),
+            Err(err) => return Err(e.curve_error(file, err, tol_mm)),
         }
     } else if fit.len() >= 2 {
         fit

@@ -42,7 +42,16 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
     let height = tree.size().height() as f64;
     let mut pieces = Vec::new();
     let mut warnings = Vec::new();
-    collect(tree.root(), height, tol, &mut pieces, &mut warnings);
+    let mut flattened = 0;
+    collect(
+        tree.root(),
+        height,
+        tol,
+        &mut flattened,
+        &mut pieces,
+        &mut warnings,
+    )
+    .map_err(|m| ImportError::invalid(file, m))?;
     let paths = chain(pieces, tol, &mut warnings);
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
@@ -60,25 +69,43 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
     })
 }
 
+/// The paths under `g` as polylines in mm; `flattened` counts the points curves were
+/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path.
 fn collect(
     g: &usvg::Group,
     height: f64,
     tol: f64,
+    flattened: &mut usize,
     out: &mut Vec<Polyline>,
     warnings: &mut Vec<String>,
-) {
+) -> Result<(), String> {
     for node in g.children() {
         match node {
-            usvg::Node::Group(g) => collect(g, height, tol, out, warnings),
-            usvg::Node::Path(p) => path(p, height, tol, out),
+            usvg::Node::Group(g) => collect(g, height, tol, flattened, out, warnings)?,
+            usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
+                if p.id().is_empty() {
+                    format!("a path {what}")
+                } else {
+                    format!("path \"{}\" {what}", p.id())
+                }
+            })?,
             usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
             #[allow(unreachable_patterns)]
             _ => warnings.push(format!("text {} skipped", node.id())),
         }
     }
+    Ok(())
 }
 
-fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
+/// The subpaths of `p` as polylines in mm; a curve that cannot be flattened is refused
+/// (the error is the rest of a sentence that starts with the path).
+fn path(
+    p: &usvg::Path,
+    height: f64,
+    tol: f64,
+    flattened: &mut usize,
+    out: &mut Vec<Polyline>,
+) -> Result<(), String> {
     let ts = p.abs_transform();
     let to_mm = |q: usvg::tiny_skia_path::Point| {
         let mut q = q;
@@ -112,10 +139,25 @@ fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
             out.push(Polyline::new(vs, closed));
         }
     };
-    let curve = |cur: &mut Vec<Vertex>, pts: Vec<Point>| {
+    let mut curve = |cur: &mut Vec<Vertex>, pts: Result<Vec<Point>, flatten::FlattenError>| {
+        let pts = pts.map_err(|e| match e {
+            flatten::FlattenError::TooManyPoints { .. } => format!(
+                "would need more than {} points to stay within {tol} mm of one curve; check its size or use a coarser tolerance",
+                flatten::MAX_POINTS
+            ),
+            other => other.to_string(),
+        })?;
+        *flattened += pts.len();
+        if *flattened > flatten::MAX_DRAWING_POINTS {
+            return Err(format!(
+                "brings the drawing's curves to more than {} points in all within {tol} mm; use a coarser tolerance",
+                flatten::MAX_DRAWING_POINTS
+            ));
+        }
         let f = fit_points(&pts, false, &fit);
         cur.pop();
         cur.extend_from_slice(&f.vertices);
+        Ok(())
     };
     use usvg::tiny_skia_path::PathSegment;
     for seg in p.data().segments() {
@@ -131,12 +173,12 @@ fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
             }
             PathSegment::QuadTo(a, b) => {
                 let (a, b) = (to_mm(a), to_mm(b));
-                curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0));
+                curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0))?;
                 last = b;
             }
             PathSegment::CubicTo(a, b, c) => {
                 let (a, b, c) = (to_mm(a), to_mm(b), to_mm(c));
-                curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0));
+                curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0))?;
                 last = c;
             }
             PathSegment::Close => {
@@ -149,6 +191,7 @@ fn path(p: &usvg::Path, height: f64, tol: f64, out: &mut Vec<Polyline>) {
         }
     }
     finish(&mut cur, false, out);
+    Ok(())
 }
 
 #[cfg(test)]
