@@ -109,20 +109,7 @@ pub fn offset_polyline(
         let r = distance.abs();
         let mut splitters = Vec::new();
         for c in [segs[0].a, segs[segs.len() - 1].b] {
-            splitters.push(Seg::arc(
-                c,
-                r,
-                c + Point::new(r, 0.0),
-                c - Point::new(r, 0.0),
-                std::f64::consts::PI,
-            ));
-            splitters.push(Seg::arc(
-                c,
-                r,
-                c - Point::new(r, 0.0),
-                c + Point::new(r, 0.0),
-                std::f64::consts::PI,
-            ));
+            splitters.extend(circle(c, r));
         }
         // a piece of this side's offset may come round to the path's other side: the other
         // side's raw offset marks where it starts to come too near (the dual offset)
@@ -528,6 +515,15 @@ pub fn first_crossing(paths: &[Polyline], tolerance: f64) -> Option<(usize, Poin
         Err(OffsetError::SelfIntersecting { path, at }) => Some((path, at)),
         _ => None,
     }
+}
+
+/// The circle about `c` of radius `r`, as two half arcs.
+fn circle(c: Point, r: f64) -> [Seg; 2] {
+    let (e, w) = (c + Point::new(r, 0.0), c - Point::new(r, 0.0));
+    [
+        Seg::arc(c, r, e, w, std::f64::consts::PI),
+        Seg::arc(c, r, w, e, std::f64::consts::PI),
+    ]
 }
 
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.

@@ -449,7 +449,7 @@ pub fn prune(
         let mut whole_join = Vec::new();
         collect(&runs[ri], &mut segs, &mut whole_join);
         let mut cur = ri;
-        let mut closed = false;
+        let closed;
         loop {
             let e = run_end(&runs[cur]);
             if e.dist(first_start) <= match_eps {
@@ -481,9 +481,10 @@ pub fn prune(
                     cur = k;
                 }
                 None => {
-                    if paths[runs[ri].path].closed {
-                        closed = e.dist(first_start) <= match_eps.max(valid_eps);
-                    }
+                    // a chain that comes back to its start within the validity slack is a
+                    // loop (a sliver at the crossing where it closes may have been dropped),
+                    // for an open path's offset as for a closed one's
+                    closed = e.dist(first_start) <= match_eps.max(valid_eps);
                     break;
                 }
             }
