@@ -48,7 +48,7 @@ impl<'a> InputSet<'a> {
                         || s.a.x.max(s.b.x) < q[0]
                         || s.a.y.min(s.b.y) > q[3]
                         || s.a.y.max(s.b.y) < q[1];
-                    !(out && !s.is_arc()) && s.dist(p) < thr
+                    (!out || s.is_arc()) && s.dist(p) < thr
                 })
             });
         };
