@@ -1,5 +1,7 @@
 //! Offsets the benchmark's wavy gear (n vertices, optionally with 10 islands) `reps` times,
 //! for profiling: `cargo run --release -p offset-core --example gear_offset -- 100000 20 [islands]`.
+//! `circle` offsets n points on a circle to 1e-3 of collapse instead; `check` runs the
+//! checker on the result.
 
 use offset_core::geom::{Point, Polyline, Region};
 use offset_core::offset::{offset_region, OffsetOptions};
@@ -28,6 +30,20 @@ fn main() {
     } else {
         Vec::new()
     };
+    // `circle`: n points on a circle of radius 10 offset to 1e-3 of its inradius instead
+    let circle = args.iter().any(|a| a == "circle");
+    let (pts, d) = if circle {
+        let pts = (0..n)
+            .map(|i| {
+                let a = i as f64 / n as f64 * std::f64::consts::TAU;
+                Point::new(10.0 * a.cos(), 10.0 * a.sin())
+            })
+            .collect();
+        let inr = 10.0 * (std::f64::consts::PI / n as f64).cos();
+        (pts, -(inr - 1e-3))
+    } else {
+        (pts, -1.0)
+    };
     let region = Region {
         outer: Polyline::from_points(&pts, true),
         islands,
@@ -37,7 +53,7 @@ fn main() {
     let mut out = Vec::new();
     for _ in 0..reps {
         let t = Instant::now();
-        out = offset_region(&region, -1.0, &opts).expect("offset");
+        out = offset_region(&region, d, &opts).expect("offset");
         best = best.min(t.elapsed().as_secs_f64());
     }
     let paths: Vec<Polyline> = out.iter().flat_map(|r| r.boundaries().cloned()).collect();
@@ -50,7 +66,7 @@ fn main() {
     if check {
         let input: Vec<Polyline> = region.boundaries().cloned().collect();
         let worst = offset_core::check::Checker::new(&input)
-            .check(&paths, -1.0, opts.tolerance)
+            .check(&paths, d, opts.tolerance)
             .worst();
         println!("worst deviation {worst:.2e}");
     }
