@@ -101,31 +101,36 @@ fn grow(b: BBox, e: f64) -> BBox {
 /// about an open path's ends). `dist` is |o|; `eps` the geometric tolerance; runs whose
 /// sample comes nearer the input than `dist - valid_eps` are dropped.
 pub fn prune(
-    paths: &[RawPath],
+    paths: Vec<RawPath>,
     splitters: &[Seg],
     input: &mut InputSet,
     dist: f64,
     eps: f64,
     valid_eps: f64,
 ) -> Vec<Chain> {
-    // global numbering of raw segments
+    // global numbering of raw segments: the paths one after another (the first one's
+    // storage is taken over, not copied)
+    let closed: Vec<bool> = paths.iter().map(|p| p.closed).collect();
     let mut start = Vec::with_capacity(paths.len() + 1);
-    let mut rs: Vec<Seg> = Vec::new();
+    let mut rs: Vec<RawSeg> = Vec::new();
     let mut owner: Vec<u32> = Vec::new();
-    let mut is_join: Vec<bool> = Vec::new();
-    for (pi, p) in paths.iter().enumerate() {
+    for (pi, p) in paths.into_iter().enumerate() {
         start.push(rs.len());
-        rs.extend(p.segs.iter().map(|r| r.seg));
-        is_join.extend(p.segs.iter().map(|r| r.origin == Origin::Join));
         owner.extend(std::iter::repeat_n(pi as u32, p.segs.len()));
+        if rs.is_empty() {
+            rs = p.segs;
+        } else {
+            rs.extend(p.segs);
+        }
     }
     start.push(rs.len());
+    let is_join = |g: usize| rs[g].origin == Origin::Join;
     let n = rs.len();
     let next = |g: usize| -> Option<usize> {
         let p = owner[g] as usize;
         if g + 1 < start[p + 1] {
             Some(g + 1)
-        } else if paths[p].closed {
+        } else if closed[p] {
             Some(start[p])
         } else {
             None
@@ -142,7 +147,7 @@ pub fn prune(
             if g == i {
                 return None;
             }
-            len += rs[g].length();
+            len += rs[g].seg.length();
             if len > NEAR_LEN * eps {
                 return None;
             }
@@ -153,7 +158,7 @@ pub fn prune(
         }
         None
     };
-    let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.bbox(), eps)).collect();
+    let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.seg.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
     // (segment, parameter, point) of every split
     let mut splits: Vec<(u32, f64, Point)> = Vec::new();
@@ -161,7 +166,7 @@ pub fn prune(
         if i >= n {
             return;
         }
-        let si = rs[i];
+        let si = rs[i].seg;
         if j >= n {
             let h = intersect(&si, &splitters[j - n], eps);
             for (p, t, _) in h.iter() {
@@ -169,7 +174,7 @@ pub fn prune(
             }
             return;
         }
-        let sj = &rs[j];
+        let sj = &rs[j].seg;
         let (ni, nj) = (next(i), next(j));
         if (ni == Some(j) && meet_only_at_the_joint(&si, sj, eps))
             || (nj == Some(i) && meet_only_at_the_joint(sj, &si, eps))
@@ -212,22 +217,22 @@ pub fn prune(
     }
     let mut chains = Vec::new();
     // a closed raw curve that nothing crosses is one run: kept whole or dropped whole
-    let mut uncut = vec![false; paths.len()];
+    let mut uncut = vec![false; closed.len()];
     let mut sp = 0;
-    for (pi, p) in paths.iter().enumerate() {
+    for (pi, &p_closed) in closed.iter().enumerate() {
         let (a, b) = (start[pi], start[pi + 1]);
         while sp < splits.len() && (splits[sp].0 as usize) < a {
             sp += 1;
         }
-        if !p.closed || b == a || (sp < splits.len() && (splits[sp].0 as usize) < b) {
+        if !p_closed || b == a || (sp < splits.len() && (splits[sp].0 as usize) < b) {
             continue;
         }
         uncut[pi] = true;
     }
     let mut pieces: Vec<Piece> = Vec::with_capacity(n + splits.len());
-    let mut pstart: Vec<usize> = Vec::with_capacity(paths.len() + 1);
+    let mut pstart: Vec<usize> = Vec::with_capacity(closed.len() + 1);
     let mut sp = 0;
-    for (pi, p) in paths.iter().enumerate() {
+    for (pi, &p_closed) in closed.iter().enumerate() {
         pstart.push(pieces.len());
         if uncut[pi] {
             continue;
@@ -235,7 +240,7 @@ pub fn prune(
         let first = pieces.len();
         let mut brk = false;
         for g in start[pi]..start[pi + 1] {
-            let s = rs[g];
+            let s = rs[g].seg;
             let len = s.length();
             let tiny = if len > 0.0 { eps / len } else { 1.0 };
             let (mut t0, mut p0) = (0.0, s.a);
@@ -263,11 +268,11 @@ pub fn prune(
             pieces.push(Piece {
                 seg: s.sub(t0, p0, 1.0, s.b),
                 brk,
-                whole_join: is_join[g] && t0 == 0.0,
+                whole_join: is_join(g) && t0 == 0.0,
             });
             brk = end_brk;
         }
-        if p.closed && brk && pieces.len() > first {
+        if p_closed && brk && pieces.len() > first {
             pieces[first].brk = true;
         }
     }
@@ -281,14 +286,14 @@ pub fn prune(
         whole: bool,
     }
     let mut runs: Vec<Run> = Vec::new();
-    for (pi, p) in paths.iter().enumerate() {
+    for (pi, &p_closed) in closed.iter().enumerate() {
         let (a, b) = (pstart[pi], pstart[pi + 1]);
         let m = b - a;
         if m == 0 {
             continue;
         }
         let breaks: Vec<usize> = (a..b).filter(|&k| pieces[k].brk).collect();
-        if p.closed {
+        if p_closed {
             if breaks.is_empty() {
                 runs.push(Run {
                     path: pi,
@@ -343,17 +348,18 @@ pub fn prune(
         !input.any_closer(longest.point_at(0.5), thr)
             && !input.any_closer(longest.point_at(0.25), thr)
     };
-    for (pi, _) in paths.iter().enumerate().filter(|&(pi, _)| uncut[pi]) {
+    for pi in (0..closed.len()).filter(|&pi| uncut[pi]) {
         let (a, b) = (start[pi], start[pi + 1]);
         let longest = rs[a..b]
             .iter()
+            .map(|r| r.seg)
             .max_by(|x, y| x.length().total_cmp(&y.length()))
             .filter(|s| s.length() > 0.0);
-        if longest.is_some_and(keeps_distance) {
-            let keep: Vec<usize> = (a..b).filter(|&g| rs[g].length() > 0.0).collect();
+        if longest.is_some_and(|s| keeps_distance(&s)) {
+            let keep: Vec<usize> = (a..b).filter(|&g| rs[g].seg.length() > 0.0).collect();
             chains.push(Chain {
-                segs: keep.iter().map(|&g| rs[g]).collect(),
-                whole_join: keep.iter().map(|&g| is_join[g]).collect(),
+                segs: keep.iter().map(|&g| rs[g].seg).collect(),
+                whole_join: keep.iter().map(|&g| is_join(g)).collect(),
                 closed: true,
             });
         }
@@ -449,11 +455,11 @@ pub fn prune(
         let mut whole_join = Vec::new();
         collect(&runs[ri], &mut segs, &mut whole_join);
         let mut cur = ri;
-        let closed;
+        let is_loop;
         loop {
             let e = run_end(&runs[cur]);
             if e.dist(first_start) <= match_eps {
-                closed = true;
+                is_loop = true;
                 break;
             }
             let mut best: Option<(usize, f64, bool)> = None;
@@ -484,19 +490,19 @@ pub fn prune(
                     // a chain that comes back to its start within the validity slack is a
                     // loop (a sliver at the crossing where it closes may have been dropped),
                     // for an open path's offset as for a closed one's
-                    closed = e.dist(first_start) <= match_eps.max(valid_eps);
+                    is_loop = e.dist(first_start) <= match_eps.max(valid_eps);
                     break;
                 }
             }
         }
-        if paths[runs[ri].path].closed && !closed {
+        if closed[runs[ri].path] && !is_loop {
             // a broken loop of a closed curve: numerically lost, drop it
             continue;
         }
         chains.push(Chain {
             segs,
             whole_join,
-            closed,
+            closed: is_loop,
         });
     }
     chains
