@@ -239,8 +239,8 @@ pub fn prune(
         }
         let first = pieces.len();
         let mut brk = false;
-        for g in start[pi]..start[pi + 1] {
-            let s = rs[g].seg;
+        for (g, raw) in rs.iter().enumerate().take(start[pi + 1]).skip(start[pi]) {
+            let s = raw.seg;
             let len = s.length();
             let tiny = if len > 0.0 { eps / len } else { 1.0 };
             let (mut t0, mut p0) = (0.0, s.a);
@@ -268,7 +268,7 @@ pub fn prune(
             pieces.push(Piece {
                 seg: s.sub(t0, p0, 1.0, s.b),
                 brk,
-                whole_join: is_join(g) && t0 == 0.0,
+                whole_join: raw.origin == Origin::Join && t0 == 0.0,
             });
             brk = end_brk;
         }
