@@ -138,3 +138,46 @@ proptest! {
         assert_area(&[p], &out, d, tol);
     }
 }
+
+#[test]
+fn a_star_with_a_nearly_straight_arc_shrinks_without_crossing() {
+    // found by the random stars: a bulge of 1.2e-5 beside a tooth
+    let mut radii = vec![3.0; 29];
+    radii[13..18].copy_from_slice(&[
+        10.176503113941381,
+        8.608822239497131,
+        18.87449704573114,
+        11.361447148839092,
+        18.607234952261965,
+    ]);
+    let mut bulges = vec![0.0; 29];
+    bulges[14] = 2.4503116154624668e-5 * 0.5;
+    bulges[17] = 0.13535329394081574 * 0.5;
+    let p = star_with_arcs(Point::new(1.0, 2.0), &radii, &bulges);
+    let d = -2.452627890217215;
+    let out = offset_polyline(&p, d, &OffsetOptions::default()).unwrap();
+    assert_offset(std::slice::from_ref(&p), &out, d, 1e-3);
+    assert_area(&[p], &out, d, 1e-3);
+}
+
+#[test]
+fn a_star_with_a_nearly_straight_arc_grows_without_crossing() {
+    // found by the random stars: a bulge of -2.8e-6 (radius 4e5) before a corner
+    let mut radii = vec![3.0; 28];
+    radii[14] = 8.736950766628619;
+    radii[18..23].copy_from_slice(&[
+        10.581193959040753,
+        4.861098155715533,
+        3.768513703549854,
+        19.50181259832485,
+        13.127433701719896,
+    ]);
+    let mut bulges = vec![0.0; 28];
+    bulges[18] = -5.65373484258893e-6 * 0.5;
+    bulges[20] = -0.2692121505394589 * 0.5;
+    let p = star_with_arcs(Point::new(1.0, 2.0), &radii, &bulges);
+    let d = 2.008575960074033;
+    let out = offset_polyline(&p, d, &OffsetOptions::default()).unwrap();
+    assert_offset(std::slice::from_ref(&p), &out, d, 1e-3);
+    assert_area(&[p], &out, d, 1e-3);
+}

@@ -305,42 +305,59 @@ pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
 }
 
 /// `overlapping_pairs` for boxes in path order (each next to the one before, as the
-/// segments of paths one after another): groups of `GROUP` consecutive boxes are swept as
-/// one box each, and only overlapping groups are compared box by box. Same pairs, a sort
-/// of n / `GROUP` keys instead of n.
+/// segments of paths one after another): a tree is packed over them as they come, eight
+/// boxes to a node, and walked against itself, descending only into pairs of nodes whose
+/// boxes overlap. A path that does not come back near itself meets only its own node and
+/// its neighbours at each level, so the work is linear in n plus the pairs; unlike a sweep
+/// along one axis, a long stretch running along the other axis costs nothing extra.
 pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
-    const GROUP: usize = 8;
+    const FAN: usize = 8;
     let overlap = |a: &BBox, b: &BBox| !(a[0] > b[2] || a[2] < b[0] || a[1] > b[3] || a[3] < b[1]);
-    let groups: Vec<BBox> = boxes
-        .chunks(GROUP)
-        .map(|c| c[1..].iter().fold(c[0], |u, b| union(&u, b)))
-        .collect();
-    for g in 0..groups.len() {
-        let end = ((g + 1) * GROUP).min(boxes.len());
-        for i in g * GROUP..end {
-            for j in i + 1..end {
-                if overlap(&boxes[i], &boxes[j]) {
-                    f(i, j);
+    if boxes.len() < 2 {
+        return;
+    }
+    // levels[k] holds the nodes one level above levels[k - 1] (level 0: the boxes)
+    let mut levels: Vec<Vec<BBox>> = Vec::new();
+    loop {
+        let below: &[BBox] = levels.last().map_or(boxes, |l| l.as_slice());
+        if below.len() == 1 {
+            break;
+        }
+        let up: Vec<BBox> = below
+            .chunks(FAN)
+            .map(|c| c[1..].iter().fold(c[0], |u, b| union(&u, b)))
+            .collect();
+        levels.push(up);
+    }
+    let level = |k: usize| -> &[BBox] {
+        if k == 0 {
+            boxes
+        } else {
+            &levels[k - 1]
+        }
+    };
+    // (level, node a, node b) with a <= b and overlapping boxes
+    let mut stack: Vec<(usize, usize, usize)> = vec![(levels.len(), 0, 0)];
+    while let Some((k, a, b)) = stack.pop() {
+        if k == 0 {
+            f(a, b);
+            continue;
+        }
+        let below = level(k - 1);
+        let (a1, b1) = (
+            ((a + 1) * FAN).min(below.len()),
+            ((b + 1) * FAN).min(below.len()),
+        );
+        for i in a * FAN..a1 {
+            let first = if a == b { i } else { b * FAN };
+            for j in first..b1 {
+                if (k == 1 && i == j) || !overlap(&below[i], &below[j]) {
+                    continue;
                 }
+                stack.push((k - 1, i, j));
             }
         }
     }
-    overlapping_pairs(&groups, |g, h| {
-        let (g_end, h_end) = (
-            ((g + 1) * GROUP).min(boxes.len()),
-            ((h + 1) * GROUP).min(boxes.len()),
-        );
-        for i in g * GROUP..g_end {
-            if !overlap(&boxes[i], &groups[h]) {
-                continue;
-            }
-            for j in h * GROUP..h_end {
-                if overlap(&boxes[i], &boxes[j]) {
-                    f(i, j);
-                }
-            }
-        }
-    });
 }
 
 #[cfg(test)]

@@ -389,7 +389,7 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
         // tangent within eps: one point
         cands[0] = (s0, true);
     } else {
-        let k = (r * r - hd * hd).max(0.0).sqrt();
+        let k = ((r - hd) * (r + hd)).max(0.0).sqrt();
         cands[0] = (s0 - k, true);
         cands[1] = (s0 + k, true);
     }
@@ -435,11 +435,25 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
     if d == 0.0 || d > r1 + r2 + eps || d < (r1 - r2).abs() - eps {
         return h;
     }
-    let a = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d);
-    let u = dv * (1.0 / d);
-    let hh = r1 * r1 - a * a;
-    let base = s1.c + u * a;
-    let pts: [Option<Point>; 2] = if hh <= (eps * r1).max(0.0) * 2.0 || hh <= 0.0 {
+    // measured from the smaller circle, with differences of squares factored: beside a
+    // nearly straight arc (radius 5e5 next to coordinates of 10) the foot of the common
+    // chord, measured from the huge circle's centre, would keep only a few digits of its
+    // distance to that circle and put the crossings a micrometre off
+    let (cs, rs, rl, toward) = if r1 <= r2 {
+        (s1.c, r1, r2, dv)
+    } else {
+        (s2.c, r2, r1, -dv)
+    };
+    let a = ((rs - rl) * (rs + rl) + d * d) / (2.0 * d);
+    let u = toward * (1.0 / d);
+    let hh = (rs - a) * (rs + a);
+    let base = cs + u * a;
+    // tangent within eps: two circles that far from touching part by about s² / (2ρ) at a
+    // distance s from the contact, ρ = r1 r2 / (r1 + r2) (at most the smaller radius), so
+    // their two crossings lie within √(2 ρ eps) of each other. Scaling by r1 alone let a
+    // nearly straight arc (radius 4e5) merge crossings half a millimetre apart.
+    let rho = r1 * r2 / (r1 + r2);
+    let pts: [Option<Point>; 2] = if hh <= (eps * rho).max(0.0) * 2.0 || hh <= 0.0 {
         [Some(base), None]
     } else {
         let k = hh.sqrt();
