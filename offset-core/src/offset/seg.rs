@@ -469,6 +469,18 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
         };
         h.push(p, t, w);
     }
+    if h.n == 0 && pts[1].is_none() && hh > 0.0 {
+        // a graze taken as one touching point that lies just off an arc's end: one of the
+        // two crossings it stands for may still lie on both arcs (a curve grazing a nearly
+        // collapsed offset arc enters its circle beside the arc and leaves through it)
+        let k = hh.sqrt();
+        for p in [base + u.perp() * k, base - u.perp() * k] {
+            if let (Some(t), Some(w)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) {
+                h.push(p, t, w);
+                break;
+            }
+        }
+    }
     h
 }
 
