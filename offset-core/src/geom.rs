@@ -470,48 +470,56 @@ impl Polyline {
     }
     /// Winding number of the closed polyline around `p` (nonzero = inside).
     pub fn winding_number(&self, p: Point) -> i32 {
+        self.winding_numbers(&[p])[0]
+    }
+    /// The winding numbers of several points, in one walk over the vertices.
+    pub fn winding_numbers(&self, ps: &[Point]) -> Vec<i32> {
+        let mut w = vec![0; ps.len()];
         if !self.closed {
-            return 0;
+            return w;
         }
         let n = self.vertices.len();
-        let mut w = 0;
         for i in 0..n {
             let v = self.vertices[i];
             let (a, b) = (v.pos(), self.vertices[(i + 1) % n].pos());
-            w += crossing(a, b, p);
-            if v.bulge == 0.0 {
-                continue;
-            }
             // an arc: the loop "arc a→b, chord b→a" winds ±1 around the points between the
             // arc and its chord, all of which lie within (|bulge| + 1) chords of the chord's
             // box; farther points skip the exact test
-            let m = (b - a).len() * (v.bulge.abs() + 1.0);
-            if p.x < a.x.min(b.x) - m
-                || p.x > a.x.max(b.x) + m
-                || p.y < a.y.min(b.y) - m
-                || p.y > a.y.max(b.y) + m
-            {
-                continue;
-            }
-            if let Segment::Arc {
-                center,
-                radius,
-                ccw,
-                ..
-            } = Segment::from_bulge(a, b, v.bulge)
-            {
-                // inside the circle and on the side of the chord the arc bulges to (right
-                // for ccw, left for cw); on the chord's line, decide as if p sat a hair
-                // above (and then a hair right), which is how `crossing` treats points on
-                // an edge
-                let d = b - a;
-                let mut side = d.cross(p - a);
-                if side == 0.0 {
-                    side = if d.x != 0.0 { d.x } else { -d.y };
+            let m = if v.bulge == 0.0 {
+                -1.0
+            } else {
+                (b - a).len() * (v.bulge.abs() + 1.0)
+            };
+            for (wk, &p) in w.iter_mut().zip(ps) {
+                *wk += crossing(a, b, p);
+                if m < 0.0
+                    || p.x < a.x.min(b.x) - m
+                    || p.x > a.x.max(b.x) + m
+                    || p.y < a.y.min(b.y) - m
+                    || p.y > a.y.max(b.y) + m
+                {
+                    continue;
                 }
-                let on_bulge_side = if ccw { side < 0.0 } else { side > 0.0 };
-                if on_bulge_side && p.dist(center) < radius {
-                    w += if ccw { 1 } else { -1 };
+                if let Segment::Arc {
+                    center,
+                    radius,
+                    ccw,
+                    ..
+                } = Segment::from_bulge(a, b, v.bulge)
+                {
+                    // inside the circle and on the side of the chord the arc bulges to
+                    // (right for ccw, left for cw); on the chord's line, decide as if p sat
+                    // a hair above (and then a hair right), which is how `crossing` treats
+                    // points on an edge
+                    let d = b - a;
+                    let mut side = d.cross(p - a);
+                    if side == 0.0 {
+                        side = if d.x != 0.0 { d.x } else { -d.y };
+                    }
+                    let on_bulge_side = if ccw { side < 0.0 } else { side > 0.0 };
+                    if on_bulge_side && p.dist(center) < radius {
+                        *wk += if ccw { 1 } else { -1 };
+                    }
                 }
             }
         }

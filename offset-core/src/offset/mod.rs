@@ -193,20 +193,36 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
             islands: Vec::new(),
         })
         .collect();
-    for isl in islands {
-        let probe = Seg::from_bulge(
-            isl.vertices[0].pos(),
-            isl.vertices[1 % isl.len()].pos(),
-            isl.vertices[0].bulge,
-        )
-        .point_at(0.5);
-        let mut best: Option<(usize, f64)> = None;
-        for (k, (o, a, b)) in outers.iter().enumerate() {
-            if b.contains(probe) && best.is_none_or(|(_, ba)| *a < ba) && o.contains(probe) {
-                best = Some((k, *a));
+    let probes: Vec<Point> = islands
+        .iter()
+        .map(|isl| {
+            Seg::from_bulge(
+                isl.vertices[0].pos(),
+                isl.vertices[1 % isl.len()].pos(),
+                isl.vertices[0].bulge,
+            )
+            .point_at(0.5)
+        })
+        .collect();
+    // per island: the smallest outer around its probe; each outer is walked once for all
+    // the probes inside its bounds
+    let mut best: Vec<Option<(usize, f64)>> = vec![None; islands.len()];
+    for (k, (o, a, b)) in outers.iter().enumerate() {
+        let inside: Vec<usize> = (0..probes.len())
+            .filter(|&i| b.contains(probes[i]) && best[i].is_none_or(|(_, ba)| *a < ba))
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let pts: Vec<Point> = inside.iter().map(|&i| probes[i]).collect();
+        for (&i, w) in inside.iter().zip(o.winding_numbers(&pts)) {
+            if w != 0 {
+                best[i] = Some((k, *a));
             }
         }
-        if let Some((k, _)) = best {
+    }
+    for (isl, b) in islands.into_iter().zip(best) {
+        if let Some((k, _)) = b {
             regions[k].islands.push(isl);
         }
     }
