@@ -1,5 +1,6 @@
-//! A static packed R-tree of boxes (Hilbert-sorted leaves, 16 per node): box queries and
-//! nearest-distance searches in O(log n) each, built in O(n log n).
+//! A static packed R-tree of boxes (Hilbert-sorted leaves, or leaves in path order, 16 per
+//! node): box queries and nearest-distance searches in O(log n) each, built in O(n log n);
+//! and the pairs of overlapping boxes among segments in path order.
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
@@ -255,58 +256,9 @@ impl BoxIndex {
     }
 }
 
-/// Calls `f(i, j)` (i < j) for every pair of overlapping boxes: sweep and prune along the
-/// wider axis, O(n log n) plus the pairs that overlap on that axis. The boxes are copied
-/// in sweep order first, so the inner loop reads memory in sequence.
-pub fn overlapping_pairs(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
-    let mut all = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    for b in boxes {
-        all = union(&all, b);
-    }
-    let (lo, hi, olo, ohi) = if all[2] - all[0] >= all[3] - all[1] {
-        (0, 2, 1, 3)
-    } else {
-        (1, 3, 0, 2)
-    };
-    let mut keys: Vec<(f64, u32)> = boxes
-        .iter()
-        .enumerate()
-        .map(|(i, b)| (b[lo], i as u32))
-        .collect();
-    keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-    // [sweep-axis max, other-axis min, other-axis max] in sweep order, beside the keys
-    let rest: Vec<[f64; 3]> = keys
-        .iter()
-        .map(|&(_, i)| {
-            let b = &boxes[i as usize];
-            [b[hi], b[olo], b[ohi]]
-        })
-        .collect();
-    for k in 0..keys.len() {
-        let [hi_i, olo_i, ohi_i] = rest[k];
-        let i = keys[k].1;
-        for m in k + 1..keys.len() {
-            if keys[m].0 > hi_i {
-                break;
-            }
-            let [_, olo_j, ohi_j] = rest[m];
-            if olo_j <= ohi_i && olo_i <= ohi_j {
-                let j = keys[m].1;
-                let (a, b) = if i < j { (i, j) } else { (j, i) };
-                f(a as usize, b as usize);
-            }
-        }
-    }
-}
-
-/// `overlapping_pairs` for boxes in path order (each next to the one before, as the
-/// segments of paths one after another): a tree is packed over them as they come, eight
-/// boxes to a node, and walked against itself, descending only into pairs of nodes whose
+/// Calls `f(i, j)` (i < j) for every pair of overlapping boxes, given in path order (each
+/// next to the one before, as the segments of paths one after another): a tree is packed
+/// over them as they come, eight boxes to a node, and walked against itself, descending only into pairs of nodes whose
 /// boxes overlap. A path that does not come back near itself meets only its own node and
 /// its neighbours at each level, so the work is linear in n plus the pairs; unlike a sweep
 /// along one axis, a long stretch running along the other axis costs nothing extra.
@@ -401,9 +353,6 @@ mod tests {
             })
             .collect();
         assert_eq!(got, want);
-        let mut pairs = Vec::new();
-        overlapping_pairs(&boxes, |i, j| pairs.push((i, j)));
-        pairs.sort();
         let mut brute = Vec::new();
         for i in 0..boxes.len() {
             for j in i + 1..boxes.len() {
@@ -413,11 +362,10 @@ mod tests {
                 }
             }
         }
-        assert_eq!(pairs, brute);
-        let mut grouped = Vec::new();
-        overlapping_pairs_in_order(&boxes, |i, j| grouped.push((i, j)));
-        grouped.sort();
-        assert_eq!(grouped, brute);
+        let mut walked = Vec::new();
+        overlapping_pairs_in_order(&boxes, |i, j| walked.push((i, j)));
+        walked.sort();
+        assert_eq!(walked, brute);
         let mut best = None;
         idx.nearest(
             50.2,

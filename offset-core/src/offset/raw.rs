@@ -99,7 +99,7 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
                     .pop()
                     .map(|r| r.seg)
                     .unwrap_or_else(|| offset_seg(&segs[k], o));
-                if let Some(run) = stack_run(segs, s0, step, end, floor, o, eps) {
+                if let Some(run) = stack_run(segs, &tangents, s0, step, end, floor, o, eps) {
                     out.extend(run.into_iter().map(|seg| RawSeg {
                         seg,
                         origin: Origin::Offset,
@@ -123,13 +123,12 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         };
         let last = out.len() - 1;
         let mut prev = out[last].seg;
-        let (t1, t2) = tangents[k];
         let join = pair_corner(
             &segs[k],
             &segs[k2],
+            tangents[k],
             &mut prev,
             &mut next,
-            turn(t1, t2),
             o,
             eps,
         );
@@ -158,8 +157,10 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
 /// the offset of the segment before corner `from` as it stands. Returns the kept lines, the
 /// first being `floor` trimmed; None when the run does not resolve into lines each kept
 /// within its own offset segment (then the corners are joined the pair-wise way).
+#[allow(clippy::too_many_arguments)]
 fn stack_run(
     segs: &[Seg],
+    tangents: &[(Point, Point)],
     s0: usize,
     from: usize,
     to: usize,
@@ -180,13 +181,7 @@ fn stack_run(
         loop {
             let (top, top_whole) = stack[stack.len() - 1];
             let x = if adjacent {
-                // the neighbours' offsets meet on the corner's bisector: computed from the
-                // corner it stays exact for nearly parallel neighbours
-                let (n1, n2) = (
-                    segs[k].tangent_at(1.0).perp(),
-                    segs[k2].tangent_at(0.0).perp(),
-                );
-                segs[k].b + (n1 + n2) * (o / (1.0 + n1.dot(n2)))
+                miter_point(segs[k].b, tangents[k], o)
             } else {
                 line_meet(&top_whole, &whole)?
             };
@@ -225,6 +220,14 @@ fn stack_run(
 /// less than π; a margin keeps the meeting points well conditioned.
 const MAX_RUN_TURN: f64 = 0.9 * PI;
 
+/// Where the offsets by `o` of two lines meeting at `v` with unit tangents `t1`, `t2`
+/// meet: on the corner's bisector. Computed from the corner, it stays exact for nearly
+/// parallel neighbours, where intersecting the two offset lines would not.
+fn miter_point(v: Point, (t1, t2): (Point, Point), o: f64) -> Point {
+    let (n1, n2) = (t1.perp(), t2.perp());
+    v + (n1 + n2) * (o / (1.0 + n1.dot(n2)))
+}
+
 /// Where the lines through `top` and `next` meet.
 /// None when they are parallel.
 fn line_meet(top: &Seg, next: &Seg) -> Option<Point> {
@@ -244,15 +247,14 @@ fn line_meet(top: &Seg, next: &Seg) -> Option<Point> {
 fn pair_corner(
     s1: &Seg,
     s2: &Seg,
+    tangents: (Point, Point),
     prev: &mut Seg,
     next: &mut Seg,
-    th: f64,
     o: f64,
     eps: f64,
 ) -> Option<Seg> {
     let v = s1.b;
-    let t1 = s1.tangent_at(1.0);
-    let t2 = s2.tangent_at(0.0);
+    let th = turn(tangents.0, tangents.1);
     let p1 = prev.b;
     let p2 = next.a;
     let collinear = th.abs() <= 1e-12 || (p1.dist(p2) <= eps && th.abs() < PI * 0.5);
@@ -266,10 +268,7 @@ fn pair_corner(
     if concave {
         // pair-wise interference: trim both to their meeting point nearest the corner
         let h = if !prev.is_arc() && !next.is_arc() && !s1.is_arc() && !s2.is_arc() {
-            // two lines: their offsets meet on the corner's bisector, at the miter point;
-            // computed directly it stays exact for nearly parallel neighbours
-            let (n1, n2) = (t1.perp(), t2.perp());
-            let x = v + (n1 + n2) * (o / (1.0 + n1.dot(n2)));
+            let x = miter_point(v, tangents, o);
             let (t, u) = (prev.param(x), next.param(x));
             let (e1, e2) = (eps / prev.length().max(eps), eps / next.length().max(eps));
             let mut h = super::seg::Hits::default();
