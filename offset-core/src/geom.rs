@@ -485,14 +485,10 @@ impl Polyline {
             // an arc: the loop "arc a→b, chord b→a" winds ±1 around the points between the
             // arc and its chord, all of which lie within (|bulge| + 1) chords of the chord's
             // box; farther points skip the exact test
-            let m = if v.bulge == 0.0 {
-                -1.0
-            } else {
-                (b - a).len() * (v.bulge.abs() + 1.0)
-            };
+            let m = (b - a).len() * (v.bulge.abs() + 1.0);
             for (wk, &p) in w.iter_mut().zip(ps) {
                 *wk += crossing(a, b, p);
-                if m < 0.0
+                if v.bulge == 0.0
                     || p.x < a.x.min(b.x) - m
                     || p.x > a.x.max(b.x) + m
                     || p.y < a.y.min(b.y) - m
