@@ -9,7 +9,7 @@
 //! (`M6` is error:20 there): a tool change after the first move becomes a program stop
 //! (`M5`, `M0`) at which the operator swaps the tool and resumes with cycle start.
 
-use crate::program::Program;
+use crate::post::{lines_file, Post, PostError};
 use offset_core::toolpath::arc_segment;
 use offset_core::{Move, Point, Segment, Toolpath, P3};
 use serde::{Deserialize, Serialize};
@@ -46,7 +46,7 @@ pub struct GcodeOptions {
 
 /// Why a tool path could not be posted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum PostError {
+pub enum GcodeError {
     #[error(
         "move {index} reaches {axis}={value:.3}, beyond the machine's {axis} {side} of {limit:.3}"
     )]
@@ -302,9 +302,9 @@ impl Writer {
     }
 }
 
-fn check_extra(place: &'static str, l: &str, dialect: Dialect) -> Result<(), PostError> {
+fn check_extra(place: &'static str, l: &str, dialect: Dialect) -> Result<(), GcodeError> {
     let bad = |why| {
-        Err(PostError::BadExtraLine {
+        Err(GcodeError::BadExtraLine {
             place,
             text: l.to_string(),
             why,
@@ -324,11 +324,11 @@ fn check_extra(place: &'static str, l: &str, dialect: Dialect) -> Result<(), Pos
     Ok(())
 }
 
-fn envelope_check(index: usize, p: [f64; 3], opts: &GcodeOptions) -> Result<(), PostError> {
+fn envelope_check(index: usize, p: [f64; 3], opts: &GcodeOptions) -> Result<(), GcodeError> {
     for (k, axis) in ['X', 'Y', 'Z'].into_iter().enumerate() {
         if let Some(min) = opts.envelope_min {
             if p[k] < min[k] - 1e-9 {
-                return Err(PostError::OutsideEnvelope {
+                return Err(GcodeError::OutsideEnvelope {
                     index,
                     axis,
                     value: p[k],
@@ -339,7 +339,7 @@ fn envelope_check(index: usize, p: [f64; 3], opts: &GcodeOptions) -> Result<(), 
         }
         if let Some(max) = opts.envelope_max {
             if p[k] > max[k] + 1e-9 {
-                return Err(PostError::OutsideEnvelope {
+                return Err(GcodeError::OutsideEnvelope {
                     index,
                     axis,
                     value: p[k],
@@ -354,7 +354,7 @@ fn envelope_check(index: usize, p: [f64; 3], opts: &GcodeOptions) -> Result<(), 
 
 /// Checks every move before anything is written: finite numbers, feeds, sewing moves,
 /// arcs from a known position, the work envelope.
-fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
+fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), GcodeError> {
     let mut known_xy = false;
     let mut pos = P3::default();
     for (index, m) in tp.moves.iter().enumerate() {
@@ -362,7 +362,7 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
             if vals.iter().all(|v| v.is_finite()) {
                 Ok(())
             } else {
-                Err(PostError::NotFinite { index })
+                Err(GcodeError::NotFinite { index })
             }
         };
         match m {
@@ -375,7 +375,7 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
             Move::Linear { to, feed } => {
                 finite(&[to.x, to.y, to.z, *feed])?;
                 if *feed <= 0.0 {
-                    return Err(PostError::BadFeed { index, feed: *feed });
+                    return Err(GcodeError::BadFeed { index, feed: *feed });
                 }
                 envelope_check(index, [to.x, to.y, to.z], opts)?;
                 known_xy = true;
@@ -389,10 +389,10 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
             } => {
                 finite(&[to.x, to.y, to.z, center.x, center.y, *feed])?;
                 if *feed <= 0.0 {
-                    return Err(PostError::BadFeed { index, feed: *feed });
+                    return Err(GcodeError::BadFeed { index, feed: *feed });
                 }
                 if !known_xy {
-                    return Err(PostError::UnknownStart { index });
+                    return Err(GcodeError::UnknownStart { index });
                 }
                 envelope_check(index, [to.x, to.y, to.z], opts)?;
                 let b = arc_segment(pos.xy(), to.xy(), *center, *ccw).bounds();
@@ -403,25 +403,25 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), PostError> {
                 pos = *to;
             }
             Move::Stitch { .. } => {
-                return Err(PostError::SewingMove {
+                return Err(GcodeError::SewingMove {
                     index,
                     what: "stitch",
                 })
             }
             Move::Jump { .. } => {
-                return Err(PostError::SewingMove {
+                return Err(GcodeError::SewingMove {
                     index,
                     what: "jump",
                 })
             }
             Move::Trim => {
-                return Err(PostError::SewingMove {
+                return Err(GcodeError::SewingMove {
                     index,
                     what: "trim",
                 })
             }
             Move::ColorChange => {
-                return Err(PostError::SewingMove {
+                return Err(GcodeError::SewingMove {
                     index,
                     what: "colour change",
                 })
@@ -459,8 +459,46 @@ fn comment(text: &str) -> String {
     format!("({})", clean.trim())
 }
 
+/// The G-code post of one dialect: units are lines, the file is the lines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GcodePost(pub Dialect);
+
+impl Post for GcodePost {
+    type Unit = String;
+    fn name(&self) -> &'static str {
+        match self.0 {
+            Dialect::Grbl => "grbl",
+            Dialect::Linuxcnc => "linuxcnc",
+            Dialect::Generic => "generic",
+        }
+    }
+    fn about(&self) -> &'static str {
+        match self.0 {
+            Dialect::Grbl => "G-code for GRBL 1.1 / grblHAL (no comments, lines of at most 80 characters, arcs that pass error:33)",
+            Dialect::Linuxcnc => "G-code for LinuxCNC (tool changes with M6, comments)",
+            Dialect::Generic => "plain G-code (G0-G3, G17, G21, G90, G94, M3/M5, M6)",
+        }
+    }
+    fn extension(&self) -> &'static str {
+        match self.0 {
+            Dialect::Linuxcnc => "ngc",
+            _ => "nc",
+        }
+    }
+    fn units(&self, tp: &Toolpath) -> Result<Vec<String>, PostError> {
+        let opts = GcodeOptions {
+            dialect: self.0,
+            ..Default::default()
+        };
+        post(tp, &opts).map_err(|e| PostError::new(self.name(), e))
+    }
+    fn file(&self, lines: &[String], _label: &str) -> Result<Vec<u8>, PostError> {
+        Ok(lines_file(lines))
+    }
+}
+
 /// Turns a tool path into G-code lines for the dialect.
-pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Program, PostError> {
+pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeError> {
     for l in &opts.header {
         check_extra("header", l, opts.dialect)?;
     }
@@ -471,11 +509,11 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Program, PostError> {
     let safe = safe_height(tp, opts);
     if let Some(z) = safe {
         if !z.is_finite() {
-            return Err(PostError::NotFinite { index: 0 });
+            return Err(GcodeError::NotFinite { index: 0 });
         }
         if let Some(min) = opts.envelope_min {
             if z < min[2] {
-                return Err(PostError::SafeZOutsideEnvelope {
+                return Err(GcodeError::SafeZOutsideEnvelope {
                     value: z,
                     limit: min[2],
                     side: "minimum",
@@ -484,7 +522,7 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Program, PostError> {
         }
         if let Some(max) = opts.envelope_max {
             if z > max[2] {
-                return Err(PostError::SafeZOutsideEnvelope {
+                return Err(GcodeError::SafeZOutsideEnvelope {
                     value: z,
                     limit: max[2],
                     side: "maximum",
@@ -591,26 +629,22 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Program, PostError> {
     if w.dialect == Dialect::Grbl {
         for (i, l) in w.lines.iter().enumerate() {
             if l.len() > GRBL_MAX_LINE {
-                return Err(PostError::LineTooLong {
+                return Err(GcodeError::LineTooLong {
                     line: i + 1,
                     len: l.len(),
                 });
             }
         }
     }
-    Ok(Program::Gcode(w.lines))
+    Ok(w.lines)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn lines(p: &Program) -> &[String] {
-        #[allow(unreachable_patterns)]
-        match p {
-            Program::Gcode(l) => l,
-            _ => panic!("a G-code post makes G-code"),
-        }
+    fn lines(p: &[String]) -> &[String] {
+        p
     }
 
     #[test]
@@ -645,7 +679,7 @@ mod tests {
         let e = post(&tp, &opts).unwrap_err();
         assert!(matches!(
             e,
-            PostError::OutsideEnvelope {
+            GcodeError::OutsideEnvelope {
                 index: 1,
                 axis: 'Y',
                 side: "minimum",

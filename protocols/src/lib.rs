@@ -1,16 +1,38 @@
-//! machlink-protocols: everything that speaks a machine's language. Posts turn the Toolpath
-//! IR into a `Program` (G-code lines, Modbus motion blocks, stitch records); links stream a
-//! program to a device over a transport (serial, TCP, SLCAN) and report each unit the device
-//! acknowledged, so the daemon can journal progress and resume exactly where it stopped.
+//! machlink-protocols: everything that speaks a machine's language, and never anything of
+//! the daemon's (no store, no jobs, no API).
+//!
+//! Posts turn the Toolpath IR into a `Program` of the units one kind of device takes (G-code
+//! lines, Modbus motion blocks, stitch records); links stream a program to a device over a
+//! transport (serial, TCP) and report each unit the device acknowledged, so the daemon can
+//! journal progress and resume exactly where it stopped. Each machine kind (`kind`) ties its
+//! settings, posts and link together in one module; [`standard_kinds`] registers them all.
 
 pub mod gcode;
 pub mod gcode_read;
 pub mod grbl;
+pub mod kind;
 pub mod link;
 pub mod modbus;
+pub mod post;
 pub mod program;
 pub mod serial;
 pub mod sewing;
 
-pub use link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
-pub use program::Program;
+pub use kind::{AnyKind, MachineKind, MachineLink, Registry};
+pub use link::{
+    Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, OperatorReason, StreamEnd,
+};
+pub use post::{AnyPost, Post, PostError};
+pub use program::{Program, Unit};
+
+/// Registers the machine kinds of real devices (grbl, modbus-tcp, modbus-rtu, sewing), their
+/// posts, and the posts no kind runs (linuxcnc, generic).
+pub fn standard_kinds(registry: &mut Registry) {
+    registry
+        .add_kind(grbl::kind::GrblKind)
+        .add_kind(modbus::ModbusTcpKind)
+        .add_kind(modbus::ModbusRtuKind)
+        .add_kind(sewing::SewingKind)
+        .add_post(gcode::GcodePost(gcode::Dialect::Linuxcnc))
+        .add_post(gcode::GcodePost(gcode::Dialect::Generic));
+}

@@ -3,7 +3,8 @@
 use crate::link::LinkError;
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
-/// Opens `port` at `baud`, 8N1, no flow control; the error names the port.
+/// Opens `port` at `baud`, 8N1, no flow control; the error names the port, and says
+/// `PortBusy` when another program (or a link closed a moment ago) holds it.
 pub fn open(port: &str, baud: u32) -> Result<SerialStream, LinkError> {
     tokio_serial::new(port, baud)
         .data_bits(tokio_serial::DataBits::Eight)
@@ -11,8 +12,24 @@ pub fn open(port: &str, baud: u32) -> Result<SerialStream, LinkError> {
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
-        .map_err(|e| LinkError::Open {
+        .map_err(|e| open_error(port, std::io::Error::from(e)))
+}
+
+/// The error of a failed open. serialport takes an exclusive lock (TIOCEXCL) and reports a
+/// held one as "Resource busy" or as a text naming the lock, not always as an error kind.
+pub fn open_error(port: &str, source: std::io::Error) -> LinkError {
+    let text = source.to_string().to_ascii_lowercase();
+    if source.kind() == std::io::ErrorKind::ResourceBusy
+        || text.contains("lock")
+        || text.contains("busy")
+    {
+        LinkError::PortBusy {
             port: port.to_string(),
-            source: std::io::Error::from(e),
-        })
+        }
+    } else {
+        LinkError::Open {
+            port: port.to_string(),
+            source,
+        }
+    }
 }

@@ -3,7 +3,7 @@
 //! line, against what the line could carry. Run: cargo bench -p machlink-sim --bench modbus_stream
 
 use machlink_protocols::modbus::{ModbusLink, ModbusSettings, MotionBlock};
-use machlink_protocols::{Control, Link, Program, StreamEnd};
+use machlink_protocols::{Control, Link, StreamEnd};
 use machlink_sim::modbus::{ModbusSim, SimConfig};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -32,7 +32,7 @@ async fn run(name: &str, sim: ModbusSim, mut s: ModbusSettings, blocks: usize, r
     s.max_write_registers = regs;
     s.poll_interval = Duration::from_millis(2);
     let mut link = ModbusLink::new(s).unwrap();
-    let program = Program::Modbus(job(blocks));
+    let program = job(blocks);
     let (tx, _rx) = mpsc::unbounded_channel();
     let (_ctl, ctl_rx) = watch::channel(Control::Run);
     let t = Instant::now();

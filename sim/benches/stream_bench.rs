@@ -6,7 +6,7 @@
 
 use machlink_protocols::gcode::{post, GcodeOptions};
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
-use machlink_protocols::{Control, Link, LinkEvent, Program, StreamEnd};
+use machlink_protocols::{Control, Link, LinkEvent, StreamEnd};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig};
 use offset_core::{Move, Point, Toolpath, P3};
 use std::time::{Duration, Instant};
@@ -50,7 +50,7 @@ fn program() -> Vec<String> {
         row += 1;
     }
     match post(&tp, &GcodeOptions::default()).expect("the bench path posts") {
-        Program::Gcode(lines) => lines,
+        lines => lines,
         #[allow(unreachable_patterns)]
         _ => unreachable!("a G-code post"),
     }
@@ -80,7 +80,7 @@ async fn main() {
     let capacity = BAUD as f64 / 10.0;
 
     // character counting
-    let program = Program::Gcode(lines.clone());
+    let program = lines.clone();
     let (etx, mut erx) = mpsc::unbounded_channel();
     let (_ctx, crx) = watch::channel(Control::Run);
     let start = Instant::now();

@@ -3,6 +3,7 @@
 //! simulated time, fault injection, and a trace of what they executed for tests to read.
 
 pub mod grbl;
+pub mod kinds;
 pub mod modbus;
 pub mod pty;
 pub mod sewing;

@@ -3,19 +3,15 @@
 
 use machlink_protocols::gcode::{post, Dialect, GcodeOptions};
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
-use machlink_protocols::{Control, Link, Program, StreamEnd};
+use machlink_protocols::{Control, Link, StreamEnd};
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter, Motion};
 use machlink_sim::grbl::{max_deviation, Executed, GrblSim, GrblSimConfig};
 use offset_core::{Move, Point, Toolpath, P3};
 use proptest::prelude::*;
 use tokio::sync::{mpsc, watch};
 
-fn lines(p: &Program) -> &[String] {
-    #[allow(unreachable_patterns)]
-    match p {
-        Program::Gcode(l) => l,
-        _ => panic!("a G-code post makes G-code"),
-    }
+fn lines(p: &[String]) -> &[String] {
+    p
 }
 
 /// Reads G-code as GRBL would; Err names the line and GRBL's error code.

@@ -1,7 +1,7 @@
 //! The GRBL link against the simulated GRBL over a real pty.
 
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
-use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig, Motion};
 use std::io::{Read, Write};
 use std::time::Duration;
@@ -71,7 +71,7 @@ async fn two_thousand_lines_of_many_lengths_each_run_once_in_order_without_overf
         .unwrap();
     assert_eq!(link.window(), 128);
     let lines = program_of_many_lengths(2100, 42);
-    let program = Program::Gcode(lines.clone());
+    let program = lines.clone();
     let (etx, mut erx, _ctx, crx) = channels();
     let end = link.stream(&program, 0, etx, crx).await.unwrap();
     assert_eq!(end, StreamEnd::Completed);
@@ -178,10 +178,7 @@ async fn check_mode_finds_a_bad_line_before_anything_moves() {
     // an arc whose end is not on its circle: GRBL's error:33
     lines[200] = "G2 X10 Y0 I3 J0".to_string();
     let (etx, _erx, _ctx, crx) = channels();
-    let err = link
-        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
-        .await
-        .unwrap_err();
+    let err = link.stream(&lines.clone(), 0, etx, crx).await.unwrap_err();
     let LinkError::Rejected { unit, reason, .. } = &err else {
         panic!("expected a rejection, got {err}");
     };
@@ -194,10 +191,7 @@ async fn check_mode_finds_a_bad_line_before_anything_moves() {
     // the controller left check mode: the fixed program runs for real
     lines[200] = "G1 X10 Y0".to_string();
     let (etx, _erx, _ctx, crx) = channels();
-    let end = link
-        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
-        .await
-        .unwrap();
+    let end = link.stream(&lines.clone(), 0, etx, crx).await.unwrap();
     assert_eq!(end, StreamEnd::Completed);
     assert_eq!(sim.trace().len(), lines.len() - 2);
 }
@@ -221,7 +215,7 @@ async fn the_command_line_simulator_serves_a_link_through_its_symlink() {
         let mut link = GrblLink::open(link_path.to_str().unwrap(), GrblOptions::default()).await?;
         let lines = program_of_many_lengths(20, 2);
         let (etx, _erx, _ctx, crx) = channels();
-        link.stream(&Program::Gcode(lines), 0, etx, crx).await
+        link.stream(&lines, 0, etx, crx).await
     }
     .await;
     let _ = child.kill();
@@ -250,10 +244,7 @@ async fn an_injected_error_names_the_line_and_the_next_program_runs() {
         .unwrap();
     let lines = program_of_many_lengths(400, 3);
     let (etx, _erx, _ctx, crx) = channels();
-    let err = link
-        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
-        .await
-        .unwrap_err();
+    let err = link.stream(&lines.clone(), 0, etx, crx).await.unwrap_err();
     let LinkError::Rejected { unit, text, reason } = &err else {
         panic!("expected a rejection, got {err}");
     };
@@ -269,10 +260,7 @@ async fn an_injected_error_names_the_line_and_the_next_program_runs() {
     let before = sim.received_lines();
     let next = program_of_many_lengths(100, 5);
     let (etx, _erx, _ctx, crx) = channels();
-    let end = link
-        .stream(&Program::Gcode(next.clone()), 0, etx, crx)
-        .await
-        .unwrap();
+    let end = link.stream(&next.clone(), 0, etx, crx).await.unwrap();
     assert_eq!(end, StreamEnd::Completed);
     assert_eq!(sim.received_lines(), before + next.len() as u64);
     let last = sim.trace().last().unwrap().clone();
@@ -293,11 +281,8 @@ async fn an_injected_alarm_names_the_line_and_after_unlock_the_next_program_runs
         .unwrap();
     let lines = program_of_many_lengths(300, 9);
     let (etx, _erx, _ctx, crx) = channels();
-    let err = link
-        .stream(&Program::Gcode(lines.clone()), 0, etx, crx)
-        .await
-        .unwrap_err();
-    let LinkError::Alarm(msg) = &err else {
+    let err = link.stream(&lines.clone(), 0, etx, crx).await.unwrap_err();
+    let LinkError::Alarm { text: msg, .. } = &err else {
         panic!("expected an alarm, got {err}");
     };
     assert!(msg.starts_with("ALARM:1 (Hard limit"), "{msg}");
@@ -306,7 +291,7 @@ async fn an_injected_alarm_names_the_line_and_after_unlock_the_next_program_runs
         "{msg}"
     );
     // locked until unlocked
-    let next = Program::Gcode(program_of_many_lengths(50, 1));
+    let next = program_of_many_lengths(50, 1);
     let (etx, _erx, _ctx, crx) = channels();
     match link.stream(&next, 0, etx, crx).await {
         Err(LinkError::Rejected { reason, .. }) => {

@@ -3,7 +3,7 @@
 //! exceptions and device faults stop the job with errors that name the register or code.
 
 use machlink_protocols::modbus::{post_blocks, ModbusLink, ModbusSettings, MotionBlock, WordOrder};
-use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
 use offset_core::{Move, Point, Toolpath, P3};
 use std::time::Duration;
@@ -47,7 +47,7 @@ async fn stream(
     link: &mut ModbusLink,
     blocks: Vec<MotionBlock>,
 ) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
-    let program = Program::Modbus(blocks);
+    let program = blocks;
     let (tx, mut rx) = mpsc::unbounded_channel();
     let (_ctl, ctl_rx) = watch::channel(Control::Run);
     let r = tokio::time::timeout(
@@ -199,7 +199,7 @@ async fn a_device_fault_stops_the_job_with_its_code_and_block_and_a_resume_finis
     let blocks = job(1000);
     let (r, events) = stream(&mut link, blocks.clone()).await;
     let e = r.unwrap_err();
-    assert!(matches!(e, LinkError::Alarm(_)), "{e:?}");
+    assert!(matches!(e, LinkError::Alarm { .. }), "{e:?}");
     let msg = e.to_string();
     assert!(
         msg.contains("faulted with code 0x0107") && msg.contains("at block 250"),
@@ -218,7 +218,7 @@ async fn a_device_fault_stops_the_job_with_its_code_and_block_and_a_resume_finis
     );
 
     // A new stream refuses to start over a standing fault, naming it.
-    let program = Program::Modbus(blocks.clone());
+    let program = blocks.clone();
     let (tx, _rx) = mpsc::unbounded_channel();
     let (_ctl, ctl_rx) = watch::channel(Control::Run);
     let e = link
@@ -251,7 +251,7 @@ async fn hold_pauses_and_cancel_stops_with_what_was_executed() {
     .unwrap();
     let mut link =
         ModbusLink::new(fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()))).unwrap();
-    let program = Program::Modbus(job(2000));
+    let program = job(2000);
     let (tx, mut rx) = mpsc::unbounded_channel();
     let (ctl, ctl_rx) = watch::channel(Control::Run);
     let run = tokio::spawn(async move {
@@ -263,7 +263,7 @@ async fn hold_pauses_and_cancel_stops_with_what_was_executed() {
     ctl.send(Control::Hold).unwrap();
     loop {
         match rx.recv().await {
-            Some(LinkEvent::Status(s)) if s.state == "Hold" => break,
+            Some(LinkEvent::Status(s)) if s.state == machlink_protocols::DeviceState::Held => break,
             Some(_) => {}
             None => panic!("the stream ended while holding"),
         }

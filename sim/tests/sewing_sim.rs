@@ -5,7 +5,7 @@
 use machlink_protocols::sewing::link::{Reply, SewingLink, SewingTiming};
 use machlink_protocols::sewing::wire::{self, req, Decoded, Decoder, Frame};
 use machlink_protocols::sewing::{pattern_crc, records, RecordLimits, StitchKind, StitchRecord};
-use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
 use offset_core::geom::{Point, Polyline, Shape};
 use offset_core::stitch::{stitch, StitchParams};
@@ -70,7 +70,7 @@ fn sewn_drops(sim: &SewingSim) -> Vec<(u32, i32, i32)> {
 /// returning the end and the highest unit acknowledged.
 async fn stream_resuming_breaks(
     link: &mut SewingLink,
-    program: &Program,
+    program: &[StitchRecord],
     from: usize,
     cancel_after: Option<usize>,
 ) -> (Result<StreamEnd, LinkError>, Option<usize>, Vec<String>) {
@@ -127,7 +127,7 @@ async fn noise_and_a_thread_break_sew_every_stitch_once_in_order() {
     }))
     .unwrap();
     let mut link = SewingLink::open(&sim.path, 115_200, timing()).unwrap();
-    let program = Program::Stitches(recs.clone());
+    let program = recs.clone();
     let (end, acked, messages) = stream_resuming_breaks(&mut link, &program, 0, None).await;
     assert_eq!(end.unwrap(), StreamEnd::Completed);
     assert_eq!(acked, Some(recs.len() - 1));
@@ -159,7 +159,7 @@ async fn a_power_loss_uploads_the_pattern_again_and_sews_on_from_the_counter() {
     }))
     .unwrap();
     let mut link = SewingLink::open(&sim.path, 115_200, timing()).unwrap();
-    let program = Program::Stitches(recs.clone());
+    let program = recs.clone();
     let (end, _, messages) = stream_resuming_breaks(&mut link, &program, 0, None).await;
     assert_eq!(end.unwrap(), StreamEnd::Completed);
     assert_eq!(sewn_drops(&sim), planned_drops(&recs));
@@ -192,7 +192,7 @@ async fn cancel_then_resume_from_the_last_acknowledged_stitch() {
     let recs = pattern();
     let sim = spawn_on_pty(fast(SewingSimConfig::default())).unwrap();
     let mut link = SewingLink::open(&sim.path, 115_200, timing()).unwrap();
-    let program = Program::Stitches(recs.clone());
+    let program = recs.clone();
     let (end, _, _) = stream_resuming_breaks(&mut link, &program, 0, Some(100)).await;
     let acked = match end.unwrap() {
         StreamEnd::Cancelled { acked } => acked,
@@ -225,10 +225,7 @@ async fn a_stitch_outside_the_sewing_area_is_refused_before_anything_is_sent() {
     let mut link = SewingLink::open(&sim.path, 115_200, timing()).unwrap();
     let (etx, _erx) = mpsc::unbounded_channel();
     let (_ctx, crx) = watch::channel(Control::Run);
-    let err = link
-        .stream(&Program::Stitches(recs), 0, etx, crx)
-        .await
-        .unwrap_err();
+    let err = link.stream(&recs, 0, etx, crx).await.unwrap_err();
     match &err {
         LinkError::Rejected { unit, text, .. } => {
             assert_eq!(*unit, k);
@@ -237,7 +234,7 @@ async fn a_stitch_outside_the_sewing_area_is_refused_before_anything_is_sent() {
         other => panic!("{other}"),
     }
     let st = link.status().await.unwrap();
-    assert_eq!(st.state, wire::MachineState::NoPattern);
+    assert_eq!(st.state, wire::SewingState::NoPattern);
     assert!(sim.trace.lock().unwrap().events.is_empty());
 }
 

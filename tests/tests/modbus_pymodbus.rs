@@ -81,7 +81,7 @@ fn job(n: usize) -> Vec<MotionBlock> {
 
 async fn stream(settings: ModbusSettings, blocks: &[MotionBlock]) -> StreamEnd {
     let mut link = ModbusLink::new(settings).unwrap();
-    let program = Program::Modbus(blocks.to_vec());
+    let program = blocks.to_vec();
     let (tx, _rx) = mpsc::unbounded_channel();
     let (_ctl, ctl_rx) = watch::channel(Control::Run);
     tokio::time::timeout(

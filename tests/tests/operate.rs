@@ -150,10 +150,10 @@ impl Link for StopAtLink {
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
-            let Program::Gcode(lines) = program else {
+            let lines = program else {
                 return Err(LinkError::WrongProgram(program.kind()));
             };
-            let head = Program::Gcode(lines[..self.stop_at].to_vec());
+            let head = lines[..self.stop_at].to_vec();
             let end = self
                 .link
                 .stream(&head, from, events.clone(), control)

@@ -52,7 +52,7 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
         .expect("submitted");
     // the program the daemon planned, planned again here
     let cfg = d.scheduler.machine_config("pocket-setter").unwrap().clone();
-    let Program::Stitches(records) =
+    let records =
         machlink::api::plan(&cfg, "pocket.json", POCKET.as_bytes(), &params()).unwrap()
     else {
         panic!("a sewing machine gets stitches")
@@ -122,7 +122,7 @@ fn plan_options_from_the_command_line_make_a_dst_with_both_rows() {
     assert_eq!(cmd.params.stitch.rows, vec![0.0, -3.0]);
     let shape = offset_core::io::read_shape(POCKET.as_bytes(), "pocket.json").unwrap();
     let tp = planning::plan_toolpath(&shape, &cmd.params).unwrap();
-    let Program::Stitches(records) = planning::post(&tp, Post::Dst).unwrap() else {
+    let records = planning::post(&tp, Post::Dst).unwrap() else {
         panic!("the DST post makes stitches")
     };
     let bytes = dst::write(&records, "pocket").unwrap();

@@ -22,7 +22,7 @@ async fn a_long_job_runs_every_line_exactly_once_in_order() {
     assert_eq!(done.acked_units, 2400);
     // what the store kept is what was sent, and what the machine ran
     let stored = d.scheduler.store().program(job.id).unwrap();
-    assert_eq!(stored, machlink_protocols::Program::Gcode(lines.clone()));
+    assert_eq!(stored, machlink_protocols::lines.clone());
     let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
     assert_eq!(executed, expected_motion(&lines));
     assert_eq!(sim.received_lines(), 2400);
@@ -129,7 +129,7 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
     assert!(job.total_units >= 2000, "{} lines", job.total_units);
     let done = wait_end(&c, job.id).await;
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
-    let machlink_protocols::Program::Gcode(lines) = d.scheduler.store().program(job.id).unwrap()
+    let machlink_protocols::lines = d.scheduler.store().program(job.id).unwrap()
     else {
         panic!("a GRBL job holds G-code")
     };

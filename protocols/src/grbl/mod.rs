@@ -8,10 +8,10 @@
 //! out of band here too. Status is polled with `?` at most five times a second.
 
 pub mod codes;
+pub mod kind;
 pub mod reply;
 
-use crate::link::{Control, Link, LinkError, LinkEvent, StreamEnd};
-use crate::program::Program;
+use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, OperatorReason, StreamEnd};
 use codes::{describe_alarm, describe_error};
 use futures::future::BoxFuture;
 use reply::{classify, parse_opt, Reply, StatusReport};
@@ -247,10 +247,10 @@ impl GrblLink {
                     })
                 }
                 Reply::Alarm(code) => {
-                    return Err(LinkError::Alarm(format!(
-                        "{} while sending {line}",
-                        describe_alarm(code)
-                    )))
+                    return Err(LinkError::Alarm {
+                        code: Some(code as u32),
+                        text: format!("{} while sending {line}", describe_alarm(code)),
+                    })
                 }
                 Reply::Status(s) => {
                     if s.wco.is_some() {
@@ -498,11 +498,14 @@ impl GrblLink {
                                 tracing::warn!("could not reset the controller after ALARM:{code}: {e}");
                             }
                             let text = lines.get(k).map(String::as_str).unwrap_or("");
-                            return Err(LinkError::Alarm(format!(
-                                "{} while running line {}: {text}",
-                                describe_alarm(code),
-                                k + 1
-                            )));
+                            return Err(LinkError::Alarm {
+                                code: Some(code as u32),
+                                text: format!(
+                                    "{} while running line {}: {text}",
+                                    describe_alarm(code),
+                                    k + 1
+                                ),
+                            });
                         }
                         Reply::Status(s) => {
                             // any report that comes after the last ok was made after it
@@ -512,16 +515,22 @@ impl GrblLink {
                             if s.wco.is_some() {
                                 self.wco = s.wco;
                             }
-                            let _ = events.send(LinkEvent::Status(s.to_status(self.wco)));
-                            if s.state == "Hold" && !held && !machine_paused {
-                                machine_paused = true;
-                                let _ = events.send(LinkEvent::Message(
-                                    "the machine paused itself (program stop or its own hold button); resume to go on".into(),
-                                ));
-                            }
-                            if s.state != "Hold" {
+                            let mut status = s.to_status(self.wco);
+                            if status.state == DeviceState::Held && !held {
+                                // a hold nobody here asked for: M0/M1 or the machine's button
+                                status.state = DeviceState::NeedsOperator {
+                                    reason: OperatorReason::ProgramStop,
+                                };
+                                if !machine_paused {
+                                    machine_paused = true;
+                                    let _ = events.send(LinkEvent::Message(
+                                        "the machine paused itself (program stop or its own hold button); resume to go on".into(),
+                                    ));
+                                }
+                            } else if status.state != DeviceState::Held {
                                 machine_paused = false;
                             }
+                            let _ = events.send(LinkEvent::Status(status));
                             if confirms && s.state == "Idle" {
                                 let planner_empty = match (s.buffer, self.planner_blocks) {
                                     (Some((free, _)), Some(total)) => free as usize >= total,
@@ -720,21 +729,15 @@ fn words(line: &str) -> Vec<(char, String)> {
     out
 }
 
-impl Link for GrblLink {
+impl Link<String> for GrblLink {
     fn stream<'a>(
         &'a mut self,
-        program: &'a Program,
+        lines: &'a [String],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
-        Box::pin(async move {
-            #[allow(unreachable_patterns)]
-            match program {
-                Program::Gcode(lines) => self.stream_gcode(lines, from, events, control).await,
-                other => Err(LinkError::WrongProgram(other.kind())),
-            }
-        })
+        Box::pin(self.stream_gcode(lines, from, events, control))
     }
 }
 

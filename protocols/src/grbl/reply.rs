@@ -1,6 +1,6 @@
 //! What a GRBL controller says: acknowledgements, errors, alarms, status reports and pushes.
 
-use crate::link::MachineStatus;
+use crate::link::{DeviceState, MachineStatus, OperatorReason};
 
 /// One line from the controller, classified.
 #[derive(Clone, Debug, PartialEq)]
@@ -53,9 +53,31 @@ impl StatusReport {
             (None, None, _) => [0.0; 3],
         };
         MachineStatus {
-            state: self.state.clone(),
+            state: self.device_state(),
+            detail: match self.substate {
+                Some(n) => format!("{}:{n}", self.state),
+                None => self.state.clone(),
+            },
             position,
             feed: self.feed.unwrap_or(0.0),
+        }
+    }
+
+    /// GRBL's state word in the daemon's words. A `Hold` is taken as the operator's hold;
+    /// the link, which knows whether it asked for one, turns the others into a program stop.
+    pub fn device_state(&self) -> DeviceState {
+        match self.state.as_str() {
+            "Idle" | "Check" | "Sleep" => DeviceState::Idle,
+            "Run" | "Jog" | "Home" => DeviceState::Running,
+            "Hold" => DeviceState::Held,
+            "Door" => DeviceState::NeedsOperator {
+                reason: OperatorReason::Door,
+            },
+            "Alarm" => DeviceState::Alarm {
+                code: None,
+                text: "alarm lock: clear the cause, then unlock ($X) or home ($H)".into(),
+            },
+            _ => DeviceState::Unknown,
         }
     }
 }

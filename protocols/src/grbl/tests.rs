@@ -205,7 +205,7 @@ async fn bytes_in_flight_never_exceed_the_window() {
         let w = window.unwrap_or(DEFAULT_WINDOW);
         assert_eq!(link.window(), w);
         let lines = lines_of_many_lengths(2500, w - 1, seed);
-        let program = Program::Gcode(lines.clone());
+        let program = lines.clone();
         let (etx, mut erx, _ctx, crx) = channels();
         let end = link.stream(&program, 0, etx, crx).await.unwrap();
         assert_eq!(end, StreamEnd::Completed);
@@ -233,7 +233,7 @@ async fn an_error_stops_the_stream_naming_the_line_and_the_link_stays_usable() {
     })
     .await;
     let lines = lines_of_many_lengths(200, 60, 5);
-    let program = Program::Gcode(lines.clone());
+    let program = lines.clone();
     let (etx, mut erx, _ctx, crx) = channels();
     let err = link.stream(&program, 0, etx, crx).await.unwrap_err();
     match &err {
@@ -257,7 +257,7 @@ async fn an_error_stops_the_stream_naming_the_line_and_the_link_stays_usable() {
         assert_eq!(l.resets, 1);
     }
     // the same link runs the next program
-    let next = Program::Gcode(lines_of_many_lengths(30, 60, 9));
+    let next = lines_of_many_lengths(30, 60, 9);
     let (etx, _erx, _ctx, crx) = channels();
     assert_eq!(
         link.stream(&next, 0, etx, crx).await.unwrap(),
@@ -275,11 +275,15 @@ async fn an_alarm_stops_the_stream_and_after_unlock_the_next_program_runs() {
     })
     .await;
     let lines = lines_of_many_lengths(100, 40, 2);
-    let program = Program::Gcode(lines.clone());
+    let program = lines.clone();
     let (etx, _erx, _ctx, crx) = channels();
     let err = link.stream(&program, 0, etx, crx).await.unwrap_err();
-    let LinkError::Alarm(msg) = &err else {
-        panic!("expected an alarm, got {err}");
+    let LinkError::Alarm {
+        code: Some(1),
+        text: msg,
+    } = &err
+    else {
+        panic!("expected alarm 1, got {err}");
     };
     assert!(msg.starts_with("ALARM:1 (Hard limit"), "{msg}");
     assert!(
@@ -289,7 +293,7 @@ async fn an_alarm_stops_the_stream_and_after_unlock_the_next_program_runs() {
     assert_eq!(log.lock().unwrap().resets, 1);
     link.send_setting("$X").await.unwrap();
     let (etx, _erx, _ctx, crx) = channels();
-    let next = Program::Gcode(lines_of_many_lengths(20, 40, 4));
+    let next = lines_of_many_lengths(20, 40, 4);
     assert_eq!(
         link.stream(&next, 0, etx, crx).await.unwrap(),
         StreamEnd::Completed
@@ -310,7 +314,7 @@ async fn resume_skips_acknowledged_lines_and_restores_the_modal_state() {
         "G1 X1 F300".to_string(),
     ];
     lines.extend(lines_of_many_lengths(300, 50, 8));
-    let program = Program::Gcode(lines.clone());
+    let program = lines.clone();
     let (etx, mut erx, _ctx, crx) = channels();
     let end = link.stream(&program, 120, etx, crx).await.unwrap();
     assert_eq!(end, StreamEnd::Completed);
@@ -333,7 +337,7 @@ async fn cancel_holds_then_resets_and_reports_what_was_acknowledged() {
         ..Default::default()
     })
     .await;
-    let program = Program::Gcode(lines_of_many_lengths(5000, 60, 1));
+    let program = lines_of_many_lengths(5000, 60, 1);
     let (etx, mut erx, ctx, crx) = channels();
     let canceller = tokio::spawn(async move {
         tokio::time::sleep(Duration::from_millis(300)).await;
@@ -366,7 +370,7 @@ async fn lines_grbl_would_misread_are_refused_before_anything_is_sent() {
     })
     .await;
     for bad in ["G1 X1 (why?)", &"G1 X1".repeat(20)] {
-        let program = Program::Gcode(vec!["G0 X0".into(), bad.to_string()]);
+        let program = vec!["G0 X0".into(), bad.to_string()];
         let (etx, _erx, _ctx, crx) = channels();
         match link.stream(&program, 0, etx, crx).await {
             Err(LinkError::Rejected { unit: 1, .. }) => {}
@@ -385,7 +389,7 @@ async fn completion_waits_for_idle_polling_at_most_five_times_a_second() {
         ..Default::default()
     })
     .await;
-    let program = Program::Gcode(lines_of_many_lengths(50, 40, 3));
+    let program = lines_of_many_lengths(50, 40, 3);
     let (etx, mut erx, _ctx, crx) = channels();
     let start = Instant::now();
     let end = link.stream(&program, 0, etx, crx).await.unwrap();

@@ -2,11 +2,10 @@
 //! timeouts, reconnects with backoff, and a resynchronisation that never loses or repeats a block.
 
 use super::map::{
-    exception_name, fault_name, reg, Command, DeviceState, Layout, MotionBlock, Status, WordOrder,
+    exception_name, fault_name, reg, Command, Layout, ModbusState, MotionBlock, Status, WordOrder,
     BLOCK_REGISTERS, MAP_VERSION, MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, STATUS_REGISTERS,
 };
-use crate::link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
-use crate::program::Program;
+use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
@@ -207,7 +206,10 @@ impl From<ModbusError> for LinkError {
                 port: target,
                 source,
             },
-            ModbusError::DeviceFault { .. } => LinkError::Alarm(e.to_string()),
+            ModbusError::DeviceFault { code, .. } => LinkError::Alarm {
+                code: Some(code as u32),
+                text: e.to_string(),
+            },
             ModbusError::GaveUp { .. } | ModbusError::Timeout { .. } => LinkError::Io(
                 std::io::Error::new(std::io::ErrorKind::TimedOut, e.to_string()),
             ),
@@ -454,7 +456,7 @@ impl ModbusLink {
                 self.s.base_address
             )));
         }
-        if DeviceState::from_register(s.state).is_none() {
+        if ModbusState::from_register(s.state).is_none() {
             return Err(proto(format!(
                 "holding register {} (state word) reads {}, which is no state of the map",
                 self.s.base_address + reg::STATE,
@@ -623,14 +625,9 @@ impl ModbusLink {
         if p.last_state != Some(s.state) || due {
             p.last_state = Some(s.state);
             p.last_status = Some(Instant::now());
-            let state = DeviceState::from_register(s.state).map_or("Unknown", |d| d.name());
-            let _ = events.send(LinkEvent::Status(MachineStatus {
-                state: state.to_string(),
-                position: s.position.map(|v| v as f64 / 1000.0),
-                feed: 0.0,
-            }));
+            let _ = events.send(LinkEvent::Status(s.to_status()));
         }
-        if s.state == DeviceState::Fault as u16 {
+        if s.state == ModbusState::Fault as u16 {
             let block = s.consumed_seq + 1;
             let detail = blocks
                 .get(block as usize - 1)
@@ -658,7 +655,7 @@ impl ModbusLink {
         let total = blocks.len() as u32;
         let s = self.read_status().await?;
         if !p.synced {
-            if s.state == DeviceState::Idle as u16 {
+            if s.state == ModbusState::Idle as u16 {
                 // A new job: the device's consumed sequence becomes `from`.
                 self.write_seq(from).await?;
                 self.command(Command::Sync).await?;
@@ -673,7 +670,7 @@ impl ModbusLink {
                     });
                 }
                 (p.written, p.committed, p.touched, p.acked) = (from, from, from, from);
-            } else if s.state == DeviceState::Fault as u16 {
+            } else if s.state == ModbusState::Fault as u16 {
                 return Err(ModbusError::Protocol {
                     target: self.target.clone(),
                     message: format!(
@@ -690,7 +687,7 @@ impl ModbusLink {
                         target: self.target.clone(),
                         message: format!(
                             "the device is busy (state {}) with blocks {}..{} of another program; stop it first",
-                            DeviceState::from_register(s.state).map_or("?", |d| d.name()),
+                            ModbusState::from_register(s.state).map_or("?", |d| d.name()),
                             s.consumed_seq,
                             s.write_seq
                         ),
@@ -705,8 +702,8 @@ impl ModbusLink {
             return Ok(None);
         }
         self.observe(&s, blocks, p, events)?;
-        let state = DeviceState::from_register(s.state);
-        if matches!(state, Some(DeviceState::Running | DeviceState::Hold)) {
+        let state = ModbusState::from_register(s.state);
+        if matches!(state, Some(ModbusState::Running | ModbusState::Hold)) {
             p.started = true;
         }
         let want = *control.borrow_and_update();
@@ -719,15 +716,15 @@ impl ModbusLink {
                     acked: p.acked as usize,
                 }));
             }
-            Control::Hold if state == Some(DeviceState::Running) => {
+            Control::Hold if state == Some(ModbusState::Running) => {
                 self.command(Command::Hold).await?
             }
-            Control::Run if state == Some(DeviceState::Hold) => {
+            Control::Run if state == Some(ModbusState::Hold) => {
                 self.command(Command::Resume).await?
             }
             _ => {}
         }
-        if s.consumed_seq >= total && state == Some(DeviceState::Idle) {
+        if s.consumed_seq >= total && state == Some(ModbusState::Idle) {
             return Ok(Some(StreamEnd::Completed));
         }
         if s.write_seq != p.committed {
@@ -739,7 +736,7 @@ impl ModbusLink {
                 ),
             });
         }
-        if p.started && state == Some(DeviceState::Idle) {
+        if p.started && state == Some(ModbusState::Idle) {
             return Err(ModbusError::Protocol {
                 target: self.target.clone(),
                 message: format!(
@@ -764,7 +761,7 @@ impl ModbusLink {
             p.committed = p.written;
             worked = true;
         }
-        if !p.started && p.committed > s.consumed_seq && state == Some(DeviceState::Idle) {
+        if !p.started && p.committed > s.consumed_seq && state == Some(ModbusState::Idle) {
             self.command(Command::Start).await?;
             p.started = true;
             worked = true;
@@ -850,24 +847,41 @@ impl ModbusLink {
     }
 }
 
-impl Link for ModbusLink {
+impl Link<MotionBlock> for ModbusLink {
     fn stream<'a>(
         &'a mut self,
-        program: &'a Program,
+        blocks: &'a [MotionBlock],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
-            #[allow(unreachable_patterns)] // other program kinds arrive with other branches
-            let blocks = match program {
-                Program::Modbus(b) => b,
-                other => return Err(LinkError::WrongProgram(other.kind())),
-            };
             self.stream_blocks(blocks, from, events, control)
                 .await
                 .map_err(LinkError::from)
         })
+    }
+}
+
+impl Status {
+    /// The header as the link's `MachineStatus`.
+    pub fn to_status(&self) -> MachineStatus {
+        let known = ModbusState::from_register(self.state);
+        MachineStatus {
+            state: match known {
+                Some(ModbusState::Idle) => DeviceState::Idle,
+                Some(ModbusState::Running) => DeviceState::Running,
+                Some(ModbusState::Hold) => DeviceState::Held,
+                Some(ModbusState::Fault) => DeviceState::Alarm {
+                    code: Some(self.fault as u32),
+                    text: fault_name(self.fault).to_string(),
+                },
+                None => DeviceState::Unknown,
+            },
+            detail: known.map_or_else(|| format!("state {}", self.state), |k| k.name().into()),
+            position: self.position.map(|v| v as f64 / 1000.0),
+            feed: 0.0,
+        }
     }
 }
 

@@ -233,29 +233,29 @@ impl fmt::Display for MotionBlock {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 #[repr(u16)]
-pub enum DeviceState {
+pub enum ModbusState {
     Idle = 0,
     Running = 1,
     Hold = 2,
     Fault = 3,
 }
 
-impl DeviceState {
-    pub fn from_register(v: u16) -> Option<DeviceState> {
+impl ModbusState {
+    pub fn from_register(v: u16) -> Option<ModbusState> {
         Some(match v {
-            0 => DeviceState::Idle,
-            1 => DeviceState::Running,
-            2 => DeviceState::Hold,
-            3 => DeviceState::Fault,
+            0 => ModbusState::Idle,
+            1 => ModbusState::Running,
+            2 => ModbusState::Hold,
+            3 => ModbusState::Fault,
             _ => return None,
         })
     }
     pub fn name(self) -> &'static str {
         match self {
-            DeviceState::Idle => "Idle",
-            DeviceState::Running => "Run",
-            DeviceState::Hold => "Hold",
-            DeviceState::Fault => "Fault",
+            ModbusState::Idle => "Idle",
+            ModbusState::Running => "Run",
+            ModbusState::Hold => "Hold",
+            ModbusState::Fault => "Fault",
         }
     }
 }
@@ -337,7 +337,7 @@ pub struct Status {
     pub version: u16,
     pub capacity: u16,
     pub block_size: u16,
-    /// The raw state word (see `DeviceState::from_register`).
+    /// The raw state word (see `ModbusState::from_register`).
     pub state: u16,
     pub fault: u16,
     pub command: u16,

@@ -1,10 +1,13 @@
-//! Modbus motion blocks: the register map, the post from the Toolpath IR, and the link that
-//! streams blocks into a device's ring buffer over Modbus TCP or RTU (docs/modbus.md).
+//! Modbus motion blocks: the register map, the post from the Toolpath IR, the link that
+//! streams blocks into a device's ring buffer over Modbus TCP or RTU (docs/modbus.md), and
+//! the two machine kinds.
 
+pub mod kind;
 pub mod link;
 pub mod map;
 pub mod post;
 
+pub use kind::{ModbusRtuKind, ModbusTcpKind, RingSettings};
 pub use link::{ModbusError, ModbusLink, ModbusSettings, Parity, Transport};
-pub use map::{BlockKind, MotionBlock, WordOrder};
-pub use post::{post, post_blocks, ModbusPostError};
+pub use map::{BlockKind, ModbusState, MotionBlock, WordOrder};
+pub use post::{post_blocks, ModbusPost, ModbusPostError};

@@ -1,7 +1,7 @@
 //! The Modbus post: Toolpath IR → motion blocks in integer micrometres, ending with an end block.
 
 use super::map::{BlockKind, MotionBlock};
-use crate::program::Program;
+use crate::post::{lines_file, Post, PostError};
 use offset_core::toolpath::{Move, P3};
 use offset_core::Toolpath;
 
@@ -137,9 +137,34 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
     Ok(out)
 }
 
-/// Turns a tool path into a `Program::Modbus`.
-pub fn post(tp: &Toolpath) -> Result<Program, ModbusPostError> {
-    post_blocks(tp).map(Program::Modbus)
+/// The Modbus post: units are motion blocks; the file is one block per line as text
+/// (docs/modbus.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ModbusPost;
+
+impl Post for ModbusPost {
+    type Unit = MotionBlock;
+    fn name(&self) -> &'static str {
+        "modbus"
+    }
+    fn about(&self) -> &'static str {
+        "motion blocks for a Modbus ring buffer (docs/modbus.md), one block per line"
+    }
+    fn extension(&self) -> &'static str {
+        "blocks"
+    }
+    fn units(&self, tp: &Toolpath) -> Result<Vec<MotionBlock>, PostError> {
+        post_blocks(tp).map_err(|e| PostError::new("modbus", e))
+    }
+    fn file(&self, blocks: &[MotionBlock], _label: &str) -> Result<Vec<u8>, PostError> {
+        Ok(lines_file(blocks))
+    }
+}
+
+impl crate::program::Unit for MotionBlock {
+    fn describe(&self) -> String {
+        self.to_string()
+    }
 }
 
 #[cfg(test)]

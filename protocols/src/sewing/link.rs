@@ -9,10 +9,11 @@
 //! both the record to start at and that CRC. Progress is the machine's stitch counter,
 //! read with STATUS.
 
-use super::wire::{self, req, Decoded, Decoder, Frame, Info, MachineState, Status};
+use super::wire::{self, req, Decoded, Decoder, Frame, Info, SewingState, Status};
 use super::{pattern_crc, StitchRecord};
-use crate::link::{Control, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
-use crate::program::Program;
+use crate::link::{
+    Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, OperatorReason, StreamEnd,
+};
 use futures::future::BoxFuture;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -212,17 +213,15 @@ impl SewingLink {
             .map(|_| ())
     }
 
-    async fn run(
+    /// Uploads `records` (unless the machine holds them already) and sews them from record
+    /// `from` on.
+    pub async fn sew(
         &mut self,
-        program: &Program,
+        records: &[StitchRecord],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         mut control: watch::Receiver<Control>,
     ) -> Result<StreamEnd, LinkError> {
-        let records = match program {
-            Program::Stitches(r) => r,
-            other => return Err(LinkError::WrongProgram(other.kind())),
-        };
         let info = self.info().await?;
         check_pattern(records, &info)?;
         let len = records.len();
@@ -244,7 +243,7 @@ impl SewingLink {
         if done >= len {
             return Ok(StreamEnd::Completed);
         }
-        if !same || st.state == MachineState::NoPattern {
+        if !same || st.state == SewingState::NoPattern {
             self.upload(records).await?;
         }
         // an operator's hold before the start waits here
@@ -261,7 +260,7 @@ impl SewingLink {
             }
         }
         self.start(done, crc).await?;
-        let mut last_state: Option<MachineState> = None;
+        let mut last_state: Option<SewingState> = None;
         let mut held = false;
         let mut control_open = true;
         loop {
@@ -298,12 +297,8 @@ impl SewingLink {
                         let _ = events.send(LinkEvent::Acked { unit: done - 1 });
                     }
                     if last_state != Some(st.state) {
-                        let _ = events.send(LinkEvent::Status(MachineStatus {
-                            state: st.state.name().to_string(),
-                            position: [st.x as f64 / 10.0, st.y as f64 / 10.0, 0.0],
-                            feed: 0.0,
-                        }));
-                        if st.state == MachineState::ThreadBreak {
+                        let _ = events.send(LinkEvent::Status(st.to_status()));
+                        if st.state == SewingState::ThreadBreak {
                             let _ = events.send(LinkEvent::Message(format!(
                                 "thread break at stitch {counter}: rethread the needle, then resume the job"
                             )));
@@ -311,8 +306,8 @@ impl SewingLink {
                     }
                     last_state = Some(st.state);
                     match st.state {
-                        MachineState::Done if done >= len => return Ok(StreamEnd::Completed),
-                        MachineState::NoPattern => {
+                        SewingState::Done if done >= len => return Ok(StreamEnd::Completed),
+                        SewingState::NoPattern => {
                             // power loss: the pattern is gone, the counter is kept
                             let _ = events.send(LinkEvent::Message(format!(
                                 "the machine lost its pattern (power loss?) at stitch {counter}; uploading it again"
@@ -320,14 +315,14 @@ impl SewingLink {
                             self.upload(records).await?;
                             if held {
                                 // stay held: the operator resumes
-                                last_state = Some(MachineState::Held);
+                                last_state = Some(SewingState::Held);
                                 self.start(done, crc).await?;
                                 self.must(req::STOP, vec![], "to hold").await?;
                             } else {
                                 self.start(done, crc).await?;
                             }
                         }
-                        MachineState::Ready | MachineState::Done => {
+                        SewingState::Ready | SewingState::Done => {
                             return Err(LinkError::Protocol(format!(
                                 "the machine stopped sewing at stitch {counter} of {len} without being asked"
                             )))
@@ -380,14 +375,35 @@ pub fn check_pattern(records: &[StitchRecord], info: &Info) -> Result<(), LinkEr
     Ok(())
 }
 
-impl Link for SewingLink {
+impl Link<StitchRecord> for SewingLink {
     fn stream<'a>(
         &'a mut self,
-        program: &'a Program,
+        records: &'a [StitchRecord],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
-        Box::pin(self.run(program, from, events, control))
+        Box::pin(self.sew(records, from, events, control))
+    }
+}
+
+impl Status {
+    /// The status reply as the link's `MachineStatus`.
+    pub fn to_status(&self) -> MachineStatus {
+        MachineStatus {
+            state: match self.state {
+                SewingState::NoPattern | SewingState::Ready | SewingState::Done => {
+                    DeviceState::Idle
+                }
+                SewingState::Sewing => DeviceState::Running,
+                SewingState::Held => DeviceState::Held,
+                SewingState::ThreadBreak => DeviceState::NeedsOperator {
+                    reason: OperatorReason::ThreadBreak,
+                },
+            },
+            detail: self.state.name().to_string(),
+            position: [self.x as f64 / 10.0, self.y as f64 / 10.0, 0.0],
+            feed: 0.0,
+        }
     }
 }

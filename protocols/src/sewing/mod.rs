@@ -7,12 +7,13 @@
 
 pub mod dst;
 pub mod jef;
+pub mod kind;
 pub mod link;
 pub mod wire;
 
+pub use kind::{SewingKind, StitchPost};
 pub use link::SewingLink;
 
-use crate::program::Program;
 use offset_core::{Move, Point, Toolpath};
 use serde::{Deserialize, Serialize};
 
@@ -242,9 +243,11 @@ pub fn records(tp: &Toolpath, limits: RecordLimits) -> Result<Vec<StitchRecord>,
     Ok(out)
 }
 
-/// Posts a stitch path as a stitch program (units = records) for a pattern sewing machine.
-pub fn post(tp: &Toolpath, limits: RecordLimits) -> Result<Program, SewingError> {
-    Ok(Program::Stitches(records(tp, limits)?))
+impl crate::program::Unit for StitchRecord {
+    fn describe(&self) -> String {
+        let p = self.mm();
+        format!("{:?} at ({:.1}, {:.1}) mm", self.kind, p.x, p.y)
+    }
 }
 
 /// The stitch records as a stitch path again (mm), for previews and checks.

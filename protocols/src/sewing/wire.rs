@@ -174,7 +174,7 @@ impl Decoder {
 
 /// The machine's state, as the status reply reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MachineState {
+pub enum SewingState {
     /// No verified pattern (after power-up or while loading).
     NoPattern = 0,
     /// A verified pattern, not sewing.
@@ -188,26 +188,26 @@ pub enum MachineState {
     Done = 5,
 }
 
-impl MachineState {
-    pub fn from_code(c: u8) -> Option<MachineState> {
+impl SewingState {
+    pub fn from_code(c: u8) -> Option<SewingState> {
         Some(match c {
-            0 => MachineState::NoPattern,
-            1 => MachineState::Ready,
-            2 => MachineState::Sewing,
-            3 => MachineState::Held,
-            4 => MachineState::ThreadBreak,
-            5 => MachineState::Done,
+            0 => SewingState::NoPattern,
+            1 => SewingState::Ready,
+            2 => SewingState::Sewing,
+            3 => SewingState::Held,
+            4 => SewingState::ThreadBreak,
+            5 => SewingState::Done,
             _ => return None,
         })
     }
     pub fn name(self) -> &'static str {
         match self {
-            MachineState::NoPattern => "NoPattern",
-            MachineState::Ready => "Ready",
-            MachineState::Sewing => "Sewing",
-            MachineState::Held => "Held",
-            MachineState::ThreadBreak => "ThreadBreak",
-            MachineState::Done => "Done",
+            SewingState::NoPattern => "NoPattern",
+            SewingState::Ready => "Ready",
+            SewingState::Sewing => "Sewing",
+            SewingState::Held => "Held",
+            SewingState::ThreadBreak => "ThreadBreak",
+            SewingState::Done => "Done",
         }
     }
 }
@@ -215,7 +215,7 @@ impl MachineState {
 /// The status reply: 22 bytes after the request type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Status {
-    pub state: MachineState,
+    pub state: SewingState,
     /// Records completed: the index of the next record to sew. Kept through a power loss.
     pub counter: u32,
     /// Frame position, 0.1 mm.
@@ -246,7 +246,7 @@ impl Status {
         }
         let u32at = |i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
         Some(Status {
-            state: MachineState::from_code(b[0])?,
+            state: SewingState::from_code(b[0])?,
             counter: u32at(1),
             x: u32at(5) as i32,
             y: u32at(9) as i32,

@@ -6,7 +6,7 @@ pub mod cli;
 
 use futures::future::BoxFuture;
 use machlink_protocols::modbus::map::{
-    fault, reg, BlockKind, Command, DeviceState, Layout, MotionBlock, WordOrder, BLOCK_REGISTERS,
+    fault, reg, BlockKind, Command, Layout, ModbusState, MotionBlock, WordOrder, BLOCK_REGISTERS,
     MAP_VERSION, MAX_READ_REGISTERS, MAX_WRITE_REGISTERS,
 };
 use offset_core::{Point, P3};
@@ -136,11 +136,11 @@ impl Device {
     fn state(&self) -> u16 {
         self.regs[reg::STATE as usize]
     }
-    fn set_state(&mut self, s: DeviceState) {
+    fn set_state(&mut self, s: ModbusState) {
         self.regs[reg::STATE as usize] = s as u16;
     }
     fn set_fault(&mut self, code: u16) {
-        self.set_state(DeviceState::Fault);
+        self.set_state(ModbusState::Fault);
         self.regs[reg::FAULT as usize] = code;
         self.epoch += 1;
     }
@@ -255,7 +255,7 @@ impl Shared {
             let new = order.join([words[w - off], words[w + 1 - off]]);
             let consumed = dev.get32(order, reg::CONSUMED_SEQ);
             let current = dev.get32(order, reg::WRITE_SEQ);
-            let idle = dev.state() == DeviceState::Idle as u16;
+            let idle = dev.state() == ModbusState::Idle as u16;
             if new > consumed.saturating_add(self.cfg.capacity as u32) || (!idle && new < current) {
                 return Err(ExceptionCode::IllegalDataValue);
             }
@@ -271,43 +271,43 @@ impl Shared {
 
     fn command(&self, dev: &mut Device, c: u16) -> Result<(), ExceptionCode> {
         let order = self.cfg.word_order;
-        let state = DeviceState::from_register(dev.state());
+        let state = ModbusState::from_register(dev.state());
         match Command::from_register(c) {
             None if c == 0 => {}
             None => return Err(ExceptionCode::IllegalDataValue),
             Some(Command::Start) => match state {
-                Some(DeviceState::Idle) => dev.set_state(DeviceState::Running),
-                Some(DeviceState::Fault) => return Err(ExceptionCode::ServerDeviceFailure),
+                Some(ModbusState::Idle) => dev.set_state(ModbusState::Running),
+                Some(ModbusState::Fault) => return Err(ExceptionCode::ServerDeviceFailure),
                 _ => {}
             },
             Some(Command::Hold) => {
-                if state == Some(DeviceState::Running) {
-                    dev.set_state(DeviceState::Hold)
+                if state == Some(ModbusState::Running) {
+                    dev.set_state(ModbusState::Hold)
                 }
             }
             Some(Command::Resume) => {
-                if state == Some(DeviceState::Hold) {
-                    dev.set_state(DeviceState::Running)
+                if state == Some(ModbusState::Hold) {
+                    dev.set_state(ModbusState::Running)
                 }
             }
             Some(Command::Stop) => {
-                if state != Some(DeviceState::Fault) {
-                    dev.set_state(DeviceState::Idle);
+                if state != Some(ModbusState::Fault) {
+                    dev.set_state(ModbusState::Idle);
                     let consumed = dev.get32(order, reg::CONSUMED_SEQ);
                     dev.put32(order, reg::WRITE_SEQ, consumed);
                     dev.epoch += 1;
                 }
             }
             Some(Command::ClearFault) => {
-                if state == Some(DeviceState::Fault) {
-                    dev.set_state(DeviceState::Idle);
+                if state == Some(ModbusState::Fault) {
+                    dev.set_state(ModbusState::Idle);
                     dev.regs[reg::FAULT as usize] = 0;
                     let consumed = dev.get32(order, reg::CONSUMED_SEQ);
                     dev.put32(order, reg::WRITE_SEQ, consumed);
                 }
             }
             Some(Command::Sync) => {
-                if state != Some(DeviceState::Idle) {
+                if state != Some(ModbusState::Idle) {
                     return Err(ExceptionCode::IllegalDataValue);
                 }
                 let write = dev.get32(order, reg::WRITE_SEQ);
@@ -404,7 +404,7 @@ async fn execute(shared: Arc<Shared>) {
             let mut dev = lock(&shared.dev);
             let consumed = dev.get32(order, reg::CONSUMED_SEQ);
             let write = dev.get32(order, reg::WRITE_SEQ);
-            if dev.state() == DeviceState::Running as u16 && consumed < write {
+            if dev.state() == ModbusState::Running as u16 && consumed < write {
                 let seq = consumed + 1;
                 let at = reg::RING as usize + shared.layout.slot(seq) as usize * 16;
                 match MotionBlock::decode(&dev.regs[at..at + 16], order) {
@@ -454,7 +454,7 @@ async fn execute(shared: Arc<Shared>) {
                     break;
                 }
                 let now = Instant::now();
-                if state == DeviceState::Hold as u16 {
+                if state == ModbusState::Hold as u16 {
                     tokio::time::sleep(Duration::from_millis(2)).await;
                     clock += Instant::now() - now;
                     continue;
@@ -472,7 +472,7 @@ async fn execute(shared: Arc<Shared>) {
         }
         let mut dev = lock(&shared.dev);
         let still_running =
-            dev.state() == DeviceState::Running as u16 || dev.state() == DeviceState::Hold as u16;
+            dev.state() == ModbusState::Running as u16 || dev.state() == ModbusState::Hold as u16;
         if dev.epoch == epoch && still_running && dev.get32(order, reg::CONSUMED_SEQ) == seq - 1 {
             dev.put32(order, reg::POS_X, block.target[0] as u32);
             dev.put32(order, reg::POS_Y, block.target[1] as u32);
@@ -480,7 +480,7 @@ async fn execute(shared: Arc<Shared>) {
             dev.put32(order, reg::CONSUMED_SEQ, seq);
             dev.trace.push(Executed { seq, block });
             if block.kind == BlockKind::End {
-                dev.set_state(DeviceState::Idle);
+                dev.set_state(ModbusState::Idle);
             }
         }
     }

@@ -13,7 +13,7 @@ pub mod cli;
 pub mod pty;
 
 use machlink_protocols::sewing::wire::{
-    refusal, reply, req, Decoded, Decoder, Frame, Info, MachineState, Status,
+    refusal, reply, req, Decoded, Decoder, Frame, Info, SewingState, Status,
 };
 use machlink_protocols::sewing::{pattern_crc, StitchKind, StitchRecord};
 use serde::{Deserialize, Serialize};
@@ -135,7 +135,7 @@ struct Loading {
 struct Machine {
     cfg: SewingSimConfig,
     trace: Trace,
-    state: MachineState,
+    state: SewingState,
     pattern: Vec<StitchRecord>,
     loading: Option<Loading>,
     /// kept through a power loss (non-volatile)
@@ -159,7 +159,7 @@ impl Machine {
         Machine {
             cfg,
             trace,
-            state: MachineState::NoPattern,
+            state: SewingState::NoPattern,
             pattern: vec![],
             loading: None,
             counter: 0,
@@ -252,7 +252,7 @@ impl Machine {
             req::INFO => Ok(self.info().encode()),
             req::STATUS => Ok(self.status().encode()),
             req::LOAD_BEGIN => {
-                if self.state == MachineState::Sewing {
+                if self.state == SewingState::Sewing {
                     return Err((refusal::BUSY, "the machine is sewing".into()));
                 }
                 self.loading = Some(Loading {
@@ -261,7 +261,7 @@ impl Machine {
                     records: vec![],
                 });
                 self.pattern.clear();
-                self.state = MachineState::NoPattern;
+                self.state = SewingState::NoPattern;
                 Ok(vec![])
             }
             req::LOAD_CHUNK => {
@@ -324,14 +324,14 @@ impl Machine {
                 self.pattern_len = l.total;
                 self.pattern_crc = l.crc;
                 self.pattern = l.records;
-                self.state = MachineState::Ready;
+                self.state = SewingState::Ready;
                 self.event(format!("pattern verified ({} records)", self.pattern_len));
                 Ok(vec![])
             }
             req::START => {
                 let at = u32at(0)?;
                 let crc = u32at(4)?;
-                if self.pattern.is_empty() || self.state == MachineState::NoPattern {
+                if self.pattern.is_empty() || self.state == SewingState::NoPattern {
                     return Err((refusal::NO_PATTERN, "no verified pattern".into()));
                 }
                 if crc != self.pattern_crc {
@@ -346,7 +346,7 @@ impl Machine {
                         format!("record {at} is past the pattern's end"),
                     ));
                 }
-                if self.state == MachineState::Sewing {
+                if self.state == SewingState::Sewing {
                     return Err((refusal::BUSY, "the machine is sewing".into()));
                 }
                 self.counter = at;
@@ -357,32 +357,32 @@ impl Machine {
                     (self.x, self.y) = (0, 0);
                 }
                 self.thread_break = false;
-                self.state = MachineState::Sewing;
+                self.state = SewingState::Sewing;
                 self.event(format!("start at {at}"));
                 Ok(vec![])
             }
             req::STOP => {
-                if self.state == MachineState::Sewing {
-                    self.state = MachineState::Held;
+                if self.state == SewingState::Sewing {
+                    self.state = SewingState::Held;
                 }
                 Ok(vec![])
             }
             req::RESUME => {
-                if matches!(self.state, MachineState::Held | MachineState::ThreadBreak) {
+                if matches!(self.state, SewingState::Held | SewingState::ThreadBreak) {
                     if self.thread_break {
                         self.event(format!("rethreaded, resume at {}", self.counter));
                     }
                     self.thread_break = false;
-                    self.state = MachineState::Sewing;
+                    self.state = SewingState::Sewing;
                 }
                 Ok(vec![])
             }
             req::ABORT => {
                 if matches!(
                     self.state,
-                    MachineState::Sewing | MachineState::Held | MachineState::ThreadBreak
+                    SewingState::Sewing | SewingState::Held | SewingState::ThreadBreak
                 ) {
-                    self.state = MachineState::Ready;
+                    self.state = SewingState::Ready;
                 }
                 Ok(vec![])
             }
@@ -426,7 +426,7 @@ impl Machine {
     fn cycle(&mut self) {
         let i = self.counter;
         if i as usize >= self.pattern.len() {
-            self.state = MachineState::Done;
+            self.state = SewingState::Done;
             return;
         }
         if self.power_losses.remove(&i) {
@@ -434,14 +434,14 @@ impl Machine {
             self.pattern.clear();
             self.loading = None;
             self.last = None;
-            self.state = MachineState::NoPattern;
+            self.state = SewingState::NoPattern;
             self.needle_down = false;
             return;
         }
         if self.breaks.remove(&i) {
             self.event(format!("thread break at {i}"));
             self.thread_break = true;
-            self.state = MachineState::ThreadBreak;
+            self.state = SewingState::ThreadBreak;
             return;
         }
         let r = self.pattern[i as usize];
@@ -461,7 +461,7 @@ impl Machine {
         }
         self.counter = i + 1;
         if self.counter as usize == self.pattern.len() {
-            self.state = MachineState::Done;
+            self.state = SewingState::Done;
             self.event("done".into());
         }
     }
@@ -484,7 +484,7 @@ pub async fn run(
     let mut next_cycle = Instant::now();
     let mut last_rx = Instant::now();
     loop {
-        let sewing = m.state == MachineState::Sewing;
+        let sewing = m.state == SewingState::Sewing;
         let pending = dec.pending() > 0;
         let mut out: Vec<u8> = Vec::new();
         tokio::select! {
@@ -496,16 +496,16 @@ pub async fn run(
                 last_rx = Instant::now();
                 dec.push(&rx_noise.apply(&buf[..n]));
                 while let Some(d) = dec.next_frame() {
-                    let was_sewing = m.state == MachineState::Sewing;
+                    let was_sewing = m.state == SewingState::Sewing;
                     out.extend(m.handle(d));
-                    if !was_sewing && m.state == MachineState::Sewing {
+                    if !was_sewing && m.state == SewingState::Sewing {
                         next_cycle = Instant::now() + period;
                     }
                 }
             }
             _ = tokio::time::sleep_until(next_cycle), if sewing => {
                 m.cycle();
-                if m.state == MachineState::NoPattern {
+                if m.state == SewingState::NoPattern {
                     dec.clear();
                 }
                 next_cycle += period;

@@ -1,0 +1,502 @@
+//! Machine kinds: the one seam every device plugs into.
+//!
+//! A kind (GRBL, Modbus TCP, a pattern sewing machine, …) says in one place: the keys its
+//! `[[machine]]` table takes, which posts its machines run, how a G-code file becomes its
+//! units, what to prepare when the daemon starts (a simulator, a check of the port), and how
+//! its link opens. The daemon knows kinds only through a [`Registry`], looked up by the
+//! table's `link = "…"`; docs/architecture.md has the recipe for adding one.
+
+use crate::link::{Control, Link, LinkError, LinkEvent, StreamEnd};
+use crate::post::{AnyPost, Post, PostError, PostFor};
+use crate::program::{Program, Unit};
+use futures::future::BoxFuture;
+use offset_core::Toolpath;
+use serde::de::{self, DeserializeOwned, Deserializer, Visitor};
+use serde::Serialize;
+use std::any::Any;
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt::Debug;
+use std::sync::Arc;
+use tokio::sync::{mpsc, watch};
+
+/// One kind of machine.
+pub trait MachineKind: Send + Sync + 'static {
+    /// The keys of its `[[machine]]` table besides the common ones (name, link, work_area,
+    /// max_feed, tools), as a serde struct that denies unknown fields.
+    type Settings: Serialize + DeserializeOwned + Clone + Debug + Send + Sync + 'static;
+    /// What its devices acknowledge one by one.
+    type Unit: Unit;
+    /// What [`MachineKind::start`] prepares for one machine (a simulator's handle), or `()`.
+    type Device: Send + Sync + 'static;
+
+    /// The value of `link = "…"` that names this kind.
+    fn link(&self) -> &'static str;
+    /// One line for docs and `machlink machines`.
+    fn about(&self) -> &'static str;
+    /// The keys of [`MachineKind::Settings`]; a hand-written Settings type (such as
+    /// [`Joined`]) lists its own.
+    fn keys(&self) -> Vec<&'static str> {
+        struct_fields::<Self::Settings>()
+    }
+    /// The posts its machines run; the first is the one a job gets when it names none.
+    fn posts(&self) -> Vec<PostFor<Self::Unit>>;
+    /// Checks what serde cannot (a port that is not empty, a rate above 0); one sentence.
+    fn check(&self, _settings: &Self::Settings) -> Result<(), String> {
+        Ok(())
+    }
+    /// The units for a G-code program handed in as it is: its cleaned `lines`, and the same
+    /// program read as moves (`moves`). None: this kind's machines take no G-code files.
+    fn gcode_units(
+        &self,
+        _lines: &[String],
+        _moves: &Toolpath,
+    ) -> Option<Result<Vec<Self::Unit>, PostError>> {
+        None
+    }
+    /// Prepares machine `machine` when the daemon starts: starts its simulator, warns of a
+    /// port that is not there yet.
+    fn start(
+        &self,
+        machine: &str,
+        settings: &Self::Settings,
+    ) -> BoxFuture<'static, std::io::Result<Self::Device>>;
+    /// Opens the link to the machine.
+    fn open(
+        &self,
+        machine: &str,
+        settings: &Self::Settings,
+        device: &Self::Device,
+    ) -> BoxFuture<'static, Result<Box<dyn Link<Self::Unit>>, LinkError>>;
+}
+
+/// A link that streams [`Program`]s, whatever their units: what the daemon holds.
+pub trait MachineLink: Send {
+    fn stream<'a>(
+        &'a mut self,
+        program: &'a Program,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>>;
+}
+
+/// A kind's typed link behind [`MachineLink`]: the one place a program's units are taken
+/// back as the type the link streams.
+struct TypedLink<U>(Box<dyn Link<U>>);
+
+impl<U: Unit> MachineLink for TypedLink<U> {
+    fn stream<'a>(
+        &'a mut self,
+        program: &'a Program,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        match program.units::<U>() {
+            Some(units) => self.0.stream(units, from, events, control),
+            None => Box::pin(async move {
+                Err(LinkError::Protocol(format!(
+                    "this machine cannot run a program made by the {} post",
+                    program.post()
+                )))
+            }),
+        }
+    }
+}
+
+/// A machine's settings as its kind parsed them, and as written (for listings).
+#[derive(Clone)]
+pub struct KindSettings {
+    pub json: serde_json::Value,
+    typed: Arc<dyn Any + Send + Sync>,
+}
+
+impl Debug for KindSettings {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        self.json.fmt(f)
+    }
+}
+
+impl PartialEq for KindSettings {
+    fn eq(&self, o: &KindSettings) -> bool {
+        self.json == o.json
+    }
+}
+
+impl KindSettings {
+    /// The settings as the kind's own type.
+    pub fn get<S: 'static>(&self) -> Option<&S> {
+        self.typed.downcast_ref()
+    }
+}
+
+/// What a kind prepared for one machine at start-up.
+pub type Device = Arc<dyn Any + Send + Sync>;
+
+/// A kind of any settings and unit type, as the registry holds it.
+pub trait AnyKind: Send + Sync {
+    fn link(&self) -> &'static str;
+    fn about(&self) -> &'static str;
+    /// The keys its table takes besides the common ones.
+    fn keys(&self) -> Vec<&'static str>;
+    /// Parses and checks a machine's settings (its table without the common keys).
+    fn settings(&self, table: serde_json::Value) -> Result<KindSettings, String>;
+    /// The posts it runs, the default first.
+    fn posts(&self) -> Vec<Arc<dyn AnyPost>>;
+    /// A stored program's units read back.
+    fn decode(&self, post: &str, units_json: &str) -> Result<Program, serde_json::Error>;
+    /// A G-code program handed in as it is; None when the kind takes none.
+    fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>>;
+    fn start(
+        &self,
+        machine: &str,
+        settings: &KindSettings,
+    ) -> BoxFuture<'static, std::io::Result<Device>>;
+    fn open(
+        &self,
+        machine: &str,
+        settings: &KindSettings,
+        device: &Device,
+    ) -> BoxFuture<'static, Result<Box<dyn MachineLink>, LinkError>>;
+}
+
+/// A start that prepares nothing beyond what `f` does now.
+pub fn started<T: Send + 'static>(v: T) -> BoxFuture<'static, std::io::Result<T>> {
+    Box::pin(async move { Ok(v) })
+}
+
+/// The name a program made from a G-code file as it is carries.
+pub const GCODE_FILE: &str = "gcode-file";
+
+/// A post whose unit type is a kind's, as an [`AnyPost`].
+struct ErasedPost<U>(PostFor<U>);
+
+impl<U: Unit> AnyPost for ErasedPost<U> {
+    fn name(&self) -> &'static str {
+        self.0.name()
+    }
+    fn about(&self) -> &'static str {
+        self.0.about()
+    }
+    fn extension(&self) -> &'static str {
+        self.0.extension()
+    }
+    fn program(&self, tp: &Toolpath) -> Result<Program, PostError> {
+        Ok(Program::new(self.0.name(), self.0.units(tp)?))
+    }
+    fn file(&self, program: &Program, label: &str) -> Result<Vec<u8>, PostError> {
+        let units = program.units::<U>().ok_or_else(|| {
+            PostError::new(
+                self.0.name(),
+                format!(
+                    "a program made by the {} post cannot be written as a {} file",
+                    program.post(),
+                    self.0.name()
+                ),
+            )
+        })?;
+        self.0.file(units, label)
+    }
+}
+
+fn mismatch<T>(kind: &str) -> Result<T, std::io::Error> {
+    Err(std::io::Error::other(format!(
+        "the settings handed to the {kind} kind are not its own"
+    )))
+}
+
+impl<K: MachineKind> AnyKind for K {
+    fn link(&self) -> &'static str {
+        MachineKind::link(self)
+    }
+    fn about(&self) -> &'static str {
+        MachineKind::about(self)
+    }
+    fn keys(&self) -> Vec<&'static str> {
+        MachineKind::keys(self)
+    }
+    fn settings(&self, table: serde_json::Value) -> Result<KindSettings, String> {
+        let typed: K::Settings = serde_json::from_value(table).map_err(|e| {
+            // serde_json adds " at line 0 column 0" to errors from values
+            let m = e.to_string();
+            m.trim_end_matches(" at line 0 column 0")
+                .replace("field", "key")
+        })?;
+        self.check(&typed)?;
+        let json = serde_json::to_value(&typed).map_err(|e| e.to_string())?;
+        Ok(KindSettings {
+            json,
+            typed: Arc::new(typed),
+        })
+    }
+    fn posts(&self) -> Vec<Arc<dyn AnyPost>> {
+        MachineKind::posts(self)
+            .into_iter()
+            .map(|p| Arc::new(ErasedPost(p)) as Arc<dyn AnyPost>)
+            .collect()
+    }
+    fn decode(&self, post: &str, units_json: &str) -> Result<Program, serde_json::Error> {
+        Program::from_json::<K::Unit>(post, units_json)
+    }
+    fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>> {
+        self.gcode_units(lines, moves)
+            .map(|r| r.map(|units| Program::new(GCODE_FILE, units)))
+    }
+    fn start(
+        &self,
+        machine: &str,
+        settings: &KindSettings,
+    ) -> BoxFuture<'static, std::io::Result<Device>> {
+        let Some(s) = settings.get::<K::Settings>() else {
+            let e = mismatch::<()>(MachineKind::link(self));
+            return Box::pin(async move { e.map(|()| Arc::new(()) as Device) });
+        };
+        let start = MachineKind::start(self, machine, s);
+        Box::pin(async move { Ok(Arc::new(start.await?) as Device) })
+    }
+    fn open(
+        &self,
+        machine: &str,
+        settings: &KindSettings,
+        device: &Device,
+    ) -> BoxFuture<'static, Result<Box<dyn MachineLink>, LinkError>> {
+        let (Some(s), Some(d)) = (
+            settings.get::<K::Settings>(),
+            device.downcast_ref::<K::Device>(),
+        ) else {
+            let e = mismatch::<()>(MachineKind::link(self)).unwrap_err();
+            return Box::pin(async move { Err(LinkError::Io(e)) });
+        };
+        let open = MachineKind::open(self, machine, s, d);
+        Box::pin(async move {
+            let link = open.await?;
+            Ok(Box::new(TypedLink(link)) as Box<dyn MachineLink>)
+        })
+    }
+}
+
+/// Every kind and post the daemon knows, by name.
+#[derive(Clone, Default)]
+pub struct Registry {
+    kinds: BTreeMap<&'static str, Arc<dyn AnyKind>>,
+    posts: BTreeMap<&'static str, Arc<dyn AnyPost>>,
+}
+
+impl Registry {
+    pub fn new() -> Registry {
+        Registry::default()
+    }
+
+    /// Adds a kind, and the posts it runs.
+    pub fn add_kind<K: MachineKind>(&mut self, kind: K) -> &mut Registry {
+        for p in AnyKind::posts(&kind) {
+            self.posts.entry(p.name()).or_insert(p);
+        }
+        self.kinds.insert(MachineKind::link(&kind), Arc::new(kind));
+        self
+    }
+
+    /// Adds a post no kind runs (written by `plan` only).
+    pub fn add_post<P: Post>(&mut self, post: P) -> &mut Registry {
+        self.posts.insert(Post::name(&post), Arc::new(post));
+        self
+    }
+
+    /// The kind named by `link = "…"`.
+    pub fn kind(&self, link: &str) -> Option<&Arc<dyn AnyKind>> {
+        self.kinds.get(link)
+    }
+
+    /// The post named by `--post`.
+    pub fn post(&self, name: &str) -> Option<&Arc<dyn AnyPost>> {
+        self.posts.get(name)
+    }
+
+    pub fn kinds(&self) -> impl Iterator<Item = &Arc<dyn AnyKind>> {
+        self.kinds.values()
+    }
+
+    pub fn posts(&self) -> impl Iterator<Item = &Arc<dyn AnyPost>> {
+        self.posts.values()
+    }
+
+    /// The link names, for messages ("grbl, modbus-tcp, …").
+    pub fn link_names(&self) -> Vec<&'static str> {
+        self.kinds.keys().copied().collect()
+    }
+
+    /// The post names, for messages.
+    pub fn post_names(&self) -> Vec<&'static str> {
+        self.posts.keys().copied().collect()
+    }
+
+    /// Every key some kind takes (to tell an unknown key from one of another kind).
+    pub fn all_keys(&self) -> BTreeSet<&'static str> {
+        self.kinds.values().flat_map(|k| k.keys()).collect()
+    }
+}
+
+/// The field names of a struct, as serde sees them (asks its Deserialize impl).
+pub fn struct_fields<T: DeserializeOwned>() -> Vec<&'static str> {
+    struct Probe<'a>(&'a mut Vec<&'static str>);
+    #[derive(Debug)]
+    struct Stop;
+    impl std::fmt::Display for Stop {
+        fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("probe")
+        }
+    }
+    impl std::error::Error for Stop {}
+    impl de::Error for Stop {
+        fn custom<M: std::fmt::Display>(_: M) -> Self {
+            Stop
+        }
+    }
+    impl<'de> Deserializer<'de> for Probe<'_> {
+        type Error = Stop;
+        fn deserialize_any<V: Visitor<'de>>(self, _v: V) -> Result<V::Value, Stop> {
+            Err(Stop)
+        }
+        fn deserialize_struct<V: Visitor<'de>>(
+            self,
+            _name: &'static str,
+            fields: &'static [&'static str],
+            _v: V,
+        ) -> Result<V::Value, Stop> {
+            self.0.extend_from_slice(fields);
+            Err(Stop)
+        }
+        serde::forward_to_deserialize_any! {
+            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
+            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map enum
+            identifier ignored_any
+        }
+    }
+    let mut fields = Vec::new();
+    let _ = T::deserialize(Probe(&mut fields));
+    fields
+}
+
+/// Settings made of two tables written as one: a transport's own keys (`T`) and keys shared
+/// with other kinds (`C`), e.g. Modbus TCP's host and port beside the Modbus ring's unit,
+/// word order and timeouts. Each part denies keys it does not know; a key neither knows is
+/// refused naming the keys of both.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Joined<T, C> {
+    pub own: T,
+    pub common: C,
+}
+
+impl<T: Serialize, C: Serialize> Serialize for Joined<T, C> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::{Error, SerializeMap};
+        let mut all = serde_json::Map::new();
+        for part in [
+            serde_json::to_value(&self.own),
+            serde_json::to_value(&self.common),
+        ] {
+            match part.map_err(S::Error::custom)? {
+                serde_json::Value::Object(m) => all.extend(m),
+                _ => return Err(S::Error::custom("settings must be tables")),
+            }
+        }
+        let mut map = s.serialize_map(Some(all.len()))?;
+        for (k, v) in &all {
+            map.serialize_entry(k, v)?;
+        }
+        map.end()
+    }
+}
+
+impl<T: DeserializeOwned, C: DeserializeOwned> Joined<T, C> {
+    /// The keys of both parts (a kind with joined settings returns these from `keys`).
+    pub fn keys() -> Vec<&'static str> {
+        let mut keys = struct_fields::<T>();
+        keys.extend(struct_fields::<C>());
+        keys
+    }
+}
+
+impl<'de, T: DeserializeOwned, C: DeserializeOwned> serde::Deserialize<'de> for Joined<T, C> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let own_keys = struct_fields::<T>();
+        let common_keys = struct_fields::<C>();
+        let all_keys = Self::keys();
+        struct MapOnly;
+        impl<'de> Visitor<'de> for MapOnly {
+            type Value = serde_json::Map<String, serde_json::Value>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a table of settings")
+            }
+            fn visit_map<A: de::MapAccess<'de>>(self, mut m: A) -> Result<Self::Value, A::Error> {
+                let mut out = serde_json::Map::new();
+                while let Some((k, v)) = m.next_entry::<String, serde_json::Value>()? {
+                    out.insert(k, v);
+                }
+                Ok(out)
+            }
+        }
+        let table = d.deserialize_map(MapOnly)?;
+        let (mut own, mut common) = (serde_json::Map::new(), serde_json::Map::new());
+        for (k, v) in table {
+            if common_keys.contains(&k.as_str()) {
+                common.insert(k, v);
+            } else if own_keys.contains(&k.as_str()) {
+                own.insert(k, v);
+            } else {
+                return Err(de::Error::custom(format!(
+                    "unknown key `{k}`, expected one of {}",
+                    all_keys
+                        .iter()
+                        .map(|k| format!("`{k}`"))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+        }
+        let own = T::deserialize(serde_json::Value::Object(own)).map_err(de::Error::custom)?;
+        let common =
+            C::deserialize(serde_json::Value::Object(common)).map_err(de::Error::custom)?;
+        Ok(Joined { own, common })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Own {
+        host: String,
+    }
+    #[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Common {
+        #[serde(default)]
+        unit: u8,
+    }
+
+    #[test]
+    fn joined_settings_split_their_keys_and_name_both_parts() {
+        assert_eq!(Joined::<Own, Common>::keys(), ["host", "unit"]);
+        let j: Joined<Own, Common> =
+            serde_json::from_value(serde_json::json!({"host": "plc", "unit": 3})).unwrap();
+        assert_eq!(j.own.host, "plc");
+        assert_eq!(j.common.unit, 3);
+        assert_eq!(
+            serde_json::to_value(&j).unwrap(),
+            serde_json::json!({"host": "plc", "unit": 3})
+        );
+        let e = serde_json::from_value::<Joined<Own, Common>>(
+            serde_json::json!({"host": "plc", "baud": 3}),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("`baud`") && e.contains("`host`, `unit`"), "{e}");
+        let e = serde_json::from_value::<Joined<Own, Common>>(serde_json::json!({"unit": 3}))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("host"), "{e}");
+    }
+}

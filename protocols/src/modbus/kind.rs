@@ -1,0 +1,255 @@
+//! The `modbus-tcp` and `modbus-rtu` machine kinds: a PLC or servo drive taking motion blocks
+//! into a ring buffer of holding registers (docs/modbus.md). Both share the ring's settings.
+
+use super::link::{ModbusLink, ModbusSettings, Parity, Transport};
+use super::map::{MotionBlock, WordOrder};
+use super::post::{post_blocks, ModbusPost};
+use crate::grbl::kind::{check_port, default_baud, warn_missing_port};
+use crate::kind::{started, Joined, MachineKind};
+use crate::link::{Link, LinkError};
+use crate::post::{PostError, PostFor};
+use futures::future::BoxFuture;
+use offset_core::Toolpath;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// The keys every Modbus machine takes, whatever carries its requests.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RingSettings {
+    /// Unit id (TCP: 1 unless a gateway routes by it; RTU: the slave address, 1 to 247).
+    #[serde(default = "default_unit")]
+    pub unit: u8,
+    /// Address of header register 0.
+    #[serde(default)]
+    pub base_address: u16,
+    /// "high-first" (default) or "low-first" for 32-bit values.
+    #[serde(default)]
+    pub word_order: WordOrder,
+    /// The most registers per write (1 to 123; many drives take 10 or 12).
+    #[serde(default = "default_max_write")]
+    pub max_write_registers: u16,
+    /// How long one request may wait for its reply, ms.
+    #[serde(default = "default_timeout")]
+    pub timeout_ms: u64,
+    /// How often the device is polled while the ring is full, ms.
+    #[serde(default = "default_poll")]
+    pub poll_ms: u64,
+    /// Failed attempts in a row (with backoff) before the job fails.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+}
+
+impl Default for RingSettings {
+    fn default() -> Self {
+        RingSettings {
+            unit: default_unit(),
+            base_address: 0,
+            word_order: WordOrder::default(),
+            max_write_registers: default_max_write(),
+            timeout_ms: default_timeout(),
+            poll_ms: default_poll(),
+            retries: default_retries(),
+        }
+    }
+}
+
+/// `link = "modbus-tcp"`'s own keys.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TcpAddress {
+    /// The device's host name or address.
+    pub host: String,
+    #[serde(default = "default_tcp_port")]
+    pub port: u16,
+}
+
+/// `link = "modbus-rtu"`'s own keys.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RtuLine {
+    /// The serial port, e.g. /dev/ttyUSB0.
+    pub port: String,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// "none" (default), "even" or "odd".
+    #[serde(default)]
+    pub parity: Parity,
+    /// After a timeout, how long the line must be silent before the next request, ms.
+    #[serde(default = "default_timeout")]
+    pub quiet_ms: u64,
+}
+
+fn default_unit() -> u8 {
+    1
+}
+fn default_max_write() -> u16 {
+    123
+}
+fn default_timeout() -> u64 {
+    500
+}
+fn default_poll() -> u64 {
+    20
+}
+fn default_retries() -> u32 {
+    8
+}
+fn default_tcp_port() -> u16 {
+    502
+}
+
+impl RingSettings {
+    /// The link's settings over `transport`.
+    pub fn settings(&self, transport: Transport) -> ModbusSettings {
+        let mut s = match &transport {
+            Transport::Tcp { host, port } => ModbusSettings::tcp(host.clone(), *port),
+            Transport::Rtu { path, baud, .. } => ModbusSettings::rtu(path.clone(), *baud),
+        };
+        s.transport = transport;
+        s.unit_id = self.unit;
+        s.base_address = self.base_address;
+        s.word_order = self.word_order;
+        s.max_write_registers = self.max_write_registers;
+        s.timeout = Duration::from_millis(self.timeout_ms);
+        s.poll_interval = Duration::from_millis(self.poll_ms);
+        s.max_retries = self.retries;
+        s
+    }
+}
+
+/// The post every Modbus machine runs.
+pub fn modbus_posts() -> Vec<PostFor<MotionBlock>> {
+    vec![Arc::new(ModbusPost)]
+}
+
+/// A G-code file for a Modbus machine: its moves as motion blocks.
+pub fn gcode_file_blocks(moves: &Toolpath) -> Option<Result<Vec<MotionBlock>, PostError>> {
+    Some(post_blocks(moves).map_err(|e| PostError::new("modbus", e)))
+}
+
+/// Opens a Modbus link with `settings`; it connects on its first request.
+pub fn open_ring(
+    settings: ModbusSettings,
+) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+    Box::pin(async move {
+        let link = ModbusLink::new(settings).map_err(LinkError::from)?;
+        Ok(Box::new(link) as Box<dyn Link<MotionBlock>>)
+    })
+}
+
+/// `link = "modbus-tcp"`.
+pub struct ModbusTcpKind;
+
+impl MachineKind for ModbusTcpKind {
+    type Settings = Joined<TcpAddress, RingSettings>;
+    type Unit = MotionBlock;
+    type Device = ();
+
+    fn link(&self) -> &'static str {
+        "modbus-tcp"
+    }
+    fn about(&self) -> &'static str {
+        "a PLC or drive taking motion blocks into a ring buffer over Modbus TCP"
+    }
+    fn keys(&self) -> Vec<&'static str> {
+        Joined::<TcpAddress, RingSettings>::keys()
+    }
+    fn posts(&self) -> Vec<PostFor<MotionBlock>> {
+        modbus_posts()
+    }
+    fn check(&self, s: &Self::Settings) -> Result<(), String> {
+        if s.own.host.trim().is_empty() {
+            return Err("host must not be empty".into());
+        }
+        s.common
+            .settings(tcp(&s.own))
+            .validate()
+            .map_err(|e| e.to_string())
+    }
+    fn gcode_units(
+        &self,
+        _lines: &[String],
+        moves: &Toolpath,
+    ) -> Option<Result<Vec<MotionBlock>, PostError>> {
+        gcode_file_blocks(moves)
+    }
+    fn start(
+        &self,
+        _machine: &str,
+        _s: &Self::Settings,
+    ) -> BoxFuture<'static, std::io::Result<()>> {
+        started(())
+    }
+    fn open(
+        &self,
+        _machine: &str,
+        s: &Self::Settings,
+        _device: &(),
+    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+        open_ring(s.common.settings(tcp(&s.own)))
+    }
+}
+
+fn tcp(a: &TcpAddress) -> Transport {
+    Transport::Tcp {
+        host: a.host.clone(),
+        port: a.port,
+    }
+}
+
+/// `link = "modbus-rtu"`.
+pub struct ModbusRtuKind;
+
+impl MachineKind for ModbusRtuKind {
+    type Settings = Joined<RtuLine, RingSettings>;
+    type Unit = MotionBlock;
+    type Device = ();
+
+    fn link(&self) -> &'static str {
+        "modbus-rtu"
+    }
+    fn about(&self) -> &'static str {
+        "a PLC or drive taking motion blocks into a ring buffer over Modbus RTU on a serial line"
+    }
+    fn keys(&self) -> Vec<&'static str> {
+        Joined::<RtuLine, RingSettings>::keys()
+    }
+    fn posts(&self) -> Vec<PostFor<MotionBlock>> {
+        modbus_posts()
+    }
+    fn check(&self, s: &Self::Settings) -> Result<(), String> {
+        check_port(&s.own.port, s.own.baud)?;
+        rtu_settings(s).validate().map_err(|e| e.to_string())
+    }
+    fn gcode_units(
+        &self,
+        _lines: &[String],
+        moves: &Toolpath,
+    ) -> Option<Result<Vec<MotionBlock>, PostError>> {
+        gcode_file_blocks(moves)
+    }
+    fn start(&self, machine: &str, s: &Self::Settings) -> BoxFuture<'static, std::io::Result<()>> {
+        warn_missing_port(machine, &s.own.port);
+        started(())
+    }
+    fn open(
+        &self,
+        _machine: &str,
+        s: &Self::Settings,
+        _device: &(),
+    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+        open_ring(rtu_settings(s))
+    }
+}
+
+fn rtu_settings(s: &Joined<RtuLine, RingSettings>) -> ModbusSettings {
+    let mut m = s.common.settings(Transport::Rtu {
+        path: s.own.port.clone(),
+        baud: s.own.baud,
+        parity: s.own.parity,
+    });
+    m.rtu_quiet = Duration::from_millis(s.own.quiet_ms);
+    m
+}

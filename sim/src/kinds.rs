@@ -1,0 +1,249 @@
+//! The simulated machine kinds (`sim-grbl`, `sim-sewing`, `sim-modbus`): each starts its
+//! simulator when the daemon starts and opens the real kind's link on it, so a config can
+//! swap `link = "grbl"` for `link = "sim-grbl"` and nothing else changes.
+
+use crate::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
+use crate::modbus::{ModbusSim, SimConfig};
+use crate::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
+use futures::future::BoxFuture;
+use machlink_protocols::grbl::kind::{gcode_file_units, grbl_posts, open_machine};
+use machlink_protocols::grbl::GrblOptions;
+use machlink_protocols::kind::{MachineKind, Registry};
+use machlink_protocols::modbus::kind::{gcode_file_blocks, modbus_posts, open_ring, RingSettings};
+use machlink_protocols::modbus::{MotionBlock, Transport};
+use machlink_protocols::post::{PostError, PostFor};
+use machlink_protocols::sewing::kind::{open_sewing, stitch_posts};
+use machlink_protocols::sewing::StitchRecord;
+use machlink_protocols::{Link, LinkError};
+use offset_core::Toolpath;
+use serde::{Deserialize, Serialize};
+
+/// Registers the simulated kinds.
+pub fn register(registry: &mut Registry) {
+    registry
+        .add_kind(SimGrblKind)
+        .add_kind(SimSewingKind)
+        .add_kind(SimModbusKind);
+}
+
+fn default_time_scale() -> f64 {
+    1.0
+}
+
+fn positive(v: f64, what: &str) -> Result<(), String> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("{what} must be a positive number, got {v}"))
+    }
+}
+
+/// `link = "sim-grbl"`: a simulated GRBL 1.1 on a pty the daemon starts.
+pub struct SimGrblKind;
+
+/// The keys of a `link = "sim-grbl"` machine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimGrblSettings {
+    /// How many times faster than real time the simulated machine moves.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: f64,
+}
+
+impl MachineKind for SimGrblKind {
+    type Settings = SimGrblSettings;
+    type Unit = String;
+    type Device = GrblSimHandle;
+
+    fn link(&self) -> &'static str {
+        "sim-grbl"
+    }
+    fn about(&self) -> &'static str {
+        "a simulated GRBL 1.1 the daemon starts on a pseudo-terminal"
+    }
+    fn posts(&self) -> Vec<PostFor<String>> {
+        grbl_posts()
+    }
+    fn check(&self, s: &SimGrblSettings) -> Result<(), String> {
+        positive(s.time_scale, "time_scale")
+    }
+    fn gcode_units(
+        &self,
+        lines: &[String],
+        _moves: &Toolpath,
+    ) -> Option<Result<Vec<String>, PostError>> {
+        gcode_file_units(lines)
+    }
+    fn start(
+        &self,
+        _machine: &str,
+        s: &SimGrblSettings,
+    ) -> BoxFuture<'static, std::io::Result<GrblSimHandle>> {
+        let cfg = GrblSimConfig {
+            time_scale: s.time_scale,
+            ..Default::default()
+        };
+        Box::pin(async move { GrblSim::spawn_pty(cfg) })
+    }
+    fn open(
+        &self,
+        _machine: &str,
+        _s: &SimGrblSettings,
+        sim: &GrblSimHandle,
+    ) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+        let port = sim.port().display().to_string();
+        open_machine(port, GrblOptions::default(), true)
+    }
+}
+
+/// `link = "sim-sewing"`: a simulated pattern sewing machine on a pty the daemon starts
+/// (`machlink-sim sewing` is the same machine from the command line).
+pub struct SimSewingKind;
+
+/// The keys of a `link = "sim-sewing"` machine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimSewingSettings {
+    /// How many times faster than real time the simulated machine sews.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: f64,
+    /// Stitches per minute.
+    #[serde(default = "default_spm")]
+    pub spm: u32,
+    /// Probability per byte, each direction, of line noise (lost or corrupted bytes).
+    #[serde(default)]
+    pub noise: f64,
+    /// The thread breaks before these records (0-based).
+    #[serde(default)]
+    pub thread_break_at: Vec<u32>,
+    /// The power fails (the pattern is lost) before these records (0-based).
+    #[serde(default)]
+    pub power_loss_at: Vec<u32>,
+}
+
+fn default_spm() -> u32 {
+    2500
+}
+
+impl MachineKind for SimSewingKind {
+    type Settings = SimSewingSettings;
+    type Unit = StitchRecord;
+    type Device = SewingSim;
+
+    fn link(&self) -> &'static str {
+        "sim-sewing"
+    }
+    fn about(&self) -> &'static str {
+        "a simulated pattern sewing machine the daemon starts on a pseudo-terminal"
+    }
+    fn posts(&self) -> Vec<PostFor<StitchRecord>> {
+        stitch_posts()
+    }
+    fn check(&self, s: &SimSewingSettings) -> Result<(), String> {
+        positive(s.time_scale, "time_scale")?;
+        if s.spm == 0 {
+            return Err("spm must be above 0".into());
+        }
+        if !(s.noise.is_finite() && (0.0..=0.1).contains(&s.noise)) {
+            return Err(format!("noise must be 0 to 0.1, got {}", s.noise));
+        }
+        Ok(())
+    }
+    fn start(
+        &self,
+        _machine: &str,
+        s: &SimSewingSettings,
+    ) -> BoxFuture<'static, std::io::Result<SewingSim>> {
+        let cfg = SewingSimConfig {
+            time_scale: s.time_scale,
+            spm: s.spm,
+            noise: s.noise,
+            thread_break_at: s.thread_break_at.clone(),
+            power_loss_at: s.power_loss_at.clone(),
+            ..Default::default()
+        };
+        Box::pin(async move { spawn_on_pty(cfg) })
+    }
+    fn open(
+        &self,
+        _machine: &str,
+        _s: &SimSewingSettings,
+        sim: &SewingSim,
+    ) -> BoxFuture<'static, Result<Box<dyn Link<StitchRecord>>, LinkError>> {
+        open_sewing(sim.path.clone(), 115_200)
+    }
+}
+
+/// `link = "sim-modbus"`: a simulated motion-block device the daemon serves on a loopback
+/// TCP port of its own choosing.
+pub struct SimModbusKind;
+
+/// The keys of a `link = "sim-modbus"` machine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimModbusSettings {
+    /// How many times faster than real time the simulated device moves.
+    #[serde(default = "default_time_scale")]
+    pub time_scale: f64,
+    /// Ring capacity in blocks.
+    #[serde(default = "default_capacity")]
+    pub capacity: u16,
+}
+
+fn default_capacity() -> u16 {
+    64
+}
+
+impl MachineKind for SimModbusKind {
+    type Settings = SimModbusSettings;
+    type Unit = MotionBlock;
+    type Device = ModbusSim;
+
+    fn link(&self) -> &'static str {
+        "sim-modbus"
+    }
+    fn about(&self) -> &'static str {
+        "a simulated Modbus motion-block device the daemon serves on loopback TCP"
+    }
+    fn posts(&self) -> Vec<PostFor<MotionBlock>> {
+        modbus_posts()
+    }
+    fn check(&self, s: &SimModbusSettings) -> Result<(), String> {
+        positive(s.time_scale, "time_scale")?;
+        if s.capacity == 0 {
+            return Err("capacity must be above 0".into());
+        }
+        Ok(())
+    }
+    fn gcode_units(
+        &self,
+        _lines: &[String],
+        moves: &Toolpath,
+    ) -> Option<Result<Vec<MotionBlock>, PostError>> {
+        gcode_file_blocks(moves)
+    }
+    fn start(
+        &self,
+        _machine: &str,
+        s: &SimModbusSettings,
+    ) -> BoxFuture<'static, std::io::Result<ModbusSim>> {
+        let cfg = SimConfig {
+            time_scale: s.time_scale,
+            capacity: s.capacity,
+            ..Default::default()
+        };
+        Box::pin(async move { ModbusSim::spawn_tcp(cfg, ([127, 0, 0, 1], 0).into()).await })
+    }
+    fn open(
+        &self,
+        _machine: &str,
+        _s: &SimModbusSettings,
+        sim: &ModbusSim,
+    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+        let addr = sim.addr();
+        open_ring(RingSettings::default().settings(Transport::Tcp {
+            host: addr.ip().to_string(),
+            port: addr.port(),
+        }))
+    }
+}
