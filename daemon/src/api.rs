@@ -4,14 +4,13 @@
 //! |---|---|
 //! | `GET /machines` | the machines, their queues and last status |
 //! | `GET /jobs`, `GET /jobs/{id}` | jobs as the store holds them |
-//! | `POST /jobs` | plan a shape file and queue it ([`SubmitRequest`]) |
+//! | `POST /jobs` | plan a job and queue it on its machine (body: a [`JobSpec`] naming the machine) |
 //! | `POST /jobs/{id}/pause`, `/resume`, `/cancel` | steer a job |
 //! | `GET /jobs/{id}/events` | newline-delimited JSON events until the job ends |
 //!
 //! Refusals are 4xx with `{ "error": "one sentence" }`.
 
-use crate::config::MachineConfig;
-use crate::planning::{self, PlanParams, Post};
+use crate::intake::{self, IntakeError, JobSpec, Target};
 use crate::scheduler::{Event, SchedError, Scheduler};
 use crate::store::{JobId, NewJob};
 use axum::body::Body;
@@ -21,71 +20,8 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use base64::Engine;
-use machlink_protocols::Program;
-use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};
 use tokio::sync::broadcast;
-
-/// What `POST /jobs` takes: the shape file itself (its name picks the reader), the
-/// planning parameters and the machine. A G-code file (.nc, .gcode, .ngc, .tap) is
-/// streamed as it is, without planning.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct SubmitRequest {
-    pub machine: String,
-    pub file_name: String,
-    /// The file's bytes as text (geometry JSON, DXF, SVG) …
-    #[serde(default)]
-    pub file_text: Option<String>,
-    /// … or as base64, for binary files.
-    #[serde(default)]
-    pub file_base64: Option<String>,
-    /// How to plan a shape file (ignored for a G-code file).
-    #[serde(default)]
-    pub params: Option<PlanParams>,
-}
-
-/// Whether a file name says G-code, to be streamed as it is.
-pub fn is_gcode_file(name: &str) -> bool {
-    let ext = std::path::Path::new(name)
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase());
-    matches!(ext.as_deref(), Some("nc" | "gcode" | "ngc" | "tap" | "gc"))
-}
-
-/// The program lines of a G-code file: comments, blank lines and `%` marks dropped;
-/// a byte GRBL cannot take is refused, naming the line.
-pub fn gcode_lines(file_name: &str, text: &str) -> Result<Vec<String>, ApiError> {
-    let mut out = Vec::new();
-    for (i, raw) in text.lines().enumerate() {
-        let mut line = String::new();
-        let mut in_paren = false;
-        for c in raw.chars() {
-            match c {
-                _ if in_paren => in_paren = c != ')',
-                '(' => in_paren = true,
-                ';' => break,
-                c => line.push(c),
-            }
-        }
-        let line = line.trim();
-        if line.is_empty() || line == "%" {
-            continue;
-        }
-        if let Some(c) = line
-            .chars()
-            .find(|&c| !c.is_ascii() || c.is_ascii_control() || matches!(c, '?' | '!' | '~'))
-        {
-            return Err(bad(format!(
-                "{file_name}, line {}: the character {c:?} cannot be sent to the machine",
-                i + 1
-            )));
-        }
-        out.push(line.to_string());
-    }
-    Ok(out)
-}
 
 /// A refusal: status and one sentence.
 #[derive(Debug)]
@@ -215,127 +151,46 @@ async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> Result<Re
 }
 
 async fn submit(State(st): State<AppState>, body: axum::body::Bytes) -> Result<Response, ApiError> {
-    let req: SubmitRequest = serde_json::from_slice(&body)
-        .map_err(|e| bad(format!("the request is not a valid job submission: {e}")))?;
-    let machine = st.sched.machine_config(&req.machine)?.clone();
-    let bytes = match (&req.file_text, &req.file_base64) {
-        (Some(t), None) => t.clone().into_bytes(),
-        (None, Some(b)) => base64::engine::general_purpose::STANDARD
-            .decode(b)
-            .map_err(|e| {
-                bad(format!(
-                    "file_base64 of {} is not base64: {e}",
-                    req.file_name
-                ))
-            })?,
-        _ => {
-            return Err(bad(
-                "give the file as exactly one of file_text and file_base64",
-            ))
-        }
+    let spec: JobSpec = serde_json::from_slice(&body)
+        .map_err(|e| bad(format!("the request is not a valid job: {e}")))?;
+    let Some(name) = spec.machine.clone() else {
+        return Err(bad("the job names no machine (give \"machine\")"));
     };
-    let (op, params, program) = if is_gcode_file(&req.file_name) {
-        let text = String::from_utf8(bytes)
-            .map_err(|_| bad(format!("{} is not a text file", req.file_name)))?;
-        let lines = gcode_lines(&req.file_name, &text)?;
-        (
-            "gcode".to_string(),
-            serde_json::Value::Null,
-            Program::Gcode(lines),
-        )
-    } else {
-        let Some(params) = req.params.clone() else {
-            return Err(bad(format!(
-                "{} is a shape file: give the planning parameters (at least the operation)",
-                req.file_name
-            )));
-        };
-        let name = req.file_name.clone();
-        let p2 = params.clone();
-        let program = tokio::task::spawn_blocking(move || plan(&machine, &name, &bytes, &p2))
+    let machine = st.sched.machine_config(&name)?.clone();
+    let file_name = spec.input.file_name.clone();
+    let params = params_of(&spec);
+    // planning is CPU work: off the async threads
+    let planned =
+        tokio::task::spawn_blocking(move || intake::plan(&spec, Target::Machine(&machine)))
             .await
             .map_err(|e| {
                 ApiError(
                     StatusCode::INTERNAL_SERVER_ERROR,
                     format!("planning crashed: {e}"),
                 )
-            })??;
-        let op = serde_json::to_value(params.op)
-            .ok()
-            .and_then(|v| v.as_str().map(String::from))
-            .unwrap_or_default();
-        (
-            op,
-            serde_json::to_value(&params).unwrap_or_default(),
-            program,
-        )
-    };
+            })?
+            .map_err(|e| match e {
+                IntakeError::Refused(m) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
+                other => bad(other.to_string()),
+            })?;
     let rec = st.sched.submit(NewJob {
-        machine: req.machine,
-        op,
-        file_name: req.file_name,
+        machine: name,
+        op: planned.operation,
+        file_name,
         params,
-        program,
+        program: planned.program,
     })?;
     Ok((StatusCode::CREATED, Json(rec)).into_response())
 }
 
-/// Plans the job and checks it against the machine: feed limit, work area.
-pub fn plan(
-    machine: &MachineConfig,
-    file_name: &str,
-    bytes: &[u8],
-    params: &PlanParams,
-) -> Result<Program, ApiError> {
-    let sentence = |e: anyhow::Error| {
-        bad(e
-            .chain()
-            .map(|c| c.to_string())
-            .collect::<Vec<_>>()
-            .join(": "))
-    };
-    if let Some(max) = machine.max_feed {
-        for (what, f) in [("feed", params.feed), ("plunge feed", params.plunge_feed)] {
-            if f > max {
-                return Err(bad(format!(
-                    "the {what} {f} mm/min is above machine `{}`'s limit of {max} mm/min",
-                    machine.name
-                )));
-            }
-        }
+/// What the store keeps of a job's spec: everything but the file's bytes.
+fn params_of(spec: &JobSpec) -> serde_json::Value {
+    let mut v = serde_json::to_value(spec).unwrap_or_default();
+    if let Some(input) = v.get_mut("input").and_then(|i| i.as_object_mut()) {
+        input.remove("file_text");
+        input.remove("file_base64");
     }
-    let shape = offset_core::io::read_shape(bytes, file_name).map_err(|e| sentence(e.into()))?;
-    let tp = planning::plan_toolpath(&shape, params).map_err(sentence)?;
-    check_work_area(machine, &tp)?;
-    planning::post(&tp, post_for(machine)).map_err(sentence)
-}
-
-/// The program format a machine's link speaks.
-pub fn post_for(machine: &MachineConfig) -> Post {
-    match machine.link {
-        crate::config::LinkConfig::Grbl(_) | crate::config::LinkConfig::SimGrbl(_) => Post::Grbl,
-        crate::config::LinkConfig::ModbusTcp(_) | crate::config::LinkConfig::ModbusRtu(_) => {
-            Post::Modbus
-        }
-        crate::config::LinkConfig::Sewing(_) | crate::config::LinkConfig::SimSewing(_) => Post::Dst,
-    }
-}
-
-fn check_work_area(machine: &MachineConfig, tp: &Toolpath) -> Result<(), ApiError> {
-    let (Some(w), Some(b)) = (&machine.work_area, tp.bounds()) else {
-        return Ok(());
-    };
-    let lo = [b.min.x, b.min.y, b.min.z];
-    let hi = [b.max.x, b.max.y, b.max.z];
-    for (i, axis) in ["X", "Y", "Z"].iter().enumerate() {
-        if lo[i] < w.min[i] - 1e-9 || hi[i] > w.max[i] + 1e-9 {
-            return Err(bad(format!(
-                "the path leaves machine `{}`'s work area: {axis} runs {:.3} to {:.3}, the machine allows {} to {}",
-                machine.name, lo[i], hi[i], w.min[i], w.max[i]
-            )));
-        }
-    }
-    Ok(())
+    v
 }
 
 /// `GET /jobs/{id}/events`: the job's current state first, then every event about it,

@@ -1,6 +1,7 @@
 //! The API's client (hyper 1 over a Unix socket or TCP), used by the operator's commands.
 
-use crate::api::{ErrorBody, SubmitRequest};
+use crate::api::ErrorBody;
+use crate::intake::JobSpec;
 use crate::scheduler::{Event, MachineInfo};
 use crate::store::{JobId, JobRecord};
 use http_body_util::{BodyExt, Full};
@@ -125,7 +126,7 @@ impl Client {
         self.call(Method::GET, &format!("/jobs/{id}"), None).await
     }
 
-    pub async fn submit(&self, req: &SubmitRequest) -> Result<JobRecord, ClientError> {
+    pub async fn submit(&self, req: &JobSpec) -> Result<JobRecord, ClientError> {
         let body = serde_json::to_vec(req).map_err(|e| ClientError::Protocol(e.to_string()))?;
         self.call(Method::POST, "/jobs", Some(body)).await
     }

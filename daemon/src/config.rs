@@ -13,10 +13,12 @@
 //!
 //! Every error names the file, the line and column, the machine and the key.
 
-use serde::de::{self, DeserializeOwned, DeserializeSeed, Deserializer, MapAccess, Visitor};
+use machlink_protocols::kind::{AnyKind, KindSettings, Registry};
+use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, Visitor};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Duration;
 
 /// Why a configuration could not be used.
@@ -62,259 +64,88 @@ pub struct DaemonConfig {
     pub journal_max_lag: Duration,
 }
 
-/// One `[[machine]]` table.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+/// One `[[machine]]` table: the keys every machine takes, and its kind's own settings.
+#[derive(Clone)]
 pub struct MachineConfig {
     pub name: String,
-    /// The link and its settings (the table's `link` key and the keys that link takes).
-    pub link: LinkConfig,
+    /// The table's `link = "…"`: the kind of machine.
+    pub link: String,
+    /// The kind, from the registry the config was read with.
+    pub kind: Arc<dyn AnyKind>,
+    /// The kind's own keys, parsed and checked by the kind.
+    pub settings: KindSettings,
     /// Where the tool may go, in work coordinates, mm.
     pub work_area: Option<WorkArea>,
     /// The fastest cutting feed the machine accepts, mm/min.
     pub max_feed: Option<f64>,
+    /// M-codes a G-code job may hold (default: those GRBL runs, see `DEFAULT_M_CODES`).
+    pub allowed_m_codes: Vec<u32>,
     /// The tools in the machine's rack.
     pub tools: Vec<ToolConfig>,
 }
 
-/// The link to a machine, tagged by the `link` key. A new kind of machine adds a variant.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "link")]
-pub enum LinkConfig {
-    /// A GRBL controller on a serial port.
-    #[serde(rename = "grbl")]
-    Grbl(GrblLinkConfig),
-    /// A GRBL simulator the daemon starts itself on a pseudo-terminal.
-    #[serde(rename = "sim-grbl")]
-    SimGrbl(SimGrblLinkConfig),
-    /// A PLC or drive taking motion blocks over Modbus TCP.
-    #[serde(rename = "modbus-tcp")]
-    ModbusTcp(ModbusTcpLinkConfig),
-    /// A PLC or drive taking motion blocks over Modbus RTU on a serial port.
-    #[serde(rename = "modbus-rtu")]
-    ModbusRtu(ModbusRtuLinkConfig),
-    /// A pattern sewing machine on a serial port (pattern transfer protocol).
-    #[serde(rename = "sewing")]
-    Sewing(SewingLinkConfig),
-    /// A simulated pattern sewing machine the daemon starts itself on a pseudo-terminal.
-    #[serde(rename = "sim-sewing")]
-    SimSewing(SimSewingLinkConfig),
-}
+/// M-codes a G-code job may hold unless a machine says otherwise: program stop and end,
+/// spindle, coolant (the ones GRBL 1.1 runs).
+pub const DEFAULT_M_CODES: [u32; 10] = [0, 1, 2, 3, 4, 5, 7, 8, 9, 30];
 
-impl LinkConfig {
-    /// The `link` value of this variant, as written in the config.
-    pub fn kind(&self) -> &'static str {
-        match self {
-            LinkConfig::Grbl(_) => "grbl",
-            LinkConfig::SimGrbl(_) => "sim-grbl",
-            LinkConfig::ModbusTcp(_) => "modbus-tcp",
-            LinkConfig::ModbusRtu(_) => "modbus-rtu",
-            LinkConfig::Sewing(_) => "sewing",
-            LinkConfig::SimSewing(_) => "sim-sewing",
-        }
-    }
-
-    /// Every key some link takes (to tell an unknown key from one of another link).
-    fn all_keys() -> BTreeSet<&'static str> {
-        let mut keys = BTreeSet::new();
-        keys.extend(struct_fields::<GrblLinkConfig>());
-        keys.extend(struct_fields::<SimGrblLinkConfig>());
-        keys.extend(struct_fields::<ModbusTcpLinkConfig>());
-        keys.extend(struct_fields::<ModbusRtuLinkConfig>());
-        keys.extend(struct_fields::<SewingLinkConfig>());
-        keys.extend(struct_fields::<SimSewingLinkConfig>());
-        keys
+impl std::fmt::Debug for MachineConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.debug_struct("MachineConfig")
+            .field("name", &self.name)
+            .field("link", &self.link)
+            .field("settings", &self.settings)
+            .field("work_area", &self.work_area)
+            .field("max_feed", &self.max_feed)
+            .field("allowed_m_codes", &self.allowed_m_codes)
+            .field("tools", &self.tools)
+            .finish()
     }
 }
 
-/// `link = "grbl"`: a GRBL 1.1 controller on a serial port.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GrblLinkConfig {
-    /// The serial port, e.g. /dev/ttyUSB0.
-    pub port: String,
-    #[serde(default = "default_baud")]
-    pub baud: u32,
-    /// Run every program through GRBL's check mode ($C) before cutting.
-    #[serde(default)]
-    pub check_first: bool,
-    /// Unlock ($X) a machine an earlier job left in alarm before the next job starts.
-    /// Say false where an alarm must be looked at by someone first.
-    #[serde(default = "yes")]
-    pub auto_unlock: bool,
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn default_baud() -> u32 {
-    115_200
-}
-
-/// `link = "sim-grbl"`: a simulated GRBL on a pseudo-terminal, started by the daemon.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimGrblLinkConfig {
-    /// How many times faster than real time the simulated machine moves.
-    #[serde(default = "default_time_scale")]
-    pub time_scale: f64,
-}
-
-fn default_time_scale() -> f64 {
-    1.0
-}
-
-/// `link = "modbus-tcp"`: motion blocks into a device's ring over Modbus TCP (docs/modbus.md).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModbusTcpLinkConfig {
-    /// The device's host name or address.
-    pub host: String,
-    #[serde(default = "default_modbus_port")]
-    pub port: u16,
-    /// Unit id (1 unless a gateway routes by it).
-    #[serde(default = "default_unit")]
-    pub unit: u8,
-    /// Address of header register 0.
-    #[serde(default)]
-    pub base_address: u16,
-    /// "high-first" (default) or "low-first" for 32-bit values.
-    #[serde(default)]
-    pub word_order: machlink_protocols::modbus::WordOrder,
-    /// The most registers per write (1 to 123; many drives take 10 or 12).
-    #[serde(default = "default_max_write")]
-    pub max_write_registers: u16,
-    /// How long one request may wait for its reply, ms.
-    #[serde(default = "default_modbus_timeout")]
-    pub timeout_ms: u64,
-    /// How often the device is polled while the ring is full, ms.
-    #[serde(default = "default_poll")]
-    pub poll_ms: u64,
-    /// Failed attempts in a row (with backoff) before the job fails.
-    #[serde(default = "default_retries")]
-    pub retries: u32,
-}
-
-/// `link = "modbus-rtu"`: motion blocks into a device's ring over Modbus RTU (docs/modbus.md).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModbusRtuLinkConfig {
-    /// The serial port, e.g. /dev/ttyUSB0.
-    pub port: String,
-    #[serde(default = "default_baud")]
-    pub baud: u32,
-    /// "none" (default), "even" or "odd".
-    #[serde(default)]
-    pub parity: machlink_protocols::modbus::Parity,
-    /// The device's slave address, 1 to 247.
-    #[serde(default = "default_unit")]
-    pub unit: u8,
-    #[serde(default)]
-    pub base_address: u16,
-    #[serde(default)]
-    pub word_order: machlink_protocols::modbus::WordOrder,
-    #[serde(default = "default_max_write")]
-    pub max_write_registers: u16,
-    #[serde(default = "default_modbus_timeout")]
-    pub timeout_ms: u64,
-    #[serde(default = "default_poll")]
-    pub poll_ms: u64,
-    #[serde(default = "default_retries")]
-    pub retries: u32,
-    /// After a timeout, how long the line must be silent before the next request, ms.
-    #[serde(default = "default_modbus_timeout")]
-    pub quiet_ms: u64,
-}
-
-fn default_modbus_port() -> u16 {
-    502
-}
-fn default_unit() -> u8 {
-    1
-}
-fn default_max_write() -> u16 {
-    123
-}
-fn default_modbus_timeout() -> u64 {
-    500
-}
-fn default_poll() -> u64 {
-    20
-}
-fn default_retries() -> u32 {
-    8
-}
-
-impl ModbusTcpLinkConfig {
-    /// The link's settings.
-    pub fn settings(&self) -> machlink_protocols::modbus::ModbusSettings {
-        let mut s = machlink_protocols::modbus::ModbusSettings::tcp(&self.host, self.port);
-        s.unit_id = self.unit;
-        s.base_address = self.base_address;
-        s.word_order = self.word_order;
-        s.max_write_registers = self.max_write_registers;
-        s.timeout = Duration::from_millis(self.timeout_ms);
-        s.poll_interval = Duration::from_millis(self.poll_ms);
-        s.max_retries = self.retries;
-        s
+impl PartialEq for MachineConfig {
+    fn eq(&self, o: &MachineConfig) -> bool {
+        self.name == o.name
+            && self.link == o.link
+            && self.settings == o.settings
+            && self.work_area == o.work_area
+            && self.max_feed == o.max_feed
+            && self.allowed_m_codes == o.allowed_m_codes
+            && self.tools == o.tools
     }
 }
 
-impl ModbusRtuLinkConfig {
-    /// The link's settings.
-    pub fn settings(&self) -> machlink_protocols::modbus::ModbusSettings {
-        let mut s = machlink_protocols::modbus::ModbusSettings::rtu(&self.port, self.baud);
-        s.transport = machlink_protocols::modbus::Transport::Rtu {
-            path: self.port.clone(),
-            baud: self.baud,
-            parity: self.parity,
-        };
-        s.unit_id = self.unit;
-        s.base_address = self.base_address;
-        s.word_order = self.word_order;
-        s.max_write_registers = self.max_write_registers;
-        s.timeout = Duration::from_millis(self.timeout_ms);
-        s.poll_interval = Duration::from_millis(self.poll_ms);
-        s.max_retries = self.retries;
-        s.rtu_quiet = Duration::from_millis(self.quiet_ms);
-        s
+impl MachineConfig {
+    /// A machine of kind `link` from `registry` with its settings given as a JSON table and
+    /// no limits: for programs (the demo, tests) that build a config without a file.
+    pub fn new(
+        registry: &Registry,
+        name: &str,
+        link: &str,
+        settings: serde_json::Value,
+    ) -> Result<MachineConfig, String> {
+        let kind = registry
+            .kind(link)
+            .ok_or_else(|| unknown_link(registry, link))?
+            .clone();
+        let settings = kind.settings(settings)?;
+        Ok(MachineConfig {
+            name: name.to_string(),
+            link: link.to_string(),
+            kind,
+            settings,
+            work_area: None,
+            max_feed: None,
+            allowed_m_codes: DEFAULT_M_CODES.to_vec(),
+            tools: Vec::new(),
+        })
     }
 }
 
-/// `link = "sewing"`: a pattern sewing machine on a serial port.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SewingLinkConfig {
-    /// The serial port, e.g. /dev/ttyUSB1.
-    pub port: String,
-    #[serde(default = "default_baud")]
-    pub baud: u32,
-}
-
-/// `link = "sim-sewing"`: a simulated pattern sewing machine on a pseudo-terminal, started
-/// by the daemon (see `machlink-sim sewing` for the same machine from the command line).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimSewingLinkConfig {
-    /// How many times faster than real time the simulated machine sews.
-    #[serde(default = "default_time_scale")]
-    pub time_scale: f64,
-    /// Stitches per minute.
-    #[serde(default = "default_spm")]
-    pub spm: u32,
-    /// Probability per byte, each direction, of line noise (lost or corrupted bytes).
-    #[serde(default)]
-    pub noise: f64,
-    /// The thread breaks before these records (0-based).
-    #[serde(default)]
-    pub thread_break_at: Vec<u32>,
-    /// The power fails (the pattern is lost) before these records (0-based).
-    #[serde(default)]
-    pub power_loss_at: Vec<u32>,
-}
-
-fn default_spm() -> u32 {
-    2500
+fn unknown_link(registry: &Registry, link: &str) -> String {
+    format!(
+        "unknown link `{link}` (known: {})",
+        registry.link_names().join(", ")
+    )
 }
 
 /// A box the tool must stay inside, in work coordinates, mm.
@@ -343,7 +174,7 @@ struct RawConfig {
     #[serde(default)]
     daemon: RawDaemon,
     #[serde(default)]
-    machine: Vec<toml::Spanned<MachineConfig>>,
+    machine: Vec<toml::Spanned<RawMachine>>,
 }
 
 #[derive(Default, Deserialize)]
@@ -381,17 +212,28 @@ impl Config {
         }
     }
 
-    /// Reads and checks a config file.
+    /// Reads and checks a config file with the standard machine kinds.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        Config::load_with(path, &crate::registry::standard())
+    }
+
+    /// Reads and checks a config file whose machines are of the kinds in `registry`.
+    pub fn load_with(path: &Path, registry: &Registry) -> Result<Config, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
             path: path.display().to_string(),
             source,
         })?;
-        Config::parse(&text, path)
+        Config::parse_with(&text, path, registry)
     }
 
-    /// Parses config text; `path` names the file in errors and anchors relative paths.
+    /// Parses config text with the standard machine kinds; `path` names the file in errors
+    /// and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        Config::parse_with(text, path, &crate::registry::standard())
+    }
+
+    /// Parses config text whose machines are of the kinds in `registry`.
+    pub fn parse_with(text: &str, path: &Path, registry: &Registry) -> Result<Config, ConfigError> {
         let file = path.display().to_string();
         let at = |span: Option<std::ops::Range<usize>>, message: String| match span {
             Some(s) => {
@@ -440,10 +282,10 @@ impl Config {
         }
         for m in raw.machine {
             let span = m.span();
-            let m = m.into_inner();
-            if let Err(message) = m.check() {
-                return Err(at(Some(span), format!("machine `{}`: {message}", m.name)));
-            }
+            let m = m
+                .into_inner()
+                .resolve(registry, span.clone())
+                .map_err(|(span, message)| at(Some(span), message))?;
             if cfg.machines.iter().any(|o| o.name == m.name) {
                 return Err(at(
                     Some(span),
@@ -489,29 +331,7 @@ impl MachineConfig {
                 ));
             }
         }
-        match &self.link {
-            LinkConfig::Grbl(g) if g.port.trim().is_empty() => Err("port must not be empty".into()),
-            LinkConfig::Grbl(g) if g.baud == 0 => Err("baud must be above 0".into()),
-            LinkConfig::SimGrbl(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
-                format!("time_scale must be a positive number, got {}", s.time_scale),
-            ),
-            LinkConfig::ModbusTcp(m) => m.settings().validate().map_err(|e| e.to_string()),
-            LinkConfig::ModbusRtu(m) => m.settings().validate().map_err(|e| e.to_string()),
-            LinkConfig::Sewing(g) if g.port.trim().is_empty() => {
-                Err("port must not be empty".into())
-            }
-            LinkConfig::Sewing(g) if g.baud == 0 => Err("baud must be above 0".into()),
-            LinkConfig::SimSewing(s) if !(s.time_scale.is_finite() && s.time_scale > 0.0) => Err(
-                format!("time_scale must be a positive number, got {}", s.time_scale),
-            ),
-            LinkConfig::SimSewing(s) if s.spm == 0 => Err("spm must be above 0".into()),
-            LinkConfig::SimSewing(s)
-                if !(s.noise.is_finite() && (0.0..=0.1).contains(&s.noise)) =>
-            {
-                Err(format!("noise must be 0 to 0.1, got {}", s.noise))
-            }
-            _ => Ok(()),
-        }
+        Ok(())
     }
 }
 
@@ -543,9 +363,28 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
 }
 
 /// The keys every machine table takes, whatever its link.
-const COMMON_KEYS: [&str; 5] = ["name", "link", "work_area", "max_feed", "tools"];
+const COMMON_KEYS: [&str; 6] = [
+    "name",
+    "link",
+    "work_area",
+    "max_feed",
+    "allowed_m_codes",
+    "tools",
+];
 
-impl<'de> Deserialize<'de> for MachineConfig {
+/// A `[[machine]]` table as written: the common keys typed, every other key kept with its
+/// place in the file for the kind to read (and for errors to point at).
+struct RawMachine {
+    name: String,
+    link: toml::Spanned<toml::Value>,
+    work_area: Option<WorkArea>,
+    max_feed: Option<f64>,
+    allowed_m_codes: Option<Vec<u32>>,
+    tools: Vec<ToolConfig>,
+    others: Vec<(toml::Spanned<String>, toml::Spanned<toml::Value>)>,
+}
+
+impl<'de> Deserialize<'de> for RawMachine {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         d.deserialize_map(MachineVisitor)
     }
@@ -554,89 +393,176 @@ impl<'de> Deserialize<'de> for MachineConfig {
 struct MachineVisitor;
 
 impl<'de> Visitor<'de> for MachineVisitor {
-    type Value = MachineConfig;
+    type Value = RawMachine;
 
     fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         f.write_str("a [[machine]] table")
     }
 
-    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<MachineConfig, A::Error> {
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<RawMachine, A::Error> {
         let mut name: Option<String> = None;
+        let mut link = None;
         let mut work_area = None;
         let mut max_feed = None;
+        let mut allowed_m_codes = None;
         let mut tools = Vec::new();
-        let mut link_table = toml::Table::new();
-        let link_keys = LinkConfig::all_keys();
+        let mut others = Vec::new();
         let who = |name: &Option<String>| match name {
             Some(n) => format!("machine `{n}`"),
             None => UNNAMED.to_string(),
         };
-        while let Some(key) = map.next_key::<String>()? {
-            let ctx = |e: String| format!("{}: key `{key}`: {e}", who(&name));
-            match key.as_str() {
+        while let Some(key) = map.next_key::<toml::Spanned<String>>()? {
+            let k = key.get_ref().clone();
+            let ctx = |e: String| format!("{}: key `{k}`: {e}", who(&name));
+            match k.as_str() {
                 "name" => name = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?),
+                "link" => link = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?),
                 "work_area" => {
                     work_area = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
                 }
                 "max_feed" => {
                     max_feed = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
                 }
-                "tools" => tools = map.next_value_seed(Named(ctx, std::marker::PhantomData))?,
-                k if k == "link" || link_keys.contains(k) => {
-                    let v: toml::Value =
-                        map.next_value_seed(Named(ctx, std::marker::PhantomData))?;
-                    link_table.insert(key, v);
+                "allowed_m_codes" => {
+                    allowed_m_codes =
+                        Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
                 }
+                "tools" => tools = map.next_value_seed(Named(ctx, std::marker::PhantomData))?,
                 _ => {
-                    let mut known: Vec<&str> = COMMON_KEYS.to_vec();
-                    known.extend(link_keys.iter());
-                    let msg = format!(
-                        "{}: unknown key `{key}` (a machine takes {})",
-                        who(&name),
-                        known.join(", ")
-                    );
-                    map.next_value_seed(Reject(msg))?;
+                    let v: toml::Spanned<toml::Value> =
+                        map.next_value_seed(Named(ctx, std::marker::PhantomData))?;
+                    others.push((key, v));
                 }
             }
         }
         let name = name.ok_or_else(|| de::Error::custom("a [[machine]] table has no `name`"))?;
-        let kind = match link_table.get("link") {
-            Some(toml::Value::String(s)) => s.clone(),
-            Some(_) => {
-                return Err(de::Error::custom(format!(
-                "machine `{name}`: key `link` must be a string such as \"grbl\" or \"sim-grbl\""
-            )))
-            }
-            None => {
-                return Err(de::Error::custom(format!(
-                    "machine `{name}` has no `link` (say link = \"grbl\" or link = \"sim-grbl\")"
-                )))
-            }
-        };
-        let link =
-            LinkConfig::deserialize(toml::Value::Table(link_table.clone())).map_err(|e| {
-                let message = e.message().trim().replace("field", "key");
-                // name the key at fault: the one whose removal changes the complaint
-                let culprit = link_table.keys().filter(|k| *k != "link").find(|k| {
-                    let mut t = link_table.clone();
-                    t.remove(*k);
-                    match LinkConfig::deserialize(toml::Value::Table(t)) {
-                        Ok(_) => true,
-                        Err(e2) => e2.message().trim().replace("field", "key") != message,
-                    }
-                });
-                let key = culprit.map(|k| format!("key `{k}`: ")).unwrap_or_default();
-                de::Error::custom(format!(
-                    "machine `{name}` (link = \"{kind}\"): {key}{message}"
-                ))
-            })?;
-        Ok(MachineConfig {
+        let link = link.ok_or_else(|| {
+            de::Error::custom(format!(
+                "machine `{name}` has no `link` (say link = \"grbl\" or link = \"sim-grbl\")"
+            ))
+        })?;
+        Ok(RawMachine {
             name,
             link,
             work_area,
             max_feed,
+            allowed_m_codes,
             tools,
+            others,
         })
+    }
+}
+
+impl RawMachine {
+    /// The machine, its kind found in `registry` and its kind's keys read by the kind; an
+    /// error is a message and the place in the file it is about.
+    fn resolve(
+        self,
+        registry: &Registry,
+        table: std::ops::Range<usize>,
+    ) -> Result<MachineConfig, (std::ops::Range<usize>, String)> {
+        let name = self.name;
+        let link_span = self.link.span();
+        let link = match self.link.into_inner() {
+            toml::Value::String(s) => s,
+            _ => {
+                return Err((
+                    link_span,
+                    format!("machine `{name}`: key `link` must be a string such as \"grbl\" or \"sim-grbl\""),
+                ))
+            }
+        };
+        let Some(kind) = registry.kind(&link) else {
+            return Err((
+                link_span,
+                format!("machine `{name}`: {}", unknown_link(registry, &link)),
+            ));
+        };
+        let own: BTreeSet<&str> = kind.keys().into_iter().collect();
+        let mut table_json = serde_json::Map::new();
+        let mut spans = Vec::new();
+        for (key, value) in &self.others {
+            let k = key.get_ref();
+            if !own.contains(k.as_str()) {
+                let message = if registry.all_keys().contains(k.as_str()) {
+                    format!(
+                        "machine `{name}` (link = \"{link}\"): key `{k}` belongs to another kind of link (link = \"{link}\" takes {})",
+                        list(&own)
+                    )
+                } else {
+                    let mut known: Vec<&str> = COMMON_KEYS.to_vec();
+                    known.extend(own.iter());
+                    format!(
+                        "machine `{name}`: unknown key `{k}` (a machine with link = \"{link}\" takes {})",
+                        known.join(", ")
+                    )
+                };
+                return Err((key.span(), message));
+            }
+            let json = serde_json::to_value(value.get_ref())
+                .map_err(|e| (value.span(), format!("machine `{name}`: key `{k}`: {e}")))?;
+            table_json.insert(k.clone(), json);
+            spans.push((k.clone(), key.span()));
+        }
+        let settings = kind
+            .settings(serde_json::Value::Object(table_json.clone()))
+            .map_err(|message| {
+                // name the key at fault: the one whose removal cures the complaint, else
+                // one the complaint names, else one whose removal changes it (other than
+                // into "missing key")
+                let without = |k: &str| {
+                    let mut t = table_json.clone();
+                    t.remove(k);
+                    kind.settings(serde_json::Value::Object(t))
+                };
+                let culprit = spans
+                    .iter()
+                    .find(|(k, _)| without(k).is_ok())
+                    .or_else(|| {
+                        spans
+                            .iter()
+                            .find(|(k, _)| message.contains(&format!("`{k}`")))
+                    })
+                    .or_else(|| {
+                        spans.iter().find(|(k, _)| match without(k) {
+                            Ok(_) => true,
+                            Err(m2) => m2 != message && !m2.contains("missing"),
+                        })
+                    });
+                match culprit {
+                    Some((k, span)) => (
+                        span.clone(),
+                        format!("machine `{name}` (link = \"{link}\"): key `{k}`: {message}"),
+                    ),
+                    None => (
+                        table.clone(),
+                        format!("machine `{name}` (link = \"{link}\"): {message}"),
+                    ),
+                }
+            })?;
+        let m = MachineConfig {
+            name,
+            link,
+            kind: kind.clone(),
+            settings,
+            work_area: self.work_area,
+            max_feed: self.max_feed,
+            allowed_m_codes: self
+                .allowed_m_codes
+                .unwrap_or_else(|| DEFAULT_M_CODES.to_vec()),
+            tools: self.tools,
+        };
+        m.check()
+            .map_err(|e| (table, format!("machine `{}`: {e}", m.name)))?;
+        Ok(m)
+    }
+}
+
+fn list(keys: &BTreeSet<&str>) -> String {
+    if keys.is_empty() {
+        "no keys of its own".into()
+    } else {
+        keys.iter().copied().collect::<Vec<_>>().join(", ")
     }
 }
 
@@ -650,60 +576,14 @@ impl<'de, F: FnOnce(String) -> String, T: Deserialize<'de>> DeserializeSeed<'de>
     }
 }
 
-/// Refuses whatever value it is handed, so the error carries that value's place.
-struct Reject(String);
-
-impl<'de> DeserializeSeed<'de> for Reject {
-    type Value = ();
-    fn deserialize<D: Deserializer<'de>>(self, _d: D) -> Result<(), D::Error> {
-        Err(de::Error::custom(self.0))
-    }
-}
-
-/// The field names of a struct, as serde sees them (asks its Deserialize impl).
-fn struct_fields<T: DeserializeOwned>() -> Vec<&'static str> {
-    struct Probe<'a>(&'a mut Vec<&'static str>);
-    #[derive(Debug)]
-    struct Stop;
-    impl std::fmt::Display for Stop {
-        fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-            f.write_str("probe")
-        }
-    }
-    impl std::error::Error for Stop {}
-    impl de::Error for Stop {
-        fn custom<M: std::fmt::Display>(_: M) -> Self {
-            Stop
-        }
-    }
-    impl<'de> Deserializer<'de> for Probe<'_> {
-        type Error = Stop;
-        fn deserialize_any<V: Visitor<'de>>(self, _v: V) -> Result<V::Value, Stop> {
-            Err(Stop)
-        }
-        fn deserialize_struct<V: Visitor<'de>>(
-            self,
-            _name: &'static str,
-            fields: &'static [&'static str],
-            _v: V,
-        ) -> Result<V::Value, Stop> {
-            self.0.extend_from_slice(fields);
-            Err(Stop)
-        }
-        serde::forward_to_deserialize_any! {
-            bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes
-            byte_buf option unit unit_struct newtype_struct seq tuple tuple_struct map enum
-            identifier ignored_any
-        }
-    }
-    let mut fields = Vec::new();
-    let _ = T::deserialize(Probe(&mut fields));
-    fields
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use machlink_protocols::grbl::kind::GrblSettings;
+    use machlink_protocols::kind::Joined;
+    use machlink_protocols::modbus::kind::{RtuLine, TcpAddress};
+    use machlink_protocols::modbus::RingSettings;
+    use machlink_sim::kinds::SimGrblSettings;
 
     fn parse(text: &str) -> Result<Config, String> {
         Config::parse(text, Path::new("/etc/machlink/cell.toml")).map_err(|e| e.to_string())
@@ -734,9 +614,10 @@ time_scale = 20
         assert_eq!(c.daemon.store, PathBuf::from("/etc/machlink/machlink.db"));
         assert_eq!(c.daemon.socket, PathBuf::from("/run/ml.sock"));
         assert_eq!(c.machines.len(), 2);
+        assert_eq!(c.machines[0].link, "grbl");
         assert_eq!(
-            c.machines[0].link,
-            LinkConfig::Grbl(GrblLinkConfig {
+            c.machines[0].settings.get::<GrblSettings>(),
+            Some(&GrblSettings {
                 port: "/dev/ttyUSB0".into(),
                 baud: 115_200,
                 check_first: false,
@@ -745,9 +626,10 @@ time_scale = 20
         );
         assert_eq!(c.machines[0].max_feed, Some(3000.0));
         assert_eq!(c.machines[0].tools[0].diameter, 3.0);
+        assert_eq!(c.machines[1].link, "sim-grbl");
         assert_eq!(
-            c.machines[1].link,
-            LinkConfig::SimGrbl(SimGrblLinkConfig { time_scale: 20.0 })
+            c.machines[1].settings.get::<SimGrblSettings>(),
+            Some(&SimGrblSettings { time_scale: 20.0 })
         );
     }
 
@@ -770,10 +652,11 @@ time_scale = 20
         )
         .unwrap_err();
         assert!(
-            e.contains("machine `mill`") && e.contains("time_scale"),
+            e.contains("machine `mill`")
+                && e.contains("`time_scale` belongs to another kind of link"),
             "{e}"
         );
-        assert!(e.contains("line 1"), "{e}");
+        assert!(e.contains("line 5"), "{e}");
     }
 
     #[test]
@@ -831,10 +714,25 @@ time_scale = 20
     }
 
     #[test]
-    fn struct_fields_lists_the_link_keys() {
+    fn modbus_tcp_and_rtu_share_the_ring_keys() {
+        let c = parse(
+            "[[machine]]\nname = \"plc\"\nlink = \"modbus-tcp\"\nhost = \"10.0.0.5\"\nunit = 3\ntimeout_ms = 200\n\n[[machine]]\nname = \"drive\"\nlink = \"modbus-rtu\"\nport = \"/dev/ttyUSB3\"\nparity = \"even\"\nunit = 7\n",
+        )
+        .unwrap();
+        let tcp = c.machines[0]
+            .settings
+            .get::<Joined<TcpAddress, RingSettings>>()
+            .unwrap();
         assert_eq!(
-            struct_fields::<GrblLinkConfig>(),
-            vec!["port", "baud", "check_first", "auto_unlock"]
+            (tcp.own.port, tcp.common.unit, tcp.common.timeout_ms),
+            (502, 3, 200)
         );
+        let rtu = c.machines[1]
+            .settings
+            .get::<Joined<RtuLine, RingSettings>>()
+            .unwrap();
+        assert_eq!((rtu.own.baud, rtu.common.unit), (115_200, 7));
+        let e = parse("[[machine]]\nname = \"plc\"\nlink = \"modbus-tcp\"\nhost = \"h\"\nretries = \"many\"\n").unwrap_err();
+        assert!(e.contains("line 5") && e.contains("key `retries`"), "{e}");
     }
 }

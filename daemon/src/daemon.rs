@@ -1,14 +1,11 @@
-//! The daemon put together: store, simulated machines, scheduler and API listeners.
+//! The daemon put together: store, the machines' kinds started, scheduler and API listeners.
 
 use crate::api;
-use crate::config::{Config, LinkConfig};
-use crate::links::ConfigOpener;
-use crate::scheduler::{JournalPolicy, LinkOpener, Scheduler};
+use crate::config::Config;
+use crate::scheduler::{JournalPolicy, MachineSetup, Scheduler};
 use crate::store::{Store, StoreError};
-use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::sync::Arc;
 use tokio::task::JoinHandle;
 
 /// Why the daemon could not start.
@@ -24,9 +21,10 @@ pub enum DaemonError {
         #[source]
         source: std::io::Error,
     },
-    #[error("cannot start the simulated machine `{machine}`: {source}")]
-    Sim {
+    #[error("cannot start machine `{machine}` (link = \"{link}\"): {source}")]
+    Start {
         machine: String,
+        link: String,
         #[source]
         source: std::io::Error,
     },
@@ -39,8 +37,6 @@ pub struct StartOptions {
     pub socket: Option<PathBuf>,
     /// Also listen on TCP at this address, requiring this bearer token.
     pub tcp: Option<(String, String)>,
-    /// Opens links instead of the config's opener (tests).
-    pub opener: Option<Arc<dyn LinkOpener>>,
 }
 
 /// A running daemon. Dropping it stops it the way a crash would.
@@ -49,95 +45,33 @@ pub struct Daemon {
     pub socket: PathBuf,
     /// The TCP address actually bound, when asked to listen on TCP.
     pub tcp: Option<SocketAddr>,
-    /// The simulated GRBL machines this daemon started, by machine name.
-    pub sims: BTreeMap<String, machlink_sim::grbl::GrblSimHandle>,
-    /// The simulated pattern sewing machines this daemon started, by machine name.
-    pub sewing_sims: BTreeMap<String, machlink_sim::sewing::SewingSim>,
     servers: Vec<JoinHandle<()>>,
 }
 
 impl Daemon {
-    /// Opens the store (marking crashed jobs interrupted), starts the simulated machines
-    /// of `sim-grbl` entries, the machine workers and the API. Needs a tokio runtime.
+    /// Opens the store (marking crashed jobs interrupted), starts each machine's kind (its
+    /// simulator, for `sim-…` links), the machine workers and the API. Needs a tokio runtime.
     pub async fn start(config: Config, opts: StartOptions) -> Result<Daemon, DaemonError> {
         let store = Store::open(&config.daemon.store)?;
-        let mut sims = BTreeMap::new();
-        let mut sewing_sims = BTreeMap::new();
-        let mut opener = ConfigOpener::default();
+        let mut machines = Vec::new();
         for m in &config.machines {
-            match &m.link {
-                LinkConfig::SimGrbl(s) => {
-                    let cfg = machlink_sim::grbl::GrblSimConfig {
-                        time_scale: s.time_scale,
-                        ..Default::default()
-                    };
-                    let h = machlink_sim::grbl::GrblSim::spawn_pty(cfg).map_err(|source| {
-                        DaemonError::Sim {
-                            machine: m.name.clone(),
-                            source,
-                        }
+            let device =
+                m.kind
+                    .start(&m.name, &m.settings)
+                    .await
+                    .map_err(|source| DaemonError::Start {
+                        machine: m.name.clone(),
+                        link: m.link.clone(),
+                        source,
                     })?;
-                    opener.sim_ports.insert(m.name.clone(), h.port());
-                    sims.insert(m.name.clone(), h);
-                }
-                LinkConfig::ModbusTcp(_) => {}
-                LinkConfig::ModbusRtu(r) => {
-                    if !std::path::Path::new(&r.port).exists() {
-                        tracing::warn!(
-                            "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
-                            m.name,
-                            r.port
-                        );
-                    }
-                }
-                LinkConfig::SimSewing(s) => {
-                    let cfg = machlink_sim::sewing::SewingSimConfig {
-                        time_scale: s.time_scale,
-                        spm: s.spm,
-                        noise: s.noise,
-                        thread_break_at: s.thread_break_at.clone(),
-                        power_loss_at: s.power_loss_at.clone(),
-                        ..Default::default()
-                    };
-                    let h = machlink_sim::sewing::spawn_on_pty(cfg).map_err(|source| {
-                        DaemonError::Sim {
-                            machine: m.name.clone(),
-                            source,
-                        }
-                    })?;
-                    opener
-                        .sim_ports
-                        .insert(m.name.clone(), std::path::PathBuf::from(&h.path));
-                    sewing_sims.insert(m.name.clone(), h);
-                }
-                LinkConfig::Sewing(g) => {
-                    if !std::path::Path::new(&g.port).exists() {
-                        tracing::warn!(
-                            "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
-                            m.name,
-                            g.port
-                        );
-                    }
-                }
-                LinkConfig::Grbl(g) => {
-                    if !std::path::Path::new(&g.port).exists() {
-                        tracing::warn!(
-                            "machine `{}`: the port {} does not exist (yet); its jobs fail until it does",
-                            m.name,
-                            g.port
-                        );
-                    }
-                }
-            }
+            machines.push(MachineSetup {
+                config: m.clone(),
+                device,
+            });
         }
-        let opener: Arc<dyn LinkOpener> = match opts.opener {
-            Some(o) => o,
-            None => Arc::new(opener),
-        };
         let scheduler = Scheduler::start(
             store,
-            config.machines.clone(),
-            opener,
+            machines,
             JournalPolicy {
                 every: config.daemon.journal_every,
                 max_lag: config.daemon.journal_max_lag,
@@ -172,10 +106,14 @@ impl Daemon {
             scheduler,
             socket,
             tcp,
-            sims,
-            sewing_sims,
             servers,
         })
+    }
+
+    /// What machine `name`'s kind prepared at start-up (a simulator's handle), as the kind's
+    /// own type: `daemon.device::<GrblSimHandle>("bench")`.
+    pub fn device<T: 'static>(&self, name: &str) -> Option<&T> {
+        self.scheduler.device(name)
     }
 
     /// Stops at once, as a crash would: no journal flush, jobs stay `running` in the
@@ -188,17 +126,11 @@ impl Daemon {
     }
 
     /// Stops cleanly: running jobs are cancelled (resumable later with `resume`), the
-    /// socket file is removed, the simulators shut down.
+    /// socket file is removed; the simulators stop when the daemon is dropped.
     pub async fn shutdown(mut self) {
         self.scheduler.cancel_all().await;
         self.crash();
         let _ = std::fs::remove_file(&self.socket);
-        for (_, s) in std::mem::take(&mut self.sims) {
-            s.shutdown();
-        }
-        for (_, s) in std::mem::take(&mut self.sewing_sims) {
-            s.task.abort();
-        }
     }
 }
 

@@ -3,7 +3,6 @@
 //! stderr and a non-zero exit status.
 
 mod cmd;
-use machlink::planning;
 
 use clap::{Parser, Subcommand};
 

@@ -8,8 +8,10 @@
 
 use crate::config::MachineConfig;
 use crate::store::{JobId, JobRecord, JobState, Journal, NewJob, Store, StoreError};
-use futures::future::BoxFuture;
-use machlink_protocols::{Control, Link, LinkError, LinkEvent, MachineStatus, Program, StreamEnd};
+use machlink_protocols::kind::{Device, MachineLink};
+use machlink_protocols::{
+    Control, DeviceState, LinkError, LinkEvent, MachineStatus, Program, StreamEnd,
+};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -17,11 +19,11 @@ use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 
-/// Opens the link to a machine; the daemon's opener knows serial ports and simulators,
-/// tests hand in their own.
-pub trait LinkOpener: Send + Sync + 'static {
-    fn open(&self, machine: &MachineConfig)
-        -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>>;
+/// A machine as the scheduler runs it: its config and what its kind prepared at start-up.
+#[derive(Clone)]
+pub struct MachineSetup {
+    pub config: MachineConfig,
+    pub device: Device,
 }
 
 /// What watchers hear, as one JSON object per line on `GET /jobs/{id}/events`.
@@ -47,9 +49,8 @@ pub enum Event {
     Status {
         machine: String,
         job: Option<JobId>,
-        state: String,
-        position: [f64; 3],
-        feed: f64,
+        #[serde(flatten)]
+        status: MachineStatus,
     },
     /// A message from the machine worth showing the operator.
     Message {
@@ -78,10 +79,9 @@ pub struct MachineInfo {
     pub job: Option<JobId>,
     /// Jobs waiting in its queue.
     pub queued: usize,
-    /// The device's last reported state (GRBL: Idle, Run, Hold, Alarm, …), "" before any.
-    pub status: String,
-    pub position: [f64; 3],
-    pub feed: f64,
+    /// The device's last report (state unknown before any).
+    #[serde(flatten)]
+    pub status: MachineStatus,
 }
 
 /// Why an operator's request was refused.
@@ -115,12 +115,12 @@ struct Inner {
     events: broadcast::Sender<Event>,
     machines: BTreeMap<String, Machine>,
     journal: JournalPolicy,
-    opener: Arc<dyn LinkOpener>,
     workers: Mutex<Vec<JoinHandle<()>>>,
 }
 
 struct Machine {
     config: MachineConfig,
+    device: Device,
     queue: mpsc::UnboundedSender<JobId>,
     /// The job being streamed; taken under this lock together with the store's claim.
     active: Mutex<Option<Active>>,
@@ -150,8 +150,7 @@ impl Scheduler {
     /// were waiting, and starts one worker per machine. Must run inside a tokio runtime.
     pub fn start(
         store: Store,
-        machines: Vec<MachineConfig>,
-        opener: Arc<dyn LinkOpener>,
+        machines: Vec<MachineSetup>,
         journal: JournalPolicy,
     ) -> Result<Scheduler, StoreError> {
         let interrupted = store.mark_interrupted()?;
@@ -168,13 +167,14 @@ impl Scheduler {
         let (events, _) = broadcast::channel(4096);
         let mut receivers = Vec::new();
         let mut map = BTreeMap::new();
-        for config in machines {
+        for MachineSetup { config, device } in machines {
             let (tx, rx) = mpsc::unbounded_channel();
             receivers.push((config.name.clone(), rx));
             map.insert(
                 config.name.clone(),
                 Machine {
                     config,
+                    device,
                     queue: tx,
                     active: Mutex::new(None),
                     status: Mutex::new(MachineStatus::default()),
@@ -186,7 +186,6 @@ impl Scheduler {
             events,
             machines: map,
             journal,
-            opener,
             workers: Mutex::new(Vec::new()),
         });
         for job in inner.store.jobs_in(JobState::Queued)? {
@@ -250,6 +249,12 @@ impl Scheduler {
         Ok(&self.machine(name)?.config)
     }
 
+    /// What machine `name`'s kind prepared at start-up (a simulator's handle, for tests
+    /// and the demo to read its trace), as the kind's own type.
+    pub fn device<T: 'static>(&self, name: &str) -> Option<&T> {
+        self.inner.machines.get(name)?.device.downcast_ref()
+    }
+
     /// Stores the job with its program and queues it on its machine.
     pub fn submit(&self, job: NewJob) -> Result<JobRecord, SchedError> {
         let m = self.machine(&job.machine)?;
@@ -283,12 +288,10 @@ impl Scheduler {
                 let st = lock(&m.status).clone();
                 MachineInfo {
                     name: m.config.name.clone(),
-                    link: m.config.link.kind().to_string(),
+                    link: m.config.link.clone(),
                     job: lock(&m.active).as_ref().map(|a| a.job),
                     queued: jobs.iter().filter(|j| j.machine == m.config.name).count(),
-                    status: st.state,
-                    position: st.position,
-                    feed: st.feed,
+                    status: st,
                 }
             })
             .collect())
@@ -467,7 +470,7 @@ impl Inner {
 
 /// One machine's worker: takes job ids off the queue, one at a time.
 async fn worker(inner: Arc<Inner>, name: String, mut queue: mpsc::UnboundedReceiver<JobId>) {
-    let mut link: Option<Box<dyn Link>> = None;
+    let mut link: Option<Box<dyn MachineLink>> = None;
     while let Some(id) = queue.recv().await {
         let Some(m) = inner.machines.get(&name) else {
             return;
@@ -477,7 +480,7 @@ async fn worker(inner: Arc<Inner>, name: String, mut queue: mpsc::UnboundedRecei
 }
 
 /// Runs one job to its end; every outcome lands in the store, none escapes.
-async fn run_job(inner: &Inner, m: &Machine, link: &mut Option<Box<dyn Link>>, id: JobId) {
+async fn run_job(inner: &Inner, m: &Machine, link: &mut Option<Box<dyn MachineLink>>, id: JobId) {
     // claim the job under the machine's lock, so a cancel cannot slip in between
     let (cmd_tx, mut cmd_rx) = mpsc::unbounded_channel();
     let job = {
@@ -514,18 +517,22 @@ async fn run_job(inner: &Inner, m: &Machine, link: &mut Option<Box<dyn Link>>, i
 async fn stream_job(
     inner: &Inner,
     m: &Machine,
-    link: &mut Option<Box<dyn Link>>,
+    link: &mut Option<Box<dyn MachineLink>>,
     job: &JobRecord,
     commands: &mut mpsc::UnboundedReceiver<Command>,
 ) -> (JobState, Option<String>) {
     let id = job.id;
-    let program = match inner.store.program(id) {
+    let program = match inner
+        .store
+        .program(id)
+        .and_then(|p| p.decode(m.config.kind.as_ref()))
+    {
         Ok(p) => p,
         Err(e) => return (JobState::Failed, Some(e.to_string())),
     };
     inner.set_state(id, JobState::Running, None);
     if link.is_none() {
-        match open_link(inner, &m.config).await {
+        match open_link(m).await {
             Ok(l) => *link = Some(l),
             Err(e) => {
                 return (
@@ -550,9 +557,14 @@ async fn stream_job(
             tokio::select! {
                 biased;
                 Some(ev) = ev_rx.recv() => {
-                    // a machine that stopped itself for the operator (a sewing machine's
-                    // thread break) pauses the job: `machlink resume JOB` continues it
-                    if matches!(&ev, LinkEvent::Status(s) if s.state == "ThreadBreak") {
+                    // a machine that stopped itself for the operator (a thread break, a
+                    // program stop, an open door) pauses the job: `machlink resume JOB`
+                    // continues it
+                    if let LinkEvent::Status(MachineStatus {
+                        state: DeviceState::NeedsOperator { .. },
+                        ..
+                    }) = &ev
+                    {
                         let _ = on_command(inner, id, &ctl_tx, Request::Pause);
                     }
                     on_link_event(inner, m, id, total, &mut journal, ev)
@@ -584,7 +596,7 @@ async fn stream_job(
             let msg = describe_failure(&e, &program, journal.acked());
             // a device that refused a line or raised an alarm is still talking (the link
             // resets it); a link that broke is opened afresh for the next job
-            if !matches!(e, LinkError::Rejected { .. } | LinkError::Alarm(_)) {
+            if !e.keeps_link() {
                 *link = None;
             }
             if cancel_requested {
@@ -602,20 +614,14 @@ async fn stream_job(
     outcome
 }
 
-/// Opens the machine's link; a port still held by the link just closed (its lock is
-/// released a moment later) is tried again for up to two seconds.
-async fn open_link(inner: &Inner, m: &MachineConfig) -> Result<Box<dyn Link>, LinkError> {
+/// Opens the machine's link through its kind; a port still held by the link just closed
+/// (its lock is released a moment later) is tried again for up to two seconds.
+async fn open_link(m: &Machine) -> Result<Box<dyn MachineLink>, LinkError> {
     let give_up = Instant::now() + Duration::from_secs(2);
     loop {
-        match inner.opener.open(m).await {
-            Err(LinkError::Open { source, .. })
-                if Instant::now() < give_up
-                    && matches!(
-                        source.kind(),
-                        std::io::ErrorKind::ResourceBusy | std::io::ErrorKind::Other
-                    )
-                    && source.to_string().contains("lock") =>
-            {
+        let c = &m.config;
+        match c.kind.open(&c.name, &c.settings, &m.device).await {
+            Err(LinkError::PortBusy { .. }) if Instant::now() < give_up => {
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
             r => return r,
@@ -661,9 +667,7 @@ fn on_link_event(
             let _ = inner.events.send(Event::Status {
                 machine: m.config.name.clone(),
                 job: Some(id),
-                state: s.state.clone(),
-                position: s.position,
-                feed: s.feed,
+                status: s.clone(),
             });
             *lock(&m.status) = s;
         }
@@ -717,8 +721,8 @@ fn describe_failure(e: &LinkError, program: &Program, acked: usize) -> String {
             format!("the machine refused line {} `{text}`: {reason}", unit + 1)
         }
         // the GRBL link names the line that was running when the alarm came
-        LinkError::Alarm(msg) => format!(
-            "the machine raised {msg} ({acked} of {} lines had been acknowledged)",
+        LinkError::Alarm { text, .. } => format!(
+            "the machine raised {text} ({acked} of {} lines had been acknowledged)",
             program.len()
         ),
         other => format!(

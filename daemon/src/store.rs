@@ -115,6 +115,23 @@ pub struct NewJob {
     pub program: Program,
 }
 
+/// A program as the store holds it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoredProgram {
+    /// The post that made it (`grbl`, `dst`, …, or `gcode-file`).
+    pub post: String,
+    /// Its units, a JSON array.
+    pub units: String,
+}
+
+impl StoredProgram {
+    /// The program, read back by the kind of machine it was made for.
+    pub fn decode(&self, kind: &dyn machlink_protocols::AnyKind) -> Result<Program, StoreError> {
+        kind.decode(&self.post, &self.units)
+            .map_err(|e| StoreError::Corrupt(format!("a stored {} program: {e}", self.post)))
+    }
+}
+
 /// The store: one SQLite connection shared by the daemon's tasks. Every call is short.
 #[derive(Clone)]
 pub struct Store {
@@ -140,8 +157,8 @@ CREATE TABLE IF NOT EXISTS jobs (
 );
 CREATE TABLE IF NOT EXISTS programs (
     job_id INTEGER PRIMARY KEY REFERENCES jobs(id),
-    kind   TEXT NOT NULL,
-    units  TEXT NOT NULL
+    kind   TEXT NOT NULL, -- the post that made the program
+    units  TEXT NOT NULL  -- its units, a JSON array
 );
 CREATE TABLE IF NOT EXISTS journal (
     id          INTEGER PRIMARY KEY AUTOINCREMENT,
@@ -209,11 +226,13 @@ impl Store {
             ],
         )?;
         let id = tx.last_insert_rowid();
-        let program = serde_json::to_value(&job.program)
+        let units = job
+            .program
+            .to_json()
             .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
         tx.execute(
             "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, ?3)",
-            params![id, job.program.kind(), program["units"].to_string()],
+            params![id, job.program.post(), units],
         )?;
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units) VALUES (?1, ?2, 'queued', 0)",
@@ -255,8 +274,10 @@ impl Store {
             .collect())
     }
 
-    pub fn program(&self, id: JobId) -> Result<Program, StoreError> {
-        let (kind, units): (String, String) = self
+    /// A job's program as stored: the post that made it and its units as JSON, for the
+    /// machine's kind to read back (`AnyKind::decode`).
+    pub fn program(&self, id: JobId) -> Result<StoredProgram, StoreError> {
+        let (post, units): (String, String) = self
             .conn()
             .query_row(
                 "SELECT kind, units FROM programs WHERE job_id = ?1",
@@ -265,10 +286,7 @@ impl Store {
             )
             .optional()?
             .ok_or_else(|| StoreError::Corrupt(format!("job {id} has no program")))?;
-        let units: serde_json::Value = serde_json::from_str(&units)
-            .map_err(|e| StoreError::Corrupt(format!("job {id}'s program: {e}")))?;
-        serde_json::from_value(serde_json::json!({ "kind": kind, "units": units }))
-            .map_err(|e| StoreError::Corrupt(format!("job {id}'s program: {e}")))
+        Ok(StoredProgram { post, units })
     }
 
     /// Moves a job to `state`, journaling the change; `error` is kept for failed jobs.
@@ -497,7 +515,10 @@ mod tests {
             op: "profile".into(),
             file_name: "plate.json".into(),
             params: serde_json::json!({"op": "profile"}),
-            program: Program::Gcode((0..n).map(|i| format!("G1 X{i}")).collect()),
+            program: Program::new(
+                "grbl",
+                (0..n).map(|i| format!("G1 X{i}")).collect::<Vec<String>>(),
+            ),
         }
     }
 
@@ -517,7 +538,11 @@ mod tests {
         assert_eq!(j.state, JobState::Running);
         assert_eq!((j.total_units, j.acked_units), (5, 3));
         assert!(j.started_ms.is_some());
-        assert_eq!(s.program(id).unwrap(), job(5).program);
+        let kind = machlink_protocols::grbl::kind::GrblKind;
+        assert_eq!(
+            s.program(id).unwrap().decode(&kind).unwrap(),
+            job(5).program
+        );
         let marked = s.mark_interrupted().unwrap();
         assert_eq!(marked.len(), 1);
         assert_eq!(marked[0].state, JobState::Interrupted);

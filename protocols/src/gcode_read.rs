@@ -14,7 +14,15 @@ pub struct ReadError {
 /// Reads G-code text into moves. Words other than motion, units and distance modes are
 /// ignored (spindle, coolant, tool changes, comments); the machine starts at the origin.
 pub fn read(text: &str) -> Result<Toolpath, ReadError> {
+    read_with_lines(text).map(|(tp, _)| tp)
+}
+
+/// Like [`read`], with the 1-based line each move comes from. Moves in machine coordinates
+/// (`G53`) and to stored positions (`G28`, `G30`) are not work-frame moves: they are left
+/// out, and the position after them is taken as their target.
+pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> {
     let mut tp = Toolpath::new("program");
+    let mut lines = Vec::new();
     let mut pos = P3::default();
     let mut motion = 0u8;
     let mut scale = 1.0;
@@ -64,8 +72,10 @@ pub fn read(text: &str) -> Result<Toolpath, ReadError> {
         let mut target: [Option<f64>; 3] = [None; 3];
         let (mut ci, mut cj, mut cr) = (None, None, None);
         let mut moved = false;
+        let mut outside_work_frame = false;
         for &(l, v) in &words {
             match l {
+                'G' if v == 53.0 || v == 28.0 || v == 30.0 => outside_work_frame = true,
                 'G' => match v {
                     v if v == 0.0 || v == 1.0 || v == 2.0 || v == 3.0 => {
                         motion = v as u8;
@@ -104,6 +114,10 @@ pub fn read(text: &str) -> Result<Toolpath, ReadError> {
         if !(to.x.is_finite() && to.y.is_finite() && to.z.is_finite()) {
             return Err(err("a coordinate is not a finite number".into()));
         }
+        if outside_work_frame {
+            pos = to;
+            continue;
+        }
         let m = match motion {
             0 => Move::Rapid { to },
             1 => Move::Linear { to, feed },
@@ -129,9 +143,10 @@ pub fn read(text: &str) -> Result<Toolpath, ReadError> {
             }
         };
         tp.push(m);
+        lines.push(line);
         pos = to;
     }
-    Ok(tp)
+    Ok((tp, lines))
 }
 
 /// The centre of the arc of radius `r` from `a` to `b` (negative r: the long way round).

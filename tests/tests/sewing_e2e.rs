@@ -52,8 +52,7 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
         .expect("submitted");
     // the program the daemon planned, planned again here
     let cfg = d.scheduler.machine_config("pocket-setter").unwrap().clone();
-    let records =
-        machlink::api::plan(&cfg, "pocket.json", POCKET.as_bytes(), &params()).unwrap()
+    let records = machlink::api::plan(&cfg, "pocket.json", POCKET.as_bytes(), &params()).unwrap()
     else {
         panic!("a sewing machine gets stitches")
     };

@@ -129,8 +129,7 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
     assert!(job.total_units >= 2000, "{} lines", job.total_units);
     let done = wait_end(&c, job.id).await;
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
-    let machlink_protocols::lines = d.scheduler.store().program(job.id).unwrap()
-    else {
+    let machlink_protocols::lines = d.scheduler.store().program(job.id).unwrap() else {
         panic!("a GRBL job holds G-code")
     };
     let trace = sim.trace();

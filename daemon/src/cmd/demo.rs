@@ -3,12 +3,14 @@
 //! simulated machine did. No config, no hardware, no network.
 
 use super::operate::watch_job;
-use crate::planning::{self, Op, PlanParams, SideArg};
 use anyhow::Context;
-use machlink::api::SubmitRequest;
 use machlink::client::{Client, Endpoint};
-use machlink::config::{Config, LinkConfig, MachineConfig, SimGrblLinkConfig};
+use machlink::config::{Config, MachineConfig};
 use machlink::daemon::{Daemon, StartOptions};
+use machlink::intake::{self, Input, JobSpec, Operation, DEFAULT_TOLERANCE};
+use machlink_sim::grbl::GrblSimHandle;
+use offset_core::ops::{Cutting, ProfileParams, Side};
+use offset_core::Tool;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -47,30 +49,41 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
         ),
         None => (SAMPLE_NAME.to_string(), SAMPLE.to_vec()),
     };
-    let params = PlanParams {
-        side: SideArg::Inside,
-        tool_diameter: 3.0,
-        depth: 2.0,
-        stepdown: 1.0,
-        ..PlanParams::defaults(Op::Profile)
+    let spec = JobSpec {
+        machine: Some(MACHINE.into()),
+        input: Input::from_bytes(&name, bytes),
+        operation: Some(Operation::Profile(ProfileParams {
+            side: Side::Inside,
+            cut: Cutting {
+                tool: Tool::flat(3.0),
+                depth: 2.0,
+                stepdown: 1.0,
+                ..Cutting::default()
+            },
+            ..ProfileParams::default()
+        })),
+        tolerance: DEFAULT_TOLERANCE,
+        layers: Vec::new(),
+        post: None,
     };
-    // plan here too, for the deviation check against what the machine ran
-    let shape = offset_core::io::read_shape(&bytes, &name)?;
-    let planned = planning::plan_toolpath(&shape, &params)?;
+    // plan here too, as the daemon will, for the deviation check against what the machine ran
+    let (shape, _) = intake::read_shape(&spec)?;
+    let planned = intake::toolpath(&spec, &shape)?;
 
     let dir = tempfile::tempdir().context("cannot make a temporary directory")?;
+    let registry = machlink::registry::standard();
     let mut config = Config::empty();
     config.daemon.store = dir.path().join("demo.db");
     config.daemon.socket = dir.path().join("demo.sock");
-    config.machines.push(MachineConfig {
-        name: MACHINE.into(),
-        link: LinkConfig::SimGrbl(SimGrblLinkConfig {
-            time_scale: a.time_scale,
-        }),
-        work_area: None,
-        max_feed: None,
-        tools: Vec::new(),
-    });
+    config.machines.push(
+        MachineConfig::new(
+            &registry,
+            MACHINE,
+            "sim-grbl",
+            serde_json::json!({ "time_scale": a.time_scale }),
+        )
+        .map_err(anyhow::Error::msg)?,
+    );
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {
         let d = Daemon::start(config, StartOptions::default()).await?;
@@ -81,27 +94,12 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
                 a.time_scale
             );
         }
-        let text = String::from_utf8(bytes.clone()).ok();
-        let req = SubmitRequest {
-            machine: MACHINE.into(),
-            file_name: name.clone(),
-            file_base64: match &text {
-                Some(_) => None,
-                None => Some(base64::Engine::encode(
-                    &base64::engine::general_purpose::STANDARD,
-                    &bytes,
-                )),
-            },
-            file_text: text,
-            params: Some(params),
-        };
         let started = Instant::now();
-        let job = client.submit(&req).await?;
+        let job = client.submit(&spec).await?;
         let result = watch_job(&client, job.id, a.quiet).await;
         let wall = started.elapsed();
         let sim = d
-            .sims
-            .get(MACHINE)
+            .device::<GrblSimHandle>(MACHINE)
             .context("the demo machine's simulator is gone")?;
         let trace = sim.trace();
         let sim_time = sim.sim_time();

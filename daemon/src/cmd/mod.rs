@@ -1,6 +1,7 @@
-//! The subcommands, one module each.
+//! The subcommands, one module each, and the job options they share (`job`).
 
 pub mod demo;
+pub mod job;
 pub mod offset;
 pub mod operate;
 pub mod plan;

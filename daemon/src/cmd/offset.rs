@@ -41,7 +41,9 @@ pub struct OffsetArgs {
 }
 
 pub fn run(a: OffsetArgs) -> anyhow::Result<()> {
-    let shape = crate::planning::read_shape(&a.file)?;
+    let bytes =
+        std::fs::read(&a.file).with_context(|| format!("cannot read {}", a.file.display()))?;
+    let shape = offset_core::io::read_shape(&bytes, &a.file.display().to_string())?;
     let opts = OffsetOptions {
         join: match a.join {
             JoinArg::Round => Join::Round,

@@ -126,20 +126,21 @@ pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     println!(
-        "{:<12} {:<9} {:>5} {:>6}  {:<8} POSITION",
+        "{:<12} {:<11} {:>5} {:>6}  {:<10} POSITION",
         "MACHINE", "LINK", "JOB", "QUEUED", "STATUS"
     );
     for m in ms {
+        let p = m.status.position;
         println!(
-            "{:<12} {:<9} {:>5} {:>6}  {:<8} X{:.3} Y{:.3} Z{:.3}",
+            "{:<12} {:<11} {:>5} {:>6}  {:<10} X{:.3} Y{:.3} Z{:.3}",
             m.name,
             m.link,
             m.job.map(|j| j.to_string()).unwrap_or_else(|| "-".into()),
             m.queued,
-            if m.status.is_empty() { "-" } else { &m.status },
-            m.position[0],
-            m.position[1],
-            m.position[2]
+            m.status.state.to_string(),
+            p[0],
+            p[1],
+            p[2]
         )
     }
     Ok(())
@@ -200,15 +201,11 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
                 bar.set_length(total as u64);
                 bar.set_position(acked as u64);
             }
-            Event::Status {
-                state: st,
-                position,
-                feed,
-                ..
-            } => {
+            Event::Status { status: st, .. } => {
+                let p = st.position;
                 status = format!(
-                    "{st} F{feed:.0} X{:.1} Y{:.1} Z{:.1}",
-                    position[0], position[1], position[2]
+                    "{} F{:.0} X{:.1} Y{:.1} Z{:.1}",
+                    st.state, st.feed, p[0], p[1], p[2]
                 );
                 bar.set_message(show(state, &status));
             }

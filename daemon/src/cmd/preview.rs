@@ -1,14 +1,13 @@
-//! `machlink preview`: draw a shape file, a plan over its part, or a G-code program, as SVG or PNG.
+//! `machlink preview`: draw a shape file, a plan over its part, or a G-code program, as SVG
+//! or PNG. A plan is made by the intake, as `plan` makes it.
 
-use crate::planning::{self, PlanParams};
+use super::job::{print_warnings, JobArgs};
 use anyhow::Context;
+use machlink::intake::{self, Input, JobSpec};
 use offset_core::preview;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
-// `--op` belongs to preview itself (it is optional here); the plan options' own op
-// argument is hidden and filled in from it.
-#[command(mut_arg("op", |a| a.long("plan-op").hide(true).required(false).default_value("profile")))]
 pub struct PreviewArgs {
     /// What to draw: a shape file (.json, .dxf, .svg) or a G-code program (.nc, .gcode,
     /// .ngc, .tap). With --op, the plan for the shape is drawn over it.
@@ -19,12 +18,9 @@ pub struct PreviewArgs {
     /// Width of the drawing in pixels.
     #[arg(long, default_value_t = 1000)]
     pub width: u32,
-    /// The operation whose tool path is drawn over the part (none: the part alone).
-    #[arg(long = "op", id = "draw_op", value_enum)]
-    pub op: Option<planning::Op>,
-    /// Plan options, as for `machlink plan`; they take effect with --op.
+    /// Plan options, as for `machlink plan`; with --op the plan is drawn over the part.
     #[command(flatten)]
-    pub plan: PlanParams,
+    pub job: JobArgs,
 }
 
 pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
@@ -34,26 +30,27 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             .map(|e| e.to_ascii_lowercase())
             .unwrap_or_default()
     };
-    let svg = match ext(&a.file).as_str() {
-        "nc" | "gcode" | "ngc" | "tap" | "cnc" => {
-            let text = std::fs::read_to_string(&a.file)
-                .with_context(|| format!("cannot read {}", a.file.display()))?;
-            let tp = machlink_protocols::gcode_read::read(&text)
-                .with_context(|| format!("{} is not G-code we can draw", a.file.display()))?;
-            preview::svg(None, Some(&tp), a.width as f64)
-        }
-        _ => match a.op {
-            Some(op) => {
-                let params = PlanParams { op, ..a.plan };
-                let shape = planning::read_shape_for(&a.file, &params)?;
-                let tp = planning::plan_toolpath(&shape, &params)?;
+    let input = Input::from_path(&a.file)?;
+    let svg = if intake::is_gcode_file(&input.file_name) {
+        let text = String::from_utf8(input.bytes()?)
+            .with_context(|| format!("{} is not a text file", a.file.display()))?;
+        let tp = machlink_protocols::gcode_read::read(&text)
+            .with_context(|| format!("{} is not G-code we can draw", a.file.display()))?;
+        preview::svg(None, Some(&tp), a.width as f64)
+    } else {
+        let spec = JobSpec {
+            post: None,
+            ..a.job.spec(&a.file, None, None)?
+        };
+        let (shape, warnings) = intake::read_shape(&spec)?;
+        print_warnings(&warnings);
+        match spec.operation {
+            Some(_) => {
+                let tp = intake::toolpath(&spec, &shape)?;
                 preview::svg(Some(&shape), Some(&tp), a.width as f64)
             }
-            None => {
-                let shape = planning::read_shape_for(&a.file, &a.plan)?;
-                preview::svg(Some(&shape), None, a.width as f64)
-            }
-        },
+            None => preview::svg(Some(&shape), None, a.width as f64),
+        }
     };
     match ext(&a.output).as_str() {
         "svg" => std::fs::write(&a.output, svg)

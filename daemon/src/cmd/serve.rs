@@ -29,7 +29,6 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
         let opts = StartOptions {
             socket: a.socket,
             tcp: a.listen.zip(a.token),
-            opener: None,
         };
         let d = Daemon::start(config, opts).await?;
         tracing::info!(

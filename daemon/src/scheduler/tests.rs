@@ -1,7 +1,10 @@
-//! Scheduler tests over an in-memory fake link.
+//! Scheduler tests over an in-memory fake machine kind.
 
 use super::*;
-use crate::config::{LinkConfig, SimGrblLinkConfig};
+use futures::future::BoxFuture;
+use machlink_protocols::kind::{started, MachineKind, Registry};
+use machlink_protocols::post::PostFor;
+use machlink_protocols::Link;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A device in memory: "executes" a unit every `period`, acknowledges it, obeys hold and
@@ -18,10 +21,10 @@ struct FakeDevice {
 
 struct FakeLink(FakeDevice);
 
-impl Link for FakeLink {
+impl Link<String> for FakeLink {
     fn stream<'a>(
         &'a mut self,
-        program: &'a Program,
+        lines: &'a [String],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         mut control: watch::Receiver<Control>,
@@ -30,9 +33,6 @@ impl Link for FakeLink {
             if let Some(f) = &self.0.on_start {
                 f();
             }
-            let Program::Gcode(lines) = program else {
-                return Err(LinkError::WrongProgram(program.kind()));
-            };
             for (i, line) in lines.iter().enumerate().skip(from) {
                 loop {
                     let c = *control.borrow_and_update();
@@ -40,7 +40,7 @@ impl Link for FakeLink {
                         Control::Cancel => return Ok(StreamEnd::Cancelled { acked: i }),
                         Control::Hold => {
                             let _ = events.send(LinkEvent::Status(MachineStatus {
-                                state: "Hold".into(),
+                                state: DeviceState::Held,
                                 ..Default::default()
                             }));
                             if control.changed().await.is_err() {
@@ -66,26 +66,58 @@ impl Link for FakeLink {
     }
 }
 
-impl LinkOpener for FakeDevice {
-    fn open(&self, _m: &MachineConfig) -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>> {
-        self.opens.fetch_add(1, Ordering::SeqCst);
-        let d = self.clone();
-        Box::pin(async move { Ok(Box::new(FakeLink(d)) as Box<dyn Link>) })
+/// A machine kind whose device is a `FakeDevice` the test hands in.
+struct FakeKind;
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NoSettings {}
+
+impl MachineKind for FakeKind {
+    type Settings = NoSettings;
+    type Unit = String;
+    type Device = FakeDevice;
+    fn link(&self) -> &'static str {
+        "fake"
+    }
+    fn about(&self) -> &'static str {
+        "a device in memory"
+    }
+    fn posts(&self) -> Vec<PostFor<String>> {
+        machlink_protocols::grbl::kind::grbl_posts()
+    }
+    fn start(&self, _: &str, _: &NoSettings) -> BoxFuture<'static, std::io::Result<FakeDevice>> {
+        started(FakeDevice::default())
+    }
+    fn open(
+        &self,
+        _: &str,
+        _: &NoSettings,
+        dev: &FakeDevice,
+    ) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+        dev.opens.fetch_add(1, Ordering::SeqCst);
+        let d = dev.clone();
+        Box::pin(async move { Ok(Box::new(FakeLink(d)) as Box<dyn Link<String>>) })
     }
 }
 
-fn machine(name: &str) -> MachineConfig {
-    MachineConfig {
-        name: name.into(),
-        link: LinkConfig::SimGrbl(SimGrblLinkConfig { time_scale: 1.0 }),
-        work_area: None,
-        max_feed: None,
-        tools: vec![],
+/// Machine `name` of the fake kind, running `dev`.
+fn machine(name: &str, dev: &FakeDevice) -> MachineSetup {
+    let mut registry = Registry::new();
+    registry.add_kind(FakeKind);
+    MachineSetup {
+        config: MachineConfig::new(&registry, name, "fake", serde_json::json!({})).unwrap(),
+        device: Arc::new(dev.clone()),
     }
 }
 
 fn program(tag: &str, n: usize) -> Program {
-    Program::Gcode((0..n).map(|i| format!("G1 X{i} ; {tag}")).collect())
+    Program::new(
+        "grbl",
+        (0..n)
+            .map(|i| format!("G1 X{i} ; {tag}"))
+            .collect::<Vec<String>>(),
+    )
 }
 
 fn new_job(tag: &str, n: usize) -> NewJob {
@@ -137,7 +169,7 @@ async fn jobs_run_in_order_and_the_store_has_them_before_the_first_unit() {
             let other = Store::open(&path).unwrap();
             let running: Vec<_> = other.jobs_in(JobState::Running).unwrap();
             for j in running {
-                let p = other.program(j.id).unwrap();
+                let p = other.program(j.id).unwrap().decode(&FakeKind).unwrap();
                 seen.lock().unwrap().push((j.id, p.len(), j.total_units));
             }
         }
@@ -147,7 +179,7 @@ async fn jobs_run_in_order_and_the_store_has_them_before_the_first_unit() {
         on_start: Some(Arc::new(check_store)),
         ..Default::default()
     };
-    let s = Scheduler::start(store, vec![machine("mill")], Arc::new(dev.clone()), POLICY).unwrap();
+    let s = Scheduler::start(store, vec![machine("mill", &dev)], POLICY).unwrap();
     let a = s.submit(new_job("a", 30)).unwrap();
     let b = s.submit(new_job("b", 20)).unwrap();
     assert_eq!(a.state, JobState::Queued);
@@ -156,12 +188,8 @@ async fn jobs_run_in_order_and_the_store_has_them_before_the_first_unit() {
     assert_eq!((ja.state, ja.acked_units), (JobState::Completed, 30));
     assert_eq!((jb.state, jb.acked_units), (JobState::Completed, 20));
     let executed = dev.executed.lock().unwrap().clone();
-    let Program::Gcode(pa) = program("a", 30) else {
-        unreachable!("program() makes G-code")
-    };
-    let Program::Gcode(pb) = program("b", 20) else {
-        unreachable!("program() makes G-code")
-    };
+    let pa = program("a", 30).units::<String>().unwrap().to_vec();
+    let pb = program("b", 20).units::<String>().unwrap().to_vec();
     assert_eq!(executed, [pa, pb].concat());
     assert_eq!(
         *seen_before_start.lock().unwrap(),
@@ -179,7 +207,7 @@ async fn a_refused_line_fails_the_job_naming_it_and_the_next_job_runs() {
         refuse_at: Some("G1 X12 ; a".into()),
         ..Default::default()
     };
-    let s = Scheduler::start(store, vec![machine("mill")], Arc::new(dev.clone()), POLICY).unwrap();
+    let s = Scheduler::start(store, vec![machine("mill", &dev)], POLICY).unwrap();
     let a = s.submit(new_job("a", 30)).unwrap();
     let b = s.submit(new_job("b", 10)).unwrap();
     let ja = wait_final(&s, a.id).await;
@@ -204,7 +232,7 @@ async fn pause_resume_and_cancel_steer_the_stream() {
         period: Duration::from_millis(2),
         ..Default::default()
     };
-    let s = Scheduler::start(store, vec![machine("mill")], Arc::new(dev.clone()), POLICY).unwrap();
+    let s = Scheduler::start(store, vec![machine("mill", &dev)], POLICY).unwrap();
     let a = s.submit(new_job("a", 100)).unwrap();
     let queued = s.submit(new_job("q", 5)).unwrap();
     wait_state(&s, a.id, JobState::Running).await;
@@ -239,9 +267,7 @@ async fn pause_resume_and_cancel_steer_the_stream() {
     s.resume(a.id).await.unwrap();
     let ja = wait_final(&s, a.id).await;
     assert_eq!(ja.state, JobState::Completed);
-    let Program::Gcode(pa) = program("a", 100) else {
-        unreachable!("program() makes G-code")
-    };
+    let pa = program("a", 100).units::<String>().unwrap().to_vec();
     assert_eq!(*dev.executed.lock().unwrap(), pa);
 }
 
@@ -255,8 +281,7 @@ async fn a_crash_leaves_an_interrupted_job_that_resumes_where_it_stopped() {
     };
     let s = Scheduler::start(
         Store::open(&path).unwrap(),
-        vec![machine("mill")],
-        Arc::new(dev.clone()),
+        vec![machine("mill", &dev)],
         POLICY,
     )
     .unwrap();
@@ -275,8 +300,7 @@ async fn a_crash_leaves_an_interrupted_job_that_resumes_where_it_stopped() {
     drop(s);
     let s = Scheduler::start(
         Store::open(&path).unwrap(),
-        vec![machine("mill")],
-        Arc::new(dev.clone()),
+        vec![machine("mill", &dev)],
         POLICY,
     )
     .unwrap();
@@ -288,9 +312,7 @@ async fn a_crash_leaves_an_interrupted_job_that_resumes_where_it_stopped() {
     s.resume(a.id).await.unwrap();
     let ja = wait_final(&s, a.id).await;
     assert_eq!(ja.state, JobState::Completed);
-    let Program::Gcode(pa) = program("a", 200) else {
-        unreachable!("program() makes G-code")
-    };
+    let pa = program("a", 200).units::<String>().unwrap().to_vec();
     assert_eq!(*dev.executed.lock().unwrap(), pa);
 }
 
@@ -298,13 +320,7 @@ async fn a_crash_leaves_an_interrupted_job_that_resumes_where_it_stopped() {
 async fn unknown_jobs_and_machines_are_refused_in_a_sentence() {
     let dir = tempfile::tempdir().unwrap();
     let store = Store::open(&dir.path().join("s.db")).unwrap();
-    let s = Scheduler::start(
-        store,
-        vec![machine("mill")],
-        Arc::new(FakeDevice::default()),
-        POLICY,
-    )
-    .unwrap();
+    let s = Scheduler::start(store, vec![machine("mill", &FakeDevice::default())], POLICY).unwrap();
     let mut j = new_job("a", 3);
     j.machine = "lathe".into();
     assert_eq!(

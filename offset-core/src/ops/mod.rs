@@ -20,7 +20,9 @@ pub enum OpError {
 }
 
 /// What every milling operation needs: the tool, the depths, the feeds and the heights.
+/// Keys left out of a JSON job take the defaults below.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Cutting {
     pub tool: crate::toolpath::Tool,
     /// How far below the stock top (Z=0) the last pass cuts, mm (positive).

@@ -26,7 +26,7 @@ use super::{pass_depths, Cutting, OpError};
 use crate::geom::{Point, Polyline, Region, Segment, Shape, Vertex};
 use crate::offset::{offset_region, OffsetError, OffsetOptions};
 use crate::ops::profile::cut;
-use crate::toolpath::{Move, Tool, Toolpath, P3};
+use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 use std::str::FromStr;
 
@@ -78,8 +78,9 @@ impl FromStr for Stepover {
     }
 }
 
-/// Everything a pocket needs besides the shape.
+/// Everything a pocket needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct PocketParams {
     /// Tool, depths, feeds and heights.
     #[serde(flatten)]
@@ -91,10 +92,7 @@ pub struct PocketParams {
 impl Default for PocketParams {
     fn default() -> Self {
         PocketParams {
-            cut: Cutting {
-                tool: Tool::flat(6.0),
-                ..Cutting::default()
-            },
+            cut: Cutting::default(),
             stepover: Stepover::Percent(40.0),
         }
     }

@@ -20,8 +20,9 @@ pub enum Side {
     On,
 }
 
-/// Everything a profile needs besides the shape.
+/// Everything a profile needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct ProfileParams {
     pub side: Side,
     /// Tool, depths, feeds and heights.
@@ -54,8 +55,8 @@ impl Default for ProfileParams {
             lead_in: 0.0,
             lead_out: 0.0,
             tabs: 0,
-            tab_width: 0.0,
-            tab_height: 0.0,
+            tab_width: 3.0,
+            tab_height: 0.5,
         }
     }
 }

@@ -23,8 +23,9 @@ pub const GRID_SLACK: f64 = 0.070_710_678_118_654_76;
 pub const MIN_STITCH_LENGTH: f64 = 1.0;
 pub const MAX_STITCH_LENGTH: f64 = 12.7;
 
-/// Everything a stitch path needs besides the shape.
+/// Everything a stitch path needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct StitchParams {
     /// Nominal stitch length L, mm (1 to 12.7).
     pub stitch_length: f64,

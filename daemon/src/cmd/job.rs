@@ -1,0 +1,212 @@
+//! The job options of `plan`, `submit`, `preview` and `demo` as command-line flags, turned
+//! into the one `JobSpec` the intake takes. Every default is the operation's own (offset-core
+//! `Default`), so a flag left out here means what a key left out of a JSON job means.
+
+use machlink::intake::{Input, JobSpec, Operation, DEFAULT_TOLERANCE};
+use offset_core::ops::{Cutting, PocketParams, ProfileParams, Side, Stepover};
+use offset_core::stitch::StitchParams;
+use offset_core::Tool;
+use std::path::Path;
+
+/// The operation to plan.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Op {
+    /// Cut along the outline (see --side).
+    Profile,
+    /// Clear the inside of closed shapes, around their islands.
+    Pocket,
+    /// Sew stitches along the shape (sewing machines).
+    Stitch,
+}
+
+/// Side of the outline for a profile.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SideArg {
+    Outside,
+    Inside,
+    On,
+}
+
+/// The options of a job. Left out, each takes the operation's default (shown in brackets).
+#[derive(Clone, Debug, Default, clap::Args)]
+pub struct JobArgs {
+    /// The operation (not for a G-code file, which runs as it is).
+    #[arg(long, value_enum)]
+    pub op: Option<Op>,
+    /// Cutter diameter, mm [3].
+    #[arg(long)]
+    pub tool_diameter: Option<f64>,
+    /// How far below the stock top (Z=0) the last pass cuts, mm [1].
+    #[arg(long)]
+    pub depth: Option<f64>,
+    /// The most each depth pass goes down, mm [1].
+    #[arg(long)]
+    pub stepdown: Option<f64>,
+    /// Profile: which side of the outline the tool runs on [outside].
+    #[arg(long, value_enum)]
+    pub side: Option<SideArg>,
+    /// Cutting feed, mm/min [800].
+    #[arg(long)]
+    pub feed: Option<f64>,
+    /// Plunge feed, mm/min [300].
+    #[arg(long)]
+    pub plunge_feed: Option<f64>,
+    /// Height for rapid moves above the stock, mm [5].
+    #[arg(long)]
+    pub safe_z: Option<f64>,
+    /// Spindle speed, rpm (0: leave the spindle alone) [12000].
+    #[arg(long)]
+    pub spindle: Option<f64>,
+    /// Cut conventional instead of climb (for an M3 spindle).
+    #[arg(long)]
+    pub conventional: bool,
+    /// Geometric tolerance of every approximation (reading curves, offsets), mm [0.001].
+    #[arg(long)]
+    pub tolerance: Option<f64>,
+    /// Pocket: distance between neighbouring passes, mm (1.2) or a percentage of the tool
+    /// diameter (40%); at most the diameter [40%].
+    #[arg(long, value_parser = parse_stepover)]
+    pub stepover: Option<Stepover>,
+    /// Profile: holding tabs per closed loop, evenly spaced [0].
+    #[arg(long)]
+    pub tabs: Option<usize>,
+    /// Profile: width of the material each tab leaves, mm [3].
+    #[arg(long)]
+    pub tab_width: Option<f64>,
+    /// Profile: height of the tabs above the bottom of the cut, mm [0.5].
+    #[arg(long)]
+    pub tab_height: Option<f64>,
+    /// Profile: radius of the tangent lead-in arc onto each closed loop, on the side away
+    /// from the part, mm (0: start on the loop) [0].
+    #[arg(long)]
+    pub lead_in: Option<f64>,
+    /// Profile: radius of the tangent lead-out arc, mm [the lead-in radius].
+    #[arg(long)]
+    pub lead_out: Option<f64>,
+    /// DXF: read only the entities on this layer (repeat for several) [all layers].
+    #[arg(long)]
+    pub layer: Vec<String>,
+    /// Stitch: nominal stitch length, mm (1 to 12.7); each run between corners gets equal
+    /// stitches [2.5].
+    #[arg(long)]
+    pub stitch_length: Option<f64>,
+    /// Stitch: rows to sew as offsets from each curve, mm, comma separated (0 = on the
+    /// curve; closed curves: negative inside; open curves: positive left) [0].
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    pub rows: Option<Vec<f64>>,
+    /// Stitch: bean stitch (each stitch sewn forward, back, forward).
+    #[arg(long)]
+    pub bean: bool,
+    /// Stitch: tie-in and tie-off stitches at the start and end of each seam [on].
+    #[arg(long, overrides_with = "no_tie")]
+    pub tie: bool,
+    /// Stitch: no tie stitches.
+    #[arg(long)]
+    pub no_tie: bool,
+    /// Stitch: a turn sharper than this many degrees is a corner with a needle drop on it [20].
+    #[arg(long)]
+    pub corner_angle: Option<f64>,
+    /// Stitch: round the corners of offset rows instead of keeping them sharp.
+    #[arg(long)]
+    pub round_corners: bool,
+    /// Stitch: how far a stitch may stray from its curve, mm (at least 0.1) [0.2].
+    #[arg(long)]
+    pub stitch_tolerance: Option<f64>,
+}
+
+fn parse_stepover(s: &str) -> Result<Stepover, String> {
+    s.parse()
+}
+
+impl JobArgs {
+    /// The job for the file at `path` with these options, for machine `machine` (if any)
+    /// written with `post` (if any).
+    pub fn spec(
+        &self,
+        path: &Path,
+        machine: Option<String>,
+        post: Option<String>,
+    ) -> anyhow::Result<JobSpec> {
+        Ok(JobSpec {
+            machine,
+            input: Input::from_path(path)?,
+            operation: self.operation(),
+            tolerance: self.tolerance.unwrap_or(DEFAULT_TOLERANCE),
+            layers: self.layer.clone(),
+            post,
+        })
+    }
+
+    /// The operation with its options, or none when no `--op` was given.
+    pub fn operation(&self) -> Option<Operation> {
+        Some(match self.op? {
+            Op::Profile => {
+                let d = ProfileParams::default();
+                let lead_in = self.lead_in.unwrap_or(d.lead_in);
+                Operation::Profile(ProfileParams {
+                    side: match self.side {
+                        None => d.side,
+                        Some(SideArg::Outside) => Side::Outside,
+                        Some(SideArg::Inside) => Side::Inside,
+                        Some(SideArg::On) => Side::On,
+                    },
+                    cut: self.cutting(d.cut),
+                    lead_in,
+                    lead_out: self.lead_out.unwrap_or(lead_in),
+                    tabs: self.tabs.unwrap_or(d.tabs),
+                    tab_width: self.tab_width.unwrap_or(d.tab_width),
+                    tab_height: self.tab_height.unwrap_or(d.tab_height),
+                })
+            }
+            Op::Pocket => {
+                let d = PocketParams::default();
+                Operation::Pocket(PocketParams {
+                    cut: self.cutting(d.cut),
+                    stepover: self.stepover.unwrap_or(d.stepover),
+                })
+            }
+            Op::Stitch => {
+                let d = StitchParams::default();
+                Operation::Stitch(StitchParams {
+                    stitch_length: self.stitch_length.unwrap_or(d.stitch_length),
+                    rows: self.rows.clone().unwrap_or(d.rows),
+                    bean: self.bean || d.bean,
+                    tie: if self.no_tie {
+                        false
+                    } else {
+                        self.tie || d.tie
+                    },
+                    corner_angle: self.corner_angle.unwrap_or(d.corner_angle),
+                    round_corners: self.round_corners || d.round_corners,
+                    tolerance: self.stitch_tolerance.unwrap_or(d.tolerance),
+                    ..d
+                })
+            }
+        })
+    }
+
+    /// The tool, depths, feeds and heights from the flags over the operation's defaults.
+    fn cutting(&self, d: Cutting) -> Cutting {
+        Cutting {
+            tool: Tool {
+                diameter: self.tool_diameter.unwrap_or(d.tool.diameter),
+                ..d.tool
+            },
+            depth: self.depth.unwrap_or(d.depth),
+            stepdown: self.stepdown.unwrap_or(d.stepdown),
+            feed: self.feed.unwrap_or(d.feed),
+            plunge_feed: self.plunge_feed.unwrap_or(d.plunge_feed),
+            safe_z: self.safe_z.unwrap_or(d.safe_z),
+            climb: !self.conventional && d.climb,
+            spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
+            tolerance: self.tolerance.unwrap_or(d.tolerance),
+        }
+    }
+}
+
+/// Prints the readers' and planners' warnings.
+pub fn print_warnings(warnings: &[String]) {
+    for w in warnings {
+        eprintln!("machlink: warning: {w}");
+    }
+}
