@@ -200,14 +200,7 @@ async fn events(State(st): State<AppState>, Path(id): Path<String>) -> Result<Re
     // subscribe before reading the state, so nothing falls between them
     let rx = st.sched.subscribe();
     let j = st.sched.job(id)?;
-    let first = Event::State {
-        job: j.id,
-        machine: j.machine.clone(),
-        state: j.state,
-        acked: j.acked_units,
-        total: j.total_units,
-        error: j.error.clone(),
-    };
+    let first = Event::state_of(&j);
     struct S {
         rx: broadcast::Receiver<Event>,
         sched: Scheduler,
@@ -251,14 +244,7 @@ async fn events(State(st): State<AppState>, Path(id): Path<String>) -> Result<Re
                     // too slow a watcher: skip ahead and tell it where the job is now
                     let j = s.sched.job(s.id).ok()?;
                     s.done = j.state.is_final();
-                    let ev = Event::State {
-                        job: j.id,
-                        machine: j.machine,
-                        state: j.state,
-                        acked: j.acked_units,
-                        total: j.total_units,
-                        error: j.error,
-                    };
+                    let ev = Event::state_of(&j);
                     return Some((line(&ev), s));
                 }
                 Err(broadcast::error::RecvError::Closed) => return None,

@@ -150,8 +150,8 @@ pub fn gcode_program(
         let words = words(line);
         for (letter, value) in &words {
             match (letter, value.parse::<f64>().ok()) {
-                ('G', Some(g)) if g == 20.0 => mm_per_unit = 25.4,
-                ('G', Some(g)) if g == 21.0 => mm_per_unit = 1.0,
+                ('G', Some(20.0)) => mm_per_unit = 25.4,
+                ('G', Some(21.0)) => mm_per_unit = 1.0,
                 _ => {}
             }
         }

@@ -61,6 +61,18 @@ pub enum Event {
 }
 
 impl Event {
+    /// A job's state as the store holds it, as an event.
+    pub fn state_of(j: &JobRecord) -> Event {
+        Event::State {
+            job: j.id,
+            machine: j.machine.clone(),
+            state: j.state,
+            acked: j.acked_units,
+            total: j.total_units,
+            error: j.error.clone(),
+        }
+    }
+
     /// The job the event is about, if any.
     pub fn job(&self) -> Option<JobId> {
         match self {
@@ -448,14 +460,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 
 impl Inner {
     fn broadcast_state(&self, j: &JobRecord) {
-        let _ = self.events.send(Event::State {
-            job: j.id,
-            machine: j.machine.clone(),
-            state: j.state,
-            acked: j.acked_units,
-            total: j.total_units,
-            error: j.error.clone(),
-        });
+        let _ = self.events.send(Event::state_of(j));
     }
 
     fn set_state(&self, id: JobId, state: JobState, error: Option<&str>) {

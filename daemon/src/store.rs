@@ -331,23 +331,12 @@ impl Store {
         from_units: usize,
         acked_units: usize,
     ) -> Result<(), StoreError> {
-        let mut conn = self.conn();
-        let tx = conn.transaction()?;
-        tx.execute(
-            "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
-            params![id, acked_units as i64],
+        self.move_resume_point(
+            id,
+            acked_units,
+            "acked",
+            &format!("units {from_units}..{acked_units}"),
         )?;
-        tx.execute(
-            "INSERT INTO journal (job_id, at_ms, event, acked_units, detail)
-             VALUES (?1, ?2, 'acked', ?3, ?4)",
-            params![
-                id,
-                now_ms(),
-                acked_units as i64,
-                format!("units {from_units}..{acked_units}")
-            ],
-        )?;
-        tx.commit()?;
         self.flushes
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         Ok(())
@@ -355,6 +344,22 @@ impl Store {
 
     /// Moves a stopped job's resume point to unit `acked_units` (the operator's choice).
     pub fn set_resume_point(&self, id: JobId, acked_units: usize) -> Result<(), StoreError> {
+        self.move_resume_point(
+            id,
+            acked_units,
+            "rewind",
+            "resume point set by the operator",
+        )
+    }
+
+    /// Sets a job's resume point and journals why, in one transaction.
+    fn move_resume_point(
+        &self,
+        id: JobId,
+        acked_units: usize,
+        event: &str,
+        detail: &str,
+    ) -> Result<(), StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
@@ -363,8 +368,8 @@ impl Store {
         )?;
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units, detail)
-             VALUES (?1, ?2, 'rewind', ?3, 'resume point set by the operator')",
-            params![id, now_ms(), acked_units as i64],
+             VALUES (?1, ?2, ?3, ?4, ?5)",
+            params![id, now_ms(), event, acked_units as i64, detail],
         )?;
         tx.commit()?;
         Ok(())

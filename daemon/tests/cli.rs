@@ -231,6 +231,16 @@ fn serve_submit_watch_and_list() {
             "ghost",
             "--op",
             "profile",
+        ],
+    );
+    fails_with(&o, "square.nc is a G-code program, which runs as it is");
+    let o = client(
+        &s,
+        &[
+            "submit",
+            nc.to_str().unwrap(),
+            "--machine",
+            "ghost",
             "--watch",
         ],
     );

@@ -88,12 +88,19 @@ pub enum ToolKind {
     Needle,
 }
 
-/// The tool a path was planned for.
+/// The tool a path was planned for (keys left out of JSON take a 3 mm flat end mill, tool 1).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Tool {
     pub number: u32,
     pub diameter: f64,
     pub kind: ToolKind,
+}
+
+impl Default for Tool {
+    fn default() -> Self {
+        Tool::flat(3.0)
+    }
 }
 
 impl Tool {

@@ -19,6 +19,9 @@ use std::fmt::Debug;
 use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
 
+/// A link being opened: what [`MachineKind::open`] returns.
+pub type OpenLink<U> = BoxFuture<'static, Result<Box<dyn Link<U>>, LinkError>>;
+
 /// One kind of machine.
 pub trait MachineKind: Send + Sync + 'static {
     /// The keys of its `[[machine]]` table besides the common ones (name, link, work_area,
@@ -66,7 +69,7 @@ pub trait MachineKind: Send + Sync + 'static {
         machine: &str,
         settings: &Self::Settings,
         device: &Self::Device,
-    ) -> BoxFuture<'static, Result<Box<dyn Link<Self::Unit>>, LinkError>>;
+    ) -> OpenLink<Self::Unit>;
 }
 
 /// A link that streams [`Program`]s, whatever their units: what the daemon holds.

@@ -30,8 +30,8 @@ pub use program::{Program, Unit};
 pub fn standard_kinds(registry: &mut Registry) {
     registry
         .add_kind(grbl::kind::GrblKind)
-        .add_kind(modbus::ModbusTcpKind)
-        .add_kind(modbus::ModbusRtuKind)
+        .add_kind(modbus::ModbusTcpKind::default())
+        .add_kind(modbus::ModbusRtuKind::default())
         .add_kind(sewing::SewingKind)
         .add_post(gcode::GcodePost(gcode::Dialect::Linuxcnc))
         .add_post(gcode::GcodePost(gcode::Dialect::Generic));

@@ -8,13 +8,12 @@ use crate::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
 use futures::future::BoxFuture;
 use machlink_protocols::grbl::kind::{gcode_file_units, grbl_posts, open_machine};
 use machlink_protocols::grbl::GrblOptions;
-use machlink_protocols::kind::{MachineKind, Registry};
+use machlink_protocols::kind::{MachineKind, OpenLink, Registry};
 use machlink_protocols::modbus::kind::{gcode_file_blocks, modbus_posts, open_ring, RingSettings};
 use machlink_protocols::modbus::{MotionBlock, Transport};
 use machlink_protocols::post::{PostError, PostFor};
 use machlink_protocols::sewing::kind::{open_sewing, stitch_posts};
 use machlink_protocols::sewing::StitchRecord;
-use machlink_protocols::{Link, LinkError};
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};
 
@@ -85,12 +84,7 @@ impl MachineKind for SimGrblKind {
         };
         Box::pin(async move { GrblSim::spawn_pty(cfg) })
     }
-    fn open(
-        &self,
-        _machine: &str,
-        _s: &SimGrblSettings,
-        sim: &GrblSimHandle,
-    ) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+    fn open(&self, _machine: &str, _s: &SimGrblSettings, sim: &GrblSimHandle) -> OpenLink<String> {
         let port = sim.port().display().to_string();
         open_machine(port, GrblOptions::default(), true)
     }
@@ -169,7 +163,7 @@ impl MachineKind for SimSewingKind {
         _machine: &str,
         _s: &SimSewingSettings,
         sim: &SewingSim,
-    ) -> BoxFuture<'static, Result<Box<dyn Link<StitchRecord>>, LinkError>> {
+    ) -> OpenLink<StitchRecord> {
         open_sewing(sim.path.clone(), 115_200)
     }
 }
@@ -239,7 +233,7 @@ impl MachineKind for SimModbusKind {
         _machine: &str,
         _s: &SimModbusSettings,
         sim: &ModbusSim,
-    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+    ) -> OpenLink<MotionBlock> {
         let addr = sim.addr();
         open_ring(RingSettings::default().settings(Transport::Tcp {
             host: addr.ip().to_string(),

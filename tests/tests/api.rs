@@ -77,7 +77,7 @@ async fn bad_requests_get_one_sentence() {
         b["error"]
             .as_str()
             .unwrap()
-            .starts_with("the request is not a valid job submission"),
+            .starts_with("the request is not a valid job"),
         "{b}"
     );
     let (st, b) = raw(&sock, "GET", "/jobs/abc", "").await;
@@ -94,19 +94,17 @@ async fn bad_requests_get_one_sentence() {
     assert_eq!(st, 400);
 
     let square = r#"{"units":"mm","paths":[{"closed":true,"vertices":[[0,0,0],[40,0,0],[40,40,0],[0,40,0]]}]}"#;
-    let submit = |file_text: &str, params: serde_json::Value| {
+    // a JobSpec: the file, and the operation with only the options that differ from its
+    // defaults
+    let submit = |file_text: &str, operation: serde_json::Value| {
         serde_json::json!({
-            "machine": "bench", "file_name": "square.json", "file_text": file_text, "params": params
+            "machine": "bench",
+            "input": { "file_name": "square.json", "file_text": file_text },
+            "operation": operation
         })
         .to_string()
     };
-    let params = |feed: f64, side: &str| {
-        serde_json::json!({
-            "op": "profile", "tool_diameter": 3.0, "depth": 1.0, "stepdown": 1.0, "side": side,
-            "feed": feed, "plunge_feed": 300.0, "safe_z": 5.0, "spindle": 0.0,
-            "conventional": false, "tolerance": 0.001
-        })
-    };
+    let params = |feed: f64, side: &str| serde_json::json!({ "op": "profile", "side": side, "cut": { "feed": feed, "spindle_rpm": 0.0 } });
     // above the machine's feed limit
     let (st, b) = raw(
         &sock,
@@ -115,23 +113,30 @@ async fn bad_requests_get_one_sentence() {
         &submit(square, params(2000.0, "inside")),
     )
     .await;
-    assert_eq!(st, 400);
-    assert_eq!(
-        b["error"].as_str().unwrap(),
-        "the feed 2000 mm/min is above machine `bench`'s limit of 1000 mm/min"
-    );
-    // outside the work area: a 30 mm tool around the 40 mm square reaches X 55 > 50
-    let mut big_tool = params(800.0, "outside");
-    big_tool["tool_diameter"] = serde_json::json!(30.0);
-    let (st, b) = raw(&sock, "POST", "/jobs", &submit(square, big_tool)).await;
-    assert_eq!(st, 400);
+    assert_eq!(st, 422);
     assert!(
         b["error"]
             .as_str()
             .unwrap()
-            .starts_with("the path leaves machine `bench`'s work area: X"),
+            .ends_with("the feed 2000 mm/min is above machine `bench`'s limit of 1000 mm/min"),
         "{b}"
     );
+    // outside the work area: a 30 mm tool around the 40 mm square reaches X 55 > 50
+    let mut big_tool = params(800.0, "outside");
+    big_tool["cut"]["tool"] = serde_json::json!({ "diameter": 30.0 });
+    let (st, b) = raw(&sock, "POST", "/jobs", &submit(square, big_tool)).await;
+    assert_eq!(st, 422);
+    let e = b["error"].as_str().unwrap();
+    assert!(
+        e.starts_with("move ") && e.contains("outside machine `bench`'s work area (X -10 to 50)"),
+        "{b}"
+    );
+    // an option the operation does not have is named
+    let mut typo = params(800.0, "inside");
+    typo["cut"]["stepdwn"] = serde_json::json!(0.5);
+    let (st, b) = raw(&sock, "POST", "/jobs", &submit(square, typo)).await;
+    assert_eq!(st, 400);
+    assert!(b["error"].as_str().unwrap().contains("stepdwn"), "{b}");
     // a shape file that is not one names the file
     let (st, b) = raw(
         &sock,

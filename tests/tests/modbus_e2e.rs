@@ -50,7 +50,7 @@ fn submit(d: &Daemon, blocks: &[MotionBlock]) -> JobRecord {
             op: "profile".into(),
             file_name: "e2e.json".into(),
             params: serde_json::json!({}),
-            program: blocks.to_vec(),
+            program: Program::new("modbus", blocks.to_vec()),
         })
         .expect("the job is queued")
 }

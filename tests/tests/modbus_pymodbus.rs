@@ -3,7 +3,7 @@
 //! device recorded are the job's blocks, once each, in order.
 
 use machlink_protocols::modbus::{post_blocks, ModbusLink, ModbusSettings, MotionBlock};
-use machlink_protocols::{Control, Link, Program, StreamEnd};
+use machlink_protocols::{Control, Link, StreamEnd};
 use offset_core::{Move, Point, Toolpath, P3};
 use std::path::{Path, PathBuf};
 use std::process::Stdio;

@@ -5,12 +5,12 @@ mod common;
 
 use common::*;
 use futures::future::BoxFuture;
-use machlink::config::MachineConfig;
 use machlink::daemon::StartOptions;
-use machlink::scheduler::LinkOpener;
 use machlink::store::{JobState, Store};
 use machlink_protocols::grbl::{modal_preamble, GrblLink, GrblOptions};
-use machlink_protocols::{Control, Link, LinkError, LinkEvent, Program, StreamEnd};
+use machlink_protocols::kind::{started, MachineKind, OpenLink};
+use machlink_protocols::post::PostFor;
+use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig};
 use std::sync::Arc;
 use std::time::Duration;
@@ -113,12 +113,56 @@ async fn cancel_stops_the_machine_and_the_next_job_runs() {
     assert_eq!(sim.rx_overflows(), 0);
 }
 
-/// A link that streams only the first `stop_at` lines, waits for the machine to finish
-/// them, tells the test, and then hangs as a daemon would that is about to crash.
-struct StopAt {
+/// A machine kind, `link = "stop-at"`, whose link streams only the first `stop_at` lines to
+/// a GRBL on `port`, waits for the machine to finish them, tells the test (through the
+/// `Notify` it prepared at start-up), and then hangs as a daemon would that is about to crash.
+struct StopAtKind;
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StopAtSettings {
     port: String,
     stop_at: usize,
-    reached: Arc<Notify>,
+}
+
+impl MachineKind for StopAtKind {
+    type Settings = StopAtSettings;
+    type Unit = String;
+    type Device = Arc<Notify>;
+    fn link(&self) -> &'static str {
+        "stop-at"
+    }
+    fn about(&self) -> &'static str {
+        "a GRBL link that stops after a number of lines, as if the daemon were about to crash"
+    }
+    fn posts(&self) -> Vec<PostFor<String>> {
+        machlink_protocols::grbl::kind::grbl_posts()
+    }
+    fn gcode_units(
+        &self,
+        lines: &[String],
+        _moves: &offset_core::Toolpath,
+    ) -> Option<Result<Vec<String>, machlink_protocols::PostError>> {
+        Some(Ok(lines.to_vec()))
+    }
+    fn start(
+        &self,
+        _: &str,
+        _: &StopAtSettings,
+    ) -> BoxFuture<'static, std::io::Result<Arc<Notify>>> {
+        started(Arc::new(Notify::new()))
+    }
+    fn open(&self, _: &str, s: &StopAtSettings, reached: &Arc<Notify>) -> OpenLink<String> {
+        let (port, stop_at, reached) = (s.port.clone(), s.stop_at, reached.clone());
+        Box::pin(async move {
+            let link = GrblLink::open(&port, GrblOptions::default()).await?;
+            Ok(Box::new(StopAtLink {
+                link,
+                stop_at,
+                reached,
+            }) as Box<dyn Link<String>>)
+        })
+    }
 }
 
 struct StopAtLink {
@@ -127,32 +171,15 @@ struct StopAtLink {
     reached: Arc<Notify>,
 }
 
-impl LinkOpener for StopAt {
-    fn open(&self, _m: &MachineConfig) -> BoxFuture<'static, Result<Box<dyn Link>, LinkError>> {
-        let (port, stop_at, reached) = (self.port.clone(), self.stop_at, self.reached.clone());
-        Box::pin(async move {
-            let link = GrblLink::open(&port, GrblOptions::default()).await?;
-            Ok(Box::new(StopAtLink {
-                link,
-                stop_at,
-                reached,
-            }) as Box<dyn Link>)
-        })
-    }
-}
-
-impl Link for StopAtLink {
+impl Link<String> for StopAtLink {
     fn stream<'a>(
         &'a mut self,
-        program: &'a Program,
+        lines: &'a [String],
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
-            let lines = program else {
-                return Err(LinkError::WrongProgram(program.kind()));
-            };
             let head = lines[..self.stop_at].to_vec();
             let end = self
                 .link
@@ -177,21 +204,18 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
     let dir = tempfile::tempdir().unwrap();
     let lines = zigzag(2000);
     let stop_at = 777;
-    let reached = Arc::new(Notify::new());
-    let opener = StopAt {
-        port: sim.port().display().to_string(),
-        stop_at,
-        reached: reached.clone(),
-    };
-    let mut d = start(
+    let mut registry = machlink::registry::standard();
+    registry.add_kind(StopAtKind);
+    let mut d = start_with(
         dir.path(),
-        &machine_on(&sim.port()),
-        StartOptions {
-            opener: Some(Arc::new(opener)),
-            ..Default::default()
-        },
+        &format!(
+            "[[machine]]\nname = \"mill\"\nlink = \"stop-at\"\nport = \"{}\"\nstop_at = {stop_at}\n",
+            sim.port().display()
+        ),
+        &registry,
     )
     .await;
+    let reached = d.device::<Arc<Notify>>("mill").unwrap().clone();
     let c = client(&d);
     let job = submit_gcode(&c, "mill", "long", &lines).await;
     tokio::time::timeout(Duration::from_secs(30), reached.notified())

@@ -4,12 +4,12 @@
 mod common;
 
 use common::*;
-use machlink::api::SubmitRequest;
 use machlink::daemon::StartOptions;
-use machlink::planning::{Op, PlanParams, StitchArgs};
+use machlink::intake::{self, JobSpec, Operation, Target};
 use machlink::store::JobState;
-use machlink_protocols::sewing::StitchKind;
-use machlink_protocols::Program;
+use machlink_protocols::sewing::{StitchKind, StitchRecord};
+use machlink_sim::sewing::SewingSim;
+use offset_core::stitch::StitchParams;
 
 const POCKET: &str = r#"{ "units": "mm", "paths": [ { "closed": true,
   "vertices": [[-60,-40,0],[60,-40,0],[60,40,0],[0,60,0],[-60,40,0]] } ] }"#;
@@ -23,15 +23,15 @@ fn machine() -> String {
     )
 }
 
-fn params() -> PlanParams {
-    PlanParams {
-        stitch: StitchArgs {
+fn pocket_job() -> JobSpec {
+    JobSpec {
+        operation: Some(Operation::Stitch(StitchParams {
             stitch_length: 2.5,
             rows: vec![0.0, -3.0],
             tie: true,
             ..Default::default()
-        },
-        ..PlanParams::defaults(Op::Stitch)
+        })),
+        ..job("pocket-setter", "pocket.json", POCKET)
     }
 }
 
@@ -40,22 +40,12 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
     let dir = tempfile::tempdir().unwrap();
     let d = start(dir.path(), &machine(), StartOptions::default()).await;
     let c = client(&d);
-    let job = c
-        .submit(&SubmitRequest {
-            machine: "pocket-setter".into(),
-            file_name: "pocket.json".into(),
-            file_text: Some(POCKET.into()),
-            file_base64: None,
-            params: Some(params()),
-        })
-        .await
-        .expect("submitted");
+    let job = c.submit(&pocket_job()).await.expect("submitted");
     // the program the daemon planned, planned again here
     let cfg = d.scheduler.machine_config("pocket-setter").unwrap().clone();
-    let records = machlink::api::plan(&cfg, "pocket.json", POCKET.as_bytes(), &params()).unwrap()
-    else {
-        panic!("a sewing machine gets stitches")
-    };
+    let planned = intake::plan(&pocket_job(), Target::Machine(&cfg)).unwrap();
+    let records = planned.program.units::<StitchRecord>().unwrap().to_vec();
+    assert_eq!(stored::<StitchRecord>(&d, job.id), records);
     assert_eq!(job.total_units, records.len());
     let planned: Vec<(u32, i32, i32)> = records
         .iter()
@@ -63,7 +53,7 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
         .filter(|(_, r)| r.kind == StitchKind::Stitch)
         .map(|(i, r)| (i as u32, r.x, r.y))
         .collect();
-    let sim = &d.sewing_sims["pocket-setter"];
+    let sim = d.device::<SewingSim>("pocket-setter").unwrap();
     let sewn = || -> Vec<(u32, i32, i32)> {
         let t = sim.trace.lock().unwrap();
         t.drops.iter().map(|n| (n.index, n.x, n.y)).collect()
@@ -96,34 +86,25 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
     );
 }
 
-/// `machlink plan FILE --op stitch --stitch-length 2.5 --rows 0,-3 --post dst`: the options
-/// as the command line gives them, planned and written as DST, read back.
+/// A stitch job with two rows, planned for the DST post and written as a DST file, reads
+/// back as the same records, with a seam on the outline and one 3 mm inside. (The same
+/// through the `machlink plan` binary is in daemon/tests/cli.rs.)
 #[test]
-fn plan_options_from_the_command_line_make_a_dst_with_both_rows() {
-    use clap::Parser;
-    use machlink::planning::{self, Post};
+fn a_two_row_stitch_plan_written_as_dst_reads_back_with_both_rows() {
     use machlink_protocols::sewing::dst;
-    #[derive(Parser)]
-    struct Cmd {
-        #[command(flatten)]
-        params: PlanParams,
-    }
-    let cmd = Cmd::try_parse_from([
-        "plan",
-        "--op",
-        "stitch",
-        "--stitch-length",
-        "2.5",
-        "--rows",
-        "0,-3",
-    ])
-    .unwrap();
-    assert_eq!(cmd.params.stitch.rows, vec![0.0, -3.0]);
-    let shape = offset_core::io::read_shape(POCKET.as_bytes(), "pocket.json").unwrap();
-    let tp = planning::plan_toolpath(&shape, &cmd.params).unwrap();
-    let records = planning::post(&tp, Post::Dst).unwrap() else {
-        panic!("the DST post makes stitches")
+    let spec = JobSpec {
+        machine: None,
+        ..pocket_job()
     };
+    let registry = machlink::registry::standard();
+    let post = registry.post("dst").unwrap();
+    let planned = intake::plan(&spec, Target::Post(post)).unwrap();
+    let records = planned.program.units::<StitchRecord>().unwrap().to_vec();
+    assert_eq!(
+        post.file(&planned.program, "pocket").unwrap(),
+        dst::write(&records, "pocket").unwrap()
+    );
+    let shape = planned.shape.unwrap();
     let bytes = dst::write(&records, "pocket").unwrap();
     let back = dst::read(&bytes, "pocket.dst").unwrap();
     assert_eq!(back.records, records);

@@ -21,8 +21,7 @@ async fn a_long_job_runs_every_line_exactly_once_in_order() {
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
     assert_eq!(done.acked_units, 2400);
     // what the store kept is what was sent, and what the machine ran
-    let stored = d.scheduler.store().program(job.id).unwrap();
-    assert_eq!(stored, machlink_protocols::lines.clone());
+    assert_eq!(stored::<String>(&d, job.id), lines);
     let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
     assert_eq!(executed, expected_motion(&lines));
     assert_eq!(sim.received_lines(), 2400);
@@ -107,41 +106,35 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
         ..Default::default()
     })
     .await;
-    let params = machlink::planning::PlanParams {
-        depth: 0.5,
-        stepdown: 0.5,
-        side: machlink::planning::SideArg::On,
-        feed: 1200.0,
-        safe_z: 2.0,
-        spindle: 0.0,
-        ..machlink::planning::PlanParams::defaults(machlink::planning::Op::Profile)
+    let spec = machlink::intake::JobSpec {
+        operation: Some(machlink::intake::Operation::Profile(
+            offset_core::ops::ProfileParams {
+                side: offset_core::ops::Side::On,
+                cut: offset_core::ops::Cutting {
+                    depth: 0.5,
+                    stepdown: 0.5,
+                    feed: 1200.0,
+                    safe_z: 2.0,
+                    spindle_rpm: 0.0,
+                    ..Default::default()
+                },
+                ..Default::default()
+            },
+        )),
+        ..job("mill", "wave.json", &shape.to_string())
     };
-    let job = c
-        .submit(&machlink::api::SubmitRequest {
-            machine: "mill".into(),
-            file_name: "wave.json".into(),
-            file_text: Some(shape.to_string()),
-            file_base64: None,
-            params: Some(params.clone()),
-        })
-        .await
-        .unwrap();
+    let job = c.submit(&spec).await.unwrap();
     assert!(job.total_units >= 2000, "{} lines", job.total_units);
     let done = wait_end(&c, job.id).await;
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
-    let machlink_protocols::lines = d.scheduler.store().program(job.id).unwrap() else {
-        panic!("a GRBL job holds G-code")
-    };
+    let lines: Vec<String> = stored(&d, job.id);
     let trace = sim.trace();
     let executed: Vec<String> = trace.iter().map(|e| e.line.clone()).collect();
     assert_eq!(executed, expected_motion(&lines));
     assert_eq!(sim.received_lines(), lines.len() as u64);
     assert_eq!(sim.rx_overflows(), 0);
-    let planned = machlink::planning::plan_toolpath(
-        &offset_core::io::read_shape(shape.to_string().as_bytes(), "wave.json").unwrap(),
-        &params,
-    )
-    .unwrap();
+    let (part, _) = machlink::intake::read_shape(&spec).unwrap();
+    let planned = machlink::intake::toolpath(&spec, &part).unwrap();
     let dev = machlink_sim::grbl::max_deviation(&planned, &trace);
     assert!(dev < 0.01, "the machine strayed {dev} mm from the plan");
 }

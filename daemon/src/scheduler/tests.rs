@@ -2,7 +2,7 @@
 
 use super::*;
 use futures::future::BoxFuture;
-use machlink_protocols::kind::{started, MachineKind, Registry};
+use machlink_protocols::kind::{started, MachineKind, OpenLink, Registry};
 use machlink_protocols::post::PostFor;
 use machlink_protocols::Link;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -89,12 +89,7 @@ impl MachineKind for FakeKind {
     fn start(&self, _: &str, _: &NoSettings) -> BoxFuture<'static, std::io::Result<FakeDevice>> {
         started(FakeDevice::default())
     }
-    fn open(
-        &self,
-        _: &str,
-        _: &NoSettings,
-        dev: &FakeDevice,
-    ) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+    fn open(&self, _: &str, _: &NoSettings, dev: &FakeDevice) -> OpenLink<String> {
         dev.opens.fetch_add(1, Ordering::SeqCst);
         let d = dev.clone();
         Box::pin(async move { Ok(Box::new(FakeLink(d)) as Box<dyn Link<String>>) })

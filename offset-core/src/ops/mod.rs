@@ -46,7 +46,7 @@ pub struct Cutting {
 impl Default for Cutting {
     fn default() -> Self {
         Cutting {
-            tool: crate::toolpath::Tool::flat(3.0),
+            tool: crate::toolpath::Tool::default(),
             depth: 1.0,
             stepdown: 1.0,
             feed: 800.0,

@@ -80,10 +80,9 @@ impl FromStr for Stepover {
 
 /// Everything a pocket needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct PocketParams {
-    /// Tool, depths, feeds and heights.
-    #[serde(flatten)]
+    /// Tool, depths, feeds and heights (`"cut": { … }` in JSON).
     pub cut: Cutting,
     /// Distance between neighbouring passes.
     pub stepover: Stepover,

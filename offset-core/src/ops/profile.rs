@@ -22,11 +22,10 @@ pub enum Side {
 
 /// Everything a profile needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ProfileParams {
     pub side: Side,
-    /// Tool, depths, feeds and heights.
-    #[serde(flatten)]
+    /// Tool, depths, feeds and heights (`"cut": { … }` in JSON).
     pub cut: Cutting,
     /// Radius of the tangent lead-in arc onto each closed loop, mm (0: plunge on the loop).
     /// The arc lies on the side away from the material that stays.

@@ -2,7 +2,7 @@
 
 use super::{GrblLink, GrblOptions};
 use crate::gcode::{Dialect, GcodePost};
-use crate::kind::{started, MachineKind};
+use crate::kind::{started, MachineKind, OpenLink};
 use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, StreamEnd};
 use crate::post::{PostError, PostFor};
 use futures::future::BoxFuture;
@@ -98,12 +98,7 @@ impl MachineKind for GrblKind {
         warn_missing_port(machine, &s.port);
         started(())
     }
-    fn open(
-        &self,
-        _machine: &str,
-        s: &GrblSettings,
-        _device: &(),
-    ) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+    fn open(&self, _machine: &str, s: &GrblSettings, _device: &()) -> OpenLink<String> {
         let opts = GrblOptions {
             baud: s.baud,
             check_first: s.check_first,
@@ -114,11 +109,7 @@ impl MachineKind for GrblKind {
 }
 
 /// Opens a GRBL controller on `port` as a machine link.
-pub fn open_machine(
-    port: String,
-    opts: GrblOptions,
-    auto_unlock: bool,
-) -> BoxFuture<'static, Result<Box<dyn Link<String>>, LinkError>> {
+pub fn open_machine(port: String, opts: GrblOptions, auto_unlock: bool) -> OpenLink<String> {
     Box::pin(async move {
         let link = GrblLink::open(&port, opts).await?;
         Ok(Box::new(GrblMachine { link, auto_unlock }) as Box<dyn Link<String>>)

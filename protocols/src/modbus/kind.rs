@@ -5,7 +5,7 @@ use super::link::{ModbusLink, ModbusSettings, Parity, Transport};
 use super::map::{MotionBlock, WordOrder};
 use super::post::{post_blocks, ModbusPost};
 use crate::grbl::kind::{check_port, default_baud, warn_missing_port};
-use crate::kind::{started, Joined, MachineKind};
+use crate::kind::{started, Joined, MachineKind, OpenLink};
 use crate::link::{Link, LinkError};
 use crate::post::{PostError, PostFor};
 use futures::future::BoxFuture;
@@ -130,41 +130,102 @@ pub fn gcode_file_blocks(moves: &Toolpath) -> Option<Result<Vec<MotionBlock>, Po
 }
 
 /// Opens a Modbus link with `settings`; it connects on its first request.
-pub fn open_ring(
-    settings: ModbusSettings,
-) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
+pub fn open_ring(settings: ModbusSettings) -> OpenLink<MotionBlock> {
     Box::pin(async move {
         let link = ModbusLink::new(settings).map_err(LinkError::from)?;
         Ok(Box::new(link) as Box<dyn Link<MotionBlock>>)
     })
 }
 
-/// `link = "modbus-tcp"`.
-pub struct ModbusTcpKind;
+/// What carries a Modbus machine's requests (TCP or an RTU line), with its own keys.
+pub trait RingTransport:
+    Serialize + serde::de::DeserializeOwned + Clone + std::fmt::Debug + Send + Sync + 'static
+{
+    /// The `link = "…"` of machines on this transport.
+    const LINK: &'static str;
+    const ABOUT: &'static str;
+    /// The link's settings with `ring`'s.
+    fn settings(&self, ring: &RingSettings) -> ModbusSettings;
+    /// Checks the transport's own keys.
+    fn check(&self) -> Result<(), String>;
+    /// Warns at start-up of what is missing (a serial port).
+    fn warn_missing(&self, _machine: &str) {}
+}
 
-impl MachineKind for ModbusTcpKind {
-    type Settings = Joined<TcpAddress, RingSettings>;
+impl RingTransport for TcpAddress {
+    const LINK: &'static str = "modbus-tcp";
+    const ABOUT: &'static str =
+        "a PLC or drive taking motion blocks into a ring buffer over Modbus TCP";
+    fn settings(&self, ring: &RingSettings) -> ModbusSettings {
+        ring.settings(Transport::Tcp {
+            host: self.host.clone(),
+            port: self.port,
+        })
+    }
+    fn check(&self) -> Result<(), String> {
+        if self.host.trim().is_empty() {
+            return Err("host must not be empty".into());
+        }
+        Ok(())
+    }
+}
+
+impl RingTransport for RtuLine {
+    const LINK: &'static str = "modbus-rtu";
+    const ABOUT: &'static str =
+        "a PLC or drive taking motion blocks into a ring buffer over Modbus RTU on a serial line";
+    fn settings(&self, ring: &RingSettings) -> ModbusSettings {
+        let mut m = ring.settings(Transport::Rtu {
+            path: self.port.clone(),
+            baud: self.baud,
+            parity: self.parity,
+        });
+        m.rtu_quiet = Duration::from_millis(self.quiet_ms);
+        m
+    }
+    fn check(&self) -> Result<(), String> {
+        check_port(&self.port, self.baud)
+    }
+    fn warn_missing(&self, machine: &str) {
+        warn_missing_port(machine, &self.port);
+    }
+}
+
+/// A Modbus machine kind on transport `T`.
+pub struct ModbusKind<T>(std::marker::PhantomData<T>);
+
+impl<T> Default for ModbusKind<T> {
+    fn default() -> Self {
+        ModbusKind(std::marker::PhantomData)
+    }
+}
+
+/// `link = "modbus-tcp"`.
+pub type ModbusTcpKind = ModbusKind<TcpAddress>;
+/// `link = "modbus-rtu"`.
+pub type ModbusRtuKind = ModbusKind<RtuLine>;
+
+impl<T: RingTransport> MachineKind for ModbusKind<T> {
+    type Settings = Joined<T, RingSettings>;
     type Unit = MotionBlock;
     type Device = ();
 
     fn link(&self) -> &'static str {
-        "modbus-tcp"
+        T::LINK
     }
     fn about(&self) -> &'static str {
-        "a PLC or drive taking motion blocks into a ring buffer over Modbus TCP"
+        T::ABOUT
     }
     fn keys(&self) -> Vec<&'static str> {
-        Joined::<TcpAddress, RingSettings>::keys()
+        Joined::<T, RingSettings>::keys()
     }
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
     }
     fn check(&self, s: &Self::Settings) -> Result<(), String> {
-        if s.own.host.trim().is_empty() {
-            return Err("host must not be empty".into());
-        }
-        s.common
-            .settings(tcp(&s.own))
+        s.own.check()?;
+        s.own
+            .settings(&s.common)
             .validate()
             .map_err(|e| e.to_string())
     }
@@ -175,81 +236,11 @@ impl MachineKind for ModbusTcpKind {
     ) -> Option<Result<Vec<MotionBlock>, PostError>> {
         gcode_file_blocks(moves)
     }
-    fn start(
-        &self,
-        _machine: &str,
-        _s: &Self::Settings,
-    ) -> BoxFuture<'static, std::io::Result<()>> {
-        started(())
-    }
-    fn open(
-        &self,
-        _machine: &str,
-        s: &Self::Settings,
-        _device: &(),
-    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
-        open_ring(s.common.settings(tcp(&s.own)))
-    }
-}
-
-fn tcp(a: &TcpAddress) -> Transport {
-    Transport::Tcp {
-        host: a.host.clone(),
-        port: a.port,
-    }
-}
-
-/// `link = "modbus-rtu"`.
-pub struct ModbusRtuKind;
-
-impl MachineKind for ModbusRtuKind {
-    type Settings = Joined<RtuLine, RingSettings>;
-    type Unit = MotionBlock;
-    type Device = ();
-
-    fn link(&self) -> &'static str {
-        "modbus-rtu"
-    }
-    fn about(&self) -> &'static str {
-        "a PLC or drive taking motion blocks into a ring buffer over Modbus RTU on a serial line"
-    }
-    fn keys(&self) -> Vec<&'static str> {
-        Joined::<RtuLine, RingSettings>::keys()
-    }
-    fn posts(&self) -> Vec<PostFor<MotionBlock>> {
-        modbus_posts()
-    }
-    fn check(&self, s: &Self::Settings) -> Result<(), String> {
-        check_port(&s.own.port, s.own.baud)?;
-        rtu_settings(s).validate().map_err(|e| e.to_string())
-    }
-    fn gcode_units(
-        &self,
-        _lines: &[String],
-        moves: &Toolpath,
-    ) -> Option<Result<Vec<MotionBlock>, PostError>> {
-        gcode_file_blocks(moves)
-    }
     fn start(&self, machine: &str, s: &Self::Settings) -> BoxFuture<'static, std::io::Result<()>> {
-        warn_missing_port(machine, &s.own.port);
+        s.own.warn_missing(machine);
         started(())
     }
-    fn open(
-        &self,
-        _machine: &str,
-        s: &Self::Settings,
-        _device: &(),
-    ) -> BoxFuture<'static, Result<Box<dyn Link<MotionBlock>>, LinkError>> {
-        open_ring(rtu_settings(s))
+    fn open(&self, _machine: &str, s: &Self::Settings, _device: &()) -> OpenLink<MotionBlock> {
+        open_ring(s.own.settings(&s.common))
     }
-}
-
-fn rtu_settings(s: &Joined<RtuLine, RingSettings>) -> ModbusSettings {
-    let mut m = s.common.settings(Transport::Rtu {
-        path: s.own.port.clone(),
-        baud: s.own.baud,
-        parity: s.own.parity,
-    });
-    m.rtu_quiet = Duration::from_millis(s.own.quiet_ms);
-    m
 }

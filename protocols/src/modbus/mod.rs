@@ -7,7 +7,7 @@ pub mod link;
 pub mod map;
 pub mod post;
 
-pub use kind::{ModbusRtuKind, ModbusTcpKind, RingSettings};
+pub use kind::{ModbusKind, ModbusRtuKind, ModbusTcpKind, RingSettings, RingTransport};
 pub use link::{ModbusError, ModbusLink, ModbusSettings, Parity, Transport};
 pub use map::{BlockKind, ModbusState, MotionBlock, WordOrder};
 pub use post::{post_blocks, ModbusPost, ModbusPostError};

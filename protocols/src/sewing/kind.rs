@@ -4,8 +4,8 @@
 use super::link::{SewingLink, SewingTiming};
 use super::{dst, jef, records, RecordLimits, StitchRecord};
 use crate::grbl::kind::{check_port, default_baud, warn_missing_port};
-use crate::kind::{started, MachineKind};
-use crate::link::{Link, LinkError};
+use crate::kind::{started, MachineKind, OpenLink};
+use crate::link::Link;
 use crate::post::{Post, PostError, PostFor};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -80,10 +80,7 @@ pub struct SewingSettings {
 }
 
 /// Opens a pattern sewing machine on `port` as a machine link.
-pub fn open_sewing(
-    port: String,
-    baud: u32,
-) -> BoxFuture<'static, Result<Box<dyn Link<StitchRecord>>, LinkError>> {
+pub fn open_sewing(port: String, baud: u32) -> OpenLink<StitchRecord> {
     Box::pin(async move {
         let link = SewingLink::open(&port, baud, SewingTiming::default())?;
         Ok(Box::new(link) as Box<dyn Link<StitchRecord>>)
@@ -111,12 +108,7 @@ impl MachineKind for SewingKind {
         warn_missing_port(machine, &s.port);
         started(())
     }
-    fn open(
-        &self,
-        _machine: &str,
-        s: &SewingSettings,
-        _device: &(),
-    ) -> BoxFuture<'static, Result<Box<dyn Link<StitchRecord>>, LinkError>> {
+    fn open(&self, _machine: &str, s: &SewingSettings, _device: &()) -> OpenLink<StitchRecord> {
         open_sewing(s.port.clone(), s.baud)
     }
 }

@@ -537,6 +537,12 @@ pub struct SewingSim {
     pub task: tokio::task::JoinHandle<std::io::Result<()>>,
 }
 
+impl Drop for SewingSim {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
 /// Starts a machine on a new pty inside the current tokio runtime.
 pub fn spawn_on_pty(cfg: SewingSimConfig) -> std::io::Result<SewingSim> {
     let port = pty::PtyPort::open()?;

@@ -5,6 +5,7 @@
 use machlink::client::{Client, Endpoint};
 use machlink::config::Config;
 use machlink::daemon::{Daemon, StartOptions};
+use machlink::intake::{Input, JobSpec};
 use machlink::store::{JobId, JobRecord, JobState};
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter};
 use std::path::Path;
@@ -12,13 +13,33 @@ use std::time::Duration;
 
 /// A daemon whose store and socket live in `dir`, with the machine tables `machines`.
 pub async fn start(dir: &Path, machines: &str, opts: StartOptions) -> Daemon {
-    let toml = format!(
+    let cfg = Config::parse(&cell_toml(dir, machines), &dir.join("machlink.toml")).expect("config");
+    Daemon::start(cfg, opts).await.expect("daemon starts")
+}
+
+/// Like `start`, with machine kinds of the test's own in `registry`.
+pub async fn start_with(
+    dir: &Path,
+    machines: &str,
+    registry: &machlink_protocols::Registry,
+) -> Daemon {
+    let cfg = Config::parse_with(
+        &cell_toml(dir, machines),
+        &dir.join("machlink.toml"),
+        registry,
+    )
+    .expect("config");
+    Daemon::start(cfg, StartOptions::default())
+        .await
+        .expect("daemon starts")
+}
+
+fn cell_toml(dir: &Path, machines: &str) -> String {
+    format!(
         "[daemon]\nstore = \"{}\"\nsocket = \"{}\"\n\n{machines}",
         dir.join("jobs.db").display(),
         dir.join("ml.sock").display()
-    );
-    let cfg = Config::parse(&toml, &dir.join("machlink.toml")).expect("config");
-    Daemon::start(cfg, opts).await.expect("daemon starts")
+    )
 }
 
 /// The config of one GRBL machine called `mill` on `port`.
@@ -106,17 +127,24 @@ pub fn motions_up_to(lines: &[String]) -> Vec<usize> {
         .collect()
 }
 
+/// A job of `file_name` with the text `text` on `machine`, with no operation (a G-code
+/// file) until one is set.
+pub fn job(machine: &str, file_name: &str, text: &str) -> JobSpec {
+    JobSpec {
+        machine: Some(machine.into()),
+        input: Input::from_bytes(file_name, text.as_bytes().to_vec()),
+        operation: None,
+        tolerance: machlink::intake::DEFAULT_TOLERANCE,
+        layers: Vec::new(),
+        post: None,
+    }
+}
+
 /// Submits G-code lines as a .nc file.
 pub async fn submit_gcode(c: &Client, machine: &str, name: &str, lines: &[String]) -> JobRecord {
-    c.submit(&machlink::api::SubmitRequest {
-        machine: machine.into(),
-        file_name: format!("{name}.nc"),
-        file_text: Some(lines.join("\n")),
-        file_base64: None,
-        params: None,
-    })
-    .await
-    .expect("submitted")
+    c.submit(&job(machine, &format!("{name}.nc"), &lines.join("\n")))
+        .await
+        .expect("submitted")
 }
 
 /// Follows the job's events until it ends; returns the final record.
@@ -152,4 +180,24 @@ pub async fn wait_until(c: &Client, id: JobId, f: impl Fn(&JobRecord) -> bool) -
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     panic!("job {id} never got there");
+}
+
+/// The program the store holds for a job, read back as units of type `U` (G-code lines,
+/// motion blocks, stitch records) by its machine's kind.
+pub fn stored<U: machlink_protocols::Unit>(d: &Daemon, id: JobId) -> Vec<U> {
+    let job = d.scheduler.job(id).expect("the job");
+    let kind = d
+        .scheduler
+        .machine_config(&job.machine)
+        .expect("its machine")
+        .kind
+        .clone();
+    let program = d
+        .scheduler
+        .store()
+        .program(id)
+        .expect("a stored program")
+        .decode(kind.as_ref())
+        .expect("its kind reads it");
+    program.units::<U>().expect("units of this type").to_vec()
 }
