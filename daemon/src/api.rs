@@ -63,8 +63,16 @@ struct AppState {
 /// The API's routes over `sched`; with `token`, every request must carry
 /// `Authorization: Bearer TOKEN`.
 pub fn router(sched: Scheduler, token: Option<String>) -> Router {
+    router_with(sched, token, Router::new())
+}
+
+/// The API's routes, and the service routes `GET /metrics` and `GET /events` of `service`
+/// (`events::router`) behind the same token.
+pub fn router_with(sched: Scheduler, token: Option<String>, service: Router) -> Router {
     let state = AppState { sched, token };
     Router::new()
+        .route_service("/metrics", service.clone())
+        .route_service("/events", service)
         .route("/machines", get(machines))
         .route("/jobs", get(jobs).post(submit))
         .route("/jobs/{id}", get(job))

@@ -1,6 +1,9 @@
 //! The daemon put together: store, the machines' kinds started, scheduler and API listeners.
 
 use crate::api;
+use crate::events;
+use crate::metrics::Metrics;
+use std::sync::Arc;
 use crate::config::Config;
 use crate::scheduler::{JournalPolicy, MachineSetup, Scheduler};
 use crate::store::{Store, StoreError};
@@ -37,6 +40,8 @@ pub struct StartOptions {
     pub socket: Option<PathBuf>,
     /// Also listen on TCP at this address, requiring this bearer token.
     pub tcp: Option<(String, String)>,
+    /// Also serve `GET /metrics` alone (read-only, no token) on this TCP address.
+    pub metrics_listen: Option<String>,
 }
 
 /// A running daemon. Dropping it stops it the way a crash would.
@@ -45,6 +50,10 @@ pub struct Daemon {
     pub socket: PathBuf,
     /// The TCP address actually bound, when asked to listen on TCP.
     pub tcp: Option<SocketAddr>,
+    /// The address `GET /metrics` is served on alone, when asked (`metrics_listen`).
+    pub metrics_addr: Option<SocketAddr>,
+    /// The daemon's metrics and events (`GET /metrics`, `GET /events`).
+    pub service: events::Service,
     servers: Vec<JoinHandle<()>>,
 }
 
@@ -77,10 +86,18 @@ impl Daemon {
                 max_lag: config.daemon.journal_max_lag,
             },
         )?;
+        let mut servers = Vec::new();
+        let metrics = Arc::new(Metrics::new());
+        scheduler.attach_metrics(metrics.clone());
+        servers.push(tokio::spawn(metrics.clone().follow(scheduler.subscribe())));
+        servers.push(tokio::spawn(events::log_jobs(scheduler.subscribe())));
+        let service = events::Service {
+            sched: scheduler.clone(),
+            metrics,
+        };
         let socket = opts.socket.unwrap_or(config.daemon.socket.clone());
         let listener = bind_unix(&socket).await?;
-        let mut servers = Vec::new();
-        let app = api::router(scheduler.clone(), None);
+        let app = api::router_with(scheduler.clone(), None, events::router(service.clone()));
         servers.push(tokio::spawn(async move {
             if let Err(e) = axum::serve(listener, app).await {
                 tracing::error!("the API on the Unix socket stopped: {e}");
@@ -95,10 +112,30 @@ impl Daemon {
                     source,
                 })?;
             tcp = l.local_addr().ok();
-            let app = api::router(scheduler.clone(), Some(token));
+            let app = api::router_with(
+                scheduler.clone(),
+                Some(token),
+                events::router(service.clone()),
+            );
             servers.push(tokio::spawn(async move {
                 if let Err(e) = axum::serve(l, app).await {
                     tracing::error!("the API on TCP stopped: {e}");
+                }
+            }));
+        }
+        let mut metrics_addr = None;
+        if let Some(addr) = opts.metrics_listen {
+            let l = tokio::net::TcpListener::bind(&addr)
+                .await
+                .map_err(|source| DaemonError::Listen {
+                    what: addr.clone(),
+                    source,
+                })?;
+            metrics_addr = l.local_addr().ok();
+            let app = events::metrics_router(service.clone());
+            servers.push(tokio::spawn(async move {
+                if let Err(e) = axum::serve(l, app).await {
+                    tracing::error!("the metrics listener stopped: {e}");
                 }
             }));
         }
@@ -106,6 +143,8 @@ impl Daemon {
             scheduler,
             socket,
             tcp,
+            metrics_addr,
+            service,
             servers,
         })
     }

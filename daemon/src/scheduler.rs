@@ -128,6 +128,8 @@ struct Inner {
     machines: BTreeMap<String, Machine>,
     journal: JournalPolicy,
     workers: Mutex<Vec<JoinHandle<()>>>,
+    /// Where link openings and failures are counted (`Scheduler::attach_metrics`).
+    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
 }
 
 struct Machine {
@@ -137,6 +139,8 @@ struct Machine {
     /// The job being streamed; taken under this lock together with the store's claim.
     active: Mutex<Option<Active>>,
     status: Mutex<MachineStatus>,
+    /// A link to the machine has been opened before (a later opening is a reconnect).
+    opened: std::sync::atomic::AtomicBool,
 }
 
 struct Active {
@@ -190,6 +194,7 @@ impl Scheduler {
                     queue: tx,
                     active: Mutex::new(None),
                     status: Mutex::new(MachineStatus::default()),
+                    opened: Default::default(),
                 },
             );
         }
@@ -199,6 +204,7 @@ impl Scheduler {
             machines: map,
             journal,
             workers: Mutex::new(Vec::new()),
+            metrics: std::sync::OnceLock::new(),
         });
         for job in inner.store.jobs_in(JobState::Queued)? {
             match inner.machines.get(&job.machine) {
@@ -265,6 +271,17 @@ impl Scheduler {
     /// and the demo to read its trace), as the kind's own type.
     pub fn device<T: 'static>(&self, name: &str) -> Option<&T> {
         self.inner.machines.get(name)?.device.downcast_ref()
+    }
+
+    /// What machine `name`'s kind prepared at start-up, untyped (for the metrics to ask
+    /// the kind's own crate about it).
+    pub fn device_any(&self, name: &str) -> Option<&Device> {
+        Some(&self.inner.machines.get(name)?.device)
+    }
+
+    /// Counts link openings and failures into `metrics` from now on.
+    pub fn attach_metrics(&self, metrics: Arc<crate::metrics::Metrics>) {
+        let _ = self.inner.metrics.set(metrics);
     }
 
     /// Stores the job with its program and queues it on its machine.
@@ -537,7 +554,14 @@ async fn stream_job(
     };
     inner.set_state(id, JobState::Running, None);
     if link.is_none() {
-        match open_link(m).await {
+        let opened = open_link(m).await;
+        if let Some(metrics) = inner.metrics.get() {
+            match &opened {
+                Ok(_) => metrics.link_opened(&m.config.name, m.opened.swap(true, std::sync::atomic::Ordering::Relaxed)),
+                Err(e) => metrics.link_failed(&m.config.name, e),
+            }
+        }
+        match opened {
             Ok(l) => *link = Some(l),
             Err(e) => {
                 return (
@@ -598,6 +622,9 @@ async fn stream_job(
             (JobState::Cancelled, None)
         }
         Err(e) => {
+            if let Some(metrics) = inner.metrics.get() {
+                metrics.link_failed(&m.config.name, &e);
+            }
             let msg = describe_failure(&e, &program, journal.acked());
             // a device that refused a line or raised an alarm is still talking (the link
             // resets it); a link that broke is opened afresh for the next job

@@ -241,3 +241,11 @@ impl MachineKind for SimModbusKind {
         }))
     }
 }
+
+/// The receive-buffer overflows the simulator behind a `sim-…` machine has counted, when it
+/// counts them (the GRBL simulator): for the daemon's metrics.
+pub fn rx_overflows(device: &machlink_protocols::kind::Device) -> Option<u64> {
+    device
+        .downcast_ref::<GrblSimHandle>()
+        .map(GrblSimHandle::rx_overflows)
+}
