@@ -167,6 +167,7 @@ async fn submit(State(st): State<AppState>, body: axum::body::Bytes) -> Result<R
     let machine = st.sched.machine_config(&name)?.clone();
     let file_name = spec.input.file_name.clone();
     let params = params_of(&spec);
+    let planning = std::time::Instant::now();
     // planning is CPU work: off the async threads
     let planned =
         tokio::task::spawn_blocking(move || intake::plan(&spec, Target::Machine(&machine)))
@@ -181,18 +182,22 @@ async fn submit(State(st): State<AppState>, body: axum::body::Bytes) -> Result<R
                 IntakeError::Refused(m) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
                 other => bad(other.to_string()),
             })?;
+    let planning = planning.elapsed();
     let rec = st.sched.submit(NewJob {
-        machine: name,
+        machine: name.clone(),
         op: planned.operation,
         file_name,
         params,
         program: planned.program,
     })?;
+    if let Some(m) = st.sched.metrics() {
+        m.job_submitted(&name, planning);
+    }
     Ok((StatusCode::CREATED, Json(rec)).into_response())
 }
 
 /// What the store keeps of a job's spec: everything but the file's bytes.
-fn params_of(spec: &JobSpec) -> serde_json::Value {
+pub fn params_of(spec: &JobSpec) -> serde_json::Value {
     let mut v = serde_json::to_value(spec).unwrap_or_default();
     if let Some(input) = v.get_mut("input").and_then(|i| i.as_object_mut()) {
         input.remove("file_text");

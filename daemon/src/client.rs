@@ -147,6 +147,42 @@ impl Client {
             .await
     }
 
+    /// A text resource such as `GET /metrics`.
+    pub async fn text(&self, path: &str) -> Result<String, ClientError> {
+        let (status, body) = self.send(Method::GET, path, None).await?;
+        let bytes = body
+            .collect()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))?
+            .to_bytes();
+        if !status.is_success() {
+            return Err(refusal(status, &bytes));
+        }
+        Ok(String::from_utf8_lossy(&bytes).into_owned())
+    }
+
+    /// Every job's events from now on (`GET /events`), or only `machine`'s; never ends
+    /// while the daemon runs.
+    pub async fn follow(&self, machine: Option<&str>) -> Result<EventStream, ClientError> {
+        let path = match machine {
+            Some(m) => format!("/events?machine={}", query_escape(m)),
+            None => "/events".to_string(),
+        };
+        let (status, mut body) = self.send(Method::GET, &path, None).await?;
+        if !status.is_success() {
+            let bytes = (&mut body)
+                .collect()
+                .await
+                .map_err(|e| ClientError::Protocol(e.to_string()))?
+                .to_bytes();
+            return Err(refusal(status, &bytes));
+        }
+        Ok(EventStream {
+            body,
+            buf: Vec::new(),
+        })
+    }
+
     /// The job's events, from its current state until it ends.
     pub async fn events(&self, id: JobId) -> Result<EventStream, ClientError> {
         let (status, mut body) = self
@@ -219,4 +255,16 @@ impl EventStream {
             }
         }
     }
+}
+
+/// Percent-encodes a query value.
+fn query_escape(v: &str) -> String {
+    v.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'_' | b'.' | b'~' => {
+                (b as char).to_string()
+            }
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
 }

@@ -49,6 +49,10 @@ pub enum ConfigError {
 pub struct Config {
     pub daemon: DaemonConfig,
     pub machines: Vec<MachineConfig>,
+    /// `[fleet]`: the daemon shares a queue and a view with others on NATS JetStream.
+    pub fleet: Option<crate::fleet::FleetConfig>,
+    /// `[[webhook]]`: URLs that get a POST of chosen events.
+    pub webhooks: Vec<crate::webhooks::WebhookConfig>,
 }
 
 /// The `[daemon]` table, resolved.
@@ -175,6 +179,10 @@ struct RawConfig {
     daemon: RawDaemon,
     #[serde(default)]
     machine: Vec<toml::Spanned<RawMachine>>,
+    #[serde(default)]
+    fleet: Option<toml::Spanned<crate::fleet::FleetConfig>>,
+    #[serde(default)]
+    webhook: Vec<toml::Spanned<crate::webhooks::WebhookConfig>>,
 }
 
 #[derive(Default, Deserialize)]
@@ -209,6 +217,8 @@ impl Config {
                 journal_max_lag: Duration::from_secs(1),
             },
             machines: Vec::new(),
+            fleet: None,
+            webhooks: Vec::new(),
         }
     }
 
@@ -294,6 +304,26 @@ impl Config {
             }
             cfg.machines.push(m);
         }
+        for (i, w) in raw.webhook.into_iter().enumerate() {
+            let span = w.span();
+            let w = w.into_inner();
+            w.check().map_err(|m| {
+                at(
+                    Some(key_span(text, span, &m)),
+                    format!("[[webhook]] {}: {m}", i + 1),
+                )
+            })?;
+            cfg.webhooks.push(w);
+        }
+        if let Some(f) = raw.fleet {
+            let span = f.span();
+            let mut f = f.into_inner();
+            let names: Vec<String> = cfg.machines.iter().map(|m| m.name.clone()).collect();
+            f.check(&names)
+                .map_err(|m| at(Some(key_span(text, span, &m)), format!("[fleet]: {m}")))?;
+            f.credentials = f.credentials.map(resolve);
+            cfg.fleet = Some(f);
+        }
         Ok(cfg)
     }
 
@@ -352,6 +382,30 @@ fn machine_at(text: &str, offset: usize) -> Option<String> {
         .iter()
         .rfind(|m| m.span().start <= offset)
         .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
+}
+
+/// Within a table's `span`, the line of the key a message names ("key `url`: …"), so the
+/// error points at it; else the table.
+fn key_span(text: &str, span: std::ops::Range<usize>, message: &str) -> std::ops::Range<usize> {
+    let Some(key) = message
+        .split("key `")
+        .nth(1)
+        .and_then(|r| r.split('`').next())
+    else {
+        return span;
+    };
+    let mut at = span.start;
+    for line in text[span.clone()].split_inclusive('\n') {
+        let t = line.trim_start();
+        if t.strip_prefix(key)
+            .is_some_and(|r| r.trim_start().starts_with('='))
+        {
+            let start = at + (line.len() - t.len());
+            return start..start + key.len();
+        }
+        at += line.len();
+    }
+    span
 }
 
 /// 1-based line and column of byte `offset` in `text`.

@@ -1,14 +1,14 @@
 //! The daemon put together: store, the machines' kinds started, scheduler and API listeners.
 
 use crate::api;
+use crate::config::Config;
 use crate::events;
 use crate::metrics::Metrics;
-use std::sync::Arc;
-use crate::config::Config;
 use crate::scheduler::{JournalPolicy, MachineSetup, Scheduler};
 use crate::store::{Store, StoreError};
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
 use tokio::task::JoinHandle;
 
 /// Why the daemon could not start.
@@ -95,6 +95,18 @@ impl Daemon {
             sched: scheduler.clone(),
             metrics,
         };
+        servers.extend(crate::webhooks::start(
+            &config.webhooks,
+            scheduler.subscribe(),
+            service.metrics.clone(),
+        ));
+        if let Some(fleet) = config.fleet.clone() {
+            servers.push(tokio::spawn(crate::fleet::node::run(
+                fleet,
+                scheduler.clone(),
+                service.metrics.clone(),
+            )));
+        }
         let socket = opts.socket.unwrap_or(config.daemon.socket.clone());
         let listener = bind_unix(&socket).await?;
         let app = api::router_with(scheduler.clone(), None, events::router(service.clone()));

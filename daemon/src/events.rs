@@ -47,7 +47,10 @@ pub fn metrics_router(service: Service) -> Router {
 async fn metrics(State(s): State<Service>) -> Response {
     let text = s.metrics.render(&s.sched);
     (
-        [(header::CONTENT_TYPE, "text/plain; version=0.0.4; charset=utf-8")],
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
         text,
     )
         .into_response()
@@ -75,9 +78,7 @@ impl MachineOf {
                 self.jobs.insert(*job, machine.clone());
                 Some(machine.clone())
             }
-            Event::Status { machine, .. } | Event::Message { machine, .. } => {
-                Some(machine.clone())
-            }
+            Event::Status { machine, .. } | Event::Message { machine, .. } => Some(machine.clone()),
             Event::Progress { job, .. } => {
                 if let Some(m) = self.jobs.get(job) {
                     return Some(m.clone());

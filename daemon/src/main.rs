@@ -4,7 +4,7 @@
 
 mod cmd;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(
@@ -44,6 +44,14 @@ enum Command {
     Plan(cmd::plan::PlanCmdArgs),
     /// Draw a shape, a plan or a program as SVG or PNG.
     Preview(cmd::preview::PreviewArgs),
+    /// Follow every job's state changes (for scripts and dashboards).
+    Events(cmd::events::EventsArgs),
+    /// Check a configuration file offline: every mistake with its line and key.
+    CheckConfig(cmd::check_config::CheckConfigArgs),
+    /// Print the shell completion script (bash, zsh, fish, …).
+    Completions(cmd::completions::CompletionsArgs),
+    /// Print or write the man pages.
+    Man(cmd::completions::ManArgs),
 }
 
 fn main() {
@@ -61,6 +69,10 @@ fn main() {
         Command::Offset(a) => cmd::offset::run(a),
         Command::Plan(a) => cmd::plan::run(a),
         Command::Preview(a) => cmd::preview::run(a),
+        Command::Events(a) => cmd::events::run(a),
+        Command::CheckConfig(a) => cmd::check_config::run(a),
+        Command::Completions(a) => cmd::completions::completions(a, Cli::command()),
+        Command::Man(a) => cmd::completions::man(a, Cli::command()),
     };
     if let Err(e) = result {
         // one sentence: the chain of causes joined, no backtrace

@@ -126,9 +126,7 @@ impl Metrics {
             LinkError::Protocol(_) => "protocol",
         };
         let m = machine.to_string();
-        self.record(|| {
-            counter!(name::LINK_ERRORS, "machine" => m, "error" => kind).increment(1)
-        });
+        self.record(|| counter!(name::LINK_ERRORS, "machine" => m, "error" => kind).increment(1));
     }
 
     /// A webhook delivery ended (`ok`, `failed` after its retries, or `dropped` when its
@@ -299,9 +297,7 @@ mod tests {
             "{text}"
         );
         assert!(
-            text.contains(
-                "machlink_jobs_finished_total{machine=\"mill\",state=\"completed\"} 1"
-            ),
+            text.contains("machlink_jobs_finished_total{machine=\"mill\",state=\"completed\"} 1"),
             "{text}"
         );
     }

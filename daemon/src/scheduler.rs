@@ -279,6 +279,11 @@ impl Scheduler {
         Some(&self.inner.machines.get(name)?.device)
     }
 
+    /// The metrics attached with `attach_metrics`, for the intake to count into.
+    pub fn metrics(&self) -> Option<&Arc<crate::metrics::Metrics>> {
+        self.inner.metrics.get()
+    }
+
     /// Counts link openings and failures into `metrics` from now on.
     pub fn attach_metrics(&self, metrics: Arc<crate::metrics::Metrics>) {
         let _ = self.inner.metrics.set(metrics);
@@ -557,7 +562,10 @@ async fn stream_job(
         let opened = open_link(m).await;
         if let Some(metrics) = inner.metrics.get() {
             match &opened {
-                Ok(_) => metrics.link_opened(&m.config.name, m.opened.swap(true, std::sync::atomic::Ordering::Relaxed)),
+                Ok(_) => metrics.link_opened(
+                    &m.config.name,
+                    m.opened.swap(true, std::sync::atomic::Ordering::Relaxed),
+                ),
                 Err(e) => metrics.link_failed(&m.config.name, e),
             }
         }

@@ -616,7 +616,8 @@ impl Store {
         &self,
     ) -> Result<std::collections::HashMap<(String, &'static str), usize>, StoreError> {
         let conn = self.conn();
-        let mut st = conn.prepare("SELECT machine, state, COUNT(*) FROM jobs GROUP BY machine, state")?;
+        let mut st =
+            conn.prepare("SELECT machine, state, COUNT(*) FROM jobs GROUP BY machine, state")?;
         let rows = st.query_map([], |r| {
             Ok((
                 r.get::<_, String>(0)?,

@@ -11,10 +11,15 @@ use std::time::Duration;
 /// How to reach the daemon (every client command takes these).
 #[derive(clap::Args, Clone, Debug)]
 pub struct ClientArgs {
-    /// The daemon's Unix socket. Default: $XDG_RUNTIME_DIR/machlink.sock, else
+    /// The daemon's Unix socket. Default: $MACHLINK_SOCKET, else the `socket` of the
+    /// daemon's config (--config), else $XDG_RUNTIME_DIR/machlink.sock, else
     /// /tmp/machlink-$USER.sock.
     #[arg(long, value_name = "PATH")]
     pub socket: Option<PathBuf>,
+    /// The daemon's config, to find its socket. Default: $MACHLINK_CONFIG, else
+    /// ./machlink.toml, else /etc/machlink/machlink.toml, whichever exists.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     /// Reach the daemon on TCP at ADDR instead (it must run with --listen and --token).
     #[arg(long, value_name = "ADDR", requires = "token")]
     pub connect: Option<String>,
@@ -31,9 +36,14 @@ impl ClientArgs {
                 token: self.token.clone(),
             }),
             None => Client::new(Endpoint::Unix(
-                self.socket
-                    .clone()
-                    .unwrap_or_else(machlink::config::default_socket),
+                // an unreadable config is named when the connection fails
+                machlink::locate::socket(self.socket.as_deref(), self.config.as_deref(), |k| {
+                    std::env::var(k).ok()
+                })
+                .unwrap_or_else(|e| {
+                    eprintln!("machlink: warning: {e}");
+                    machlink::config::default_socket()
+                }),
             )),
         }
     }
@@ -46,6 +56,8 @@ pub struct JobsArgs {
     pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
+    #[command(flatten)]
+    pub fleet: super::fleet::FleetArgs,
 }
 
 #[derive(clap::Args)]
@@ -95,6 +107,9 @@ fn progress(j: &JobRecord) -> String {
 }
 
 pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
+    if let Some(url) = &a.fleet.fleet {
+        return super::fleet::jobs(&a.fleet, url, a.json);
+    }
     let jobs = runtime()?.block_on(a.client.client().jobs())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&jobs)?);

@@ -24,10 +24,18 @@ pub struct SubmitArgs {
     pub watch: bool,
     #[command(flatten)]
     pub client: ClientArgs,
+    #[command(flatten)]
+    pub fleet: super::fleet::FleetArgs,
 }
 
 pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
     let spec = a.job.spec(&a.file, Some(a.machine), a.post)?;
+    if let Some(url) = &a.fleet.fleet {
+        if a.watch {
+            anyhow::bail!("--watch follows a job of one daemon; follow a fleet job with `machlink jobs --fleet {url}`");
+        }
+        return super::fleet::submit(&a.fleet, url, &spec);
+    }
     let client = a.client.client();
     super::operate::runtime()?.block_on(async {
         let job = client.submit(&spec).await?;
