@@ -100,8 +100,20 @@ async fn metrics_counters_match_the_jobs_run() {
     let c = Client::new(Endpoint::Unix(d.socket.clone()));
 
     // job 1 runs; held, a second job queues behind it and is cancelled; then two more
-    let first = c.submit(&job("bench", &gcode(300, 3000.0))).await.unwrap();
-    wait_state(&c, first.id, |s| s == JobState::Running).await;
+    let mut all = c.follow(None).await.unwrap();
+    let first = c.submit(&job("bench", &gcode(300, 600.0))).await.unwrap();
+    // held once it streams
+    loop {
+        match all.next().await.unwrap() {
+            Some(machlink::scheduler::Event::State { job, state, .. })
+                if job == first.id && state == JobState::Running =>
+            {
+                break
+            }
+            Some(_) => {}
+            None => panic!("the event stream ended"),
+        }
+    }
     c.act(first.id, "pause").await.unwrap();
     let cancelled = c.submit(&job("bench", &gcode(10, 3000.0))).await.unwrap();
     assert_eq!(
