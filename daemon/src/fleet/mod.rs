@@ -225,28 +225,38 @@ pub async fn connect(
     })
 }
 
-/// The fleet's key-value bucket, created by whoever comes first.
+/// The fleet's key-value bucket, created by whoever comes first. The bucket's stream is
+/// made here with the key-value layout (`KV_<bucket>`, one value per key, roll-ups, direct
+/// reads) rather than by `create_key_value`, which asks the server for account details that
+/// nats-server 2.9 (Debian 12's) does not give.
 pub async fn bucket(
     js: &async_nats::jetstream::Context,
 ) -> Result<async_nats::jetstream::kv::Store, FleetError> {
+    use async_nats::jetstream::stream;
     if let Ok(kv) = js.get_key_value(BUCKET).await {
         return Ok(kv);
     }
-    match js
-        .create_key_value(async_nats::jetstream::kv::Config {
-            bucket: BUCKET.into(),
-            description: "machlink: machines and jobs of the fleet".into(),
-            history: 1,
+    let made = js
+        .get_or_create_stream(stream::Config {
+            name: format!("KV_{BUCKET}"),
+            description: Some("machlink: machines and jobs of the fleet".into()),
+            subjects: vec![format!("$KV.{BUCKET}.>")],
+            max_messages_per_subject: 1,
+            allow_rollup: true,
+            deny_delete: true,
+            allow_direct: true,
+            discard: stream::DiscardPolicy::New,
+            storage: stream::StorageType::File,
+            num_replicas: 1,
             ..Default::default()
         })
-        .await
-    {
+        .await;
+    match js.get_key_value(BUCKET).await {
         Ok(kv) => Ok(kv),
-        // another daemon made it meanwhile
-        Err(e) => js
-            .get_key_value(BUCKET)
-            .await
-            .map_err(|_| FleetError::js(format!("the bucket {BUCKET}"), e)),
+        Err(e) => Err(match made {
+            Err(m) => FleetError::js(format!("the bucket {BUCKET}"), m),
+            Ok(_) => FleetError::js(format!("the bucket {BUCKET}"), e),
+        }),
     }
 }
 
