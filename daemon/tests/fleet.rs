@@ -397,3 +397,131 @@ async fn three_daemons_run_300_jobs_exactly_once_through_a_kill() {
     drop(nodes);
     drop(nats);
 }
+
+/// The two halves of "exactly once" at the queue, made to happen on purpose: a job handed
+/// to a daemon that died before storing it is handed out again (after `ack_wait_ms`) and
+/// runs; a job a daemon stored but died before acknowledging is acknowledged when it comes
+/// again, and not stored or run a second time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_job_not_stored_comes_again_and_a_stored_one_is_not_taken_twice() {
+    use async_nats::jetstream::{self, consumer::pull};
+    use futures::StreamExt;
+    use machlink::fleet::{self, FleetMachine, Submission};
+    use machlink::store::{NewJob, Store};
+
+    let tmp = tempfile::tempdir().unwrap();
+    let nats = start_nats(tmp.path());
+    let js = jetstream::new(async_nats::connect(&nats.url).await.unwrap());
+    let kv = fleet::bucket(&js).await.unwrap();
+    let stream = fleet::job_stream(&js, fleet::DEFAULT_GROUP).await.unwrap();
+    // the machine as its daemon announces it, and its consumer as the daemon makes it
+    let announced = FleetMachine {
+        name: "m0".into(),
+        daemon: "d0".into(),
+        group: fleet::DEFAULT_GROUP.into(),
+        link: "sim-grbl".into(),
+        status: Default::default(),
+        job: None,
+        updated_ms: 0,
+    };
+    kv.put("machine.m0", serde_json::to_vec(&announced).unwrap().into())
+        .await
+        .unwrap();
+    let consumer: jetstream::consumer::Consumer<pull::Config> = stream
+        .get_or_create_consumer(
+            &fleet::consumer_name("m0"),
+            pull::Config {
+                durable_name: Some(fleet::consumer_name("m0")),
+                filter_subject: fleet::job_subject(fleet::DEFAULT_GROUP, "m0"),
+                ack_policy: jetstream::consumer::AckPolicy::Explicit,
+                ack_wait: Duration::from_millis(500),
+                ..Default::default()
+            },
+        )
+        .await
+        .unwrap();
+
+    // job A: taken by a daemon that dies before storing it (fetched, never acknowledged)
+    let client = FleetClient::connect(&nats.url, None).await.unwrap();
+    let a = client.submit(&spec("m0", 1)).await.unwrap();
+    let mut batch = consumer.fetch().max_messages(1).messages().await.unwrap();
+    let taken = batch.next().await.expect("a delivery").unwrap();
+    let first: Submission = serde_json::from_slice(&taken.payload).unwrap();
+    assert_eq!(first.id, a.id);
+    drop(batch);
+
+    // job B: stored (and run) by the daemon, which died before acknowledging it
+    let dir = tmp.path().join("d0");
+    std::fs::create_dir_all(&dir).unwrap();
+    let store = Store::open(&dir.join("jobs.db")).unwrap();
+    let b_id = fleet::new_id();
+    let lines: Vec<String> = program(2).lines().map(String::from).collect();
+    let local_b = store
+        .insert_job(&NewJob {
+            machine: "m0".into(),
+            op: "gcode".into(),
+            file_name: "job2.nc".into(),
+            params: serde_json::json!({ "fleet_id": b_id }),
+            program: machlink_protocols::Program::new("gcode-file", lines),
+        })
+        .unwrap();
+    store.set_state(local_b, JobState::Completed, None).unwrap();
+    drop(store);
+    js.send_publish(
+        fleet::job_subject(fleet::DEFAULT_GROUP, "m0"),
+        async_nats::jetstream::message::PublishMessage::build()
+            .payload(
+                serde_json::to_vec(&Submission {
+                    id: b_id.clone(),
+                    spec: spec("m0", 2),
+                    submitted_ms: 0,
+                })
+                .unwrap()
+                .into(),
+            )
+            .message_id(&b_id),
+    )
+    .await
+    .unwrap()
+    .await
+    .unwrap();
+
+    // the daemon comes back
+    let toml = format!(
+        "[daemon]\nstore = \"jobs.db\"\nsocket = \"ml.sock\"\n\n\
+         [fleet]\nurl = \"{}\"\nname = \"d0\"\nack_wait_ms = 500\n\n\
+         [[machine]]\nname = \"m0\"\nlink = \"sim-grbl\"\ntime_scale = 20.0\n",
+        nats.url
+    );
+    let cfg = machlink::config::Config::parse(&toml, &dir.join("machlink.toml")).unwrap();
+    let d = machlink::daemon::Daemon::start(cfg, Default::default())
+        .await
+        .unwrap();
+    wait_fleet(&client, "job A completed", |j| {
+        j.iter().any(|j| j.id == a.id && j.state == "completed")
+    })
+    .await;
+    // B is acknowledged once seen stored: the queue empties
+    let mut stream = stream;
+    for _ in 0..300 {
+        if stream.info().await.unwrap().state.messages == 0 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(stream.info().await.unwrap().state.messages, 0, "every job acknowledged");
+    let jobs = d.scheduler.jobs().unwrap();
+    let ids: Vec<&str> = jobs
+        .iter()
+        .filter_map(machlink::fleet::node::fleet_id)
+        .collect();
+    assert_eq!(ids, [b_id.as_str(), a.id.as_str()], "B stored once, A stored once");
+    assert_eq!(jobs[0].state, JobState::Completed);
+    let sim = d.device::<GrblSimHandle>("m0").unwrap();
+    let ran: Vec<usize> = sim
+        .trace()
+        .iter()
+        .filter_map(|e| job_and_move(&e.line).map(|(k, _)| k))
+        .collect();
+    assert_eq!(ran, vec![1; MOVES], "only A ran, once");
+}
