@@ -190,8 +190,8 @@ struct RawConfig {
 struct RawDaemon {
     store: Option<PathBuf>,
     socket: Option<PathBuf>,
-    journal_every: Option<usize>,
-    journal_max_lag_ms: Option<u64>,
+    journal_every: Option<toml::Spanned<usize>>,
+    journal_max_lag_ms: Option<toml::Spanned<u64>>,
 }
 
 /// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`,
@@ -276,16 +276,21 @@ impl Config {
             cfg.daemon.socket = resolve(s);
         }
         if let Some(n) = raw.daemon.journal_every {
+            let (span, n) = (n.span(), n.into_inner());
             if n == 0 {
-                return Err(at(None, "[daemon] journal_every must be 1 or more".into()));
+                return Err(at(
+                    Some(span),
+                    "[daemon] key `journal_every`: must be 1 or more".into(),
+                ));
             }
             cfg.daemon.journal_every = n;
         }
         if let Some(ms) = raw.daemon.journal_max_lag_ms {
+            let (span, ms) = (ms.span(), ms.into_inner());
             if ms == 0 || ms > 1000 {
                 return Err(at(
-                    None,
-                    format!("[daemon] journal_max_lag_ms must be 1 to 1000, got {ms}"),
+                    Some(span),
+                    format!("[daemon] key `journal_max_lag_ms`: must be 1 to 1000, got {ms}"),
                 ));
             }
             cfg.daemon.journal_max_lag = Duration::from_millis(ms);
@@ -295,7 +300,7 @@ impl Config {
             let m = m
                 .into_inner()
                 .resolve(registry, span.clone())
-                .map_err(|(span, message)| at(Some(span), message))?;
+                .map_err(|(span, message)| at(Some(key_span(text, span, &message)), message))?;
             if cfg.machines.iter().any(|o| o.name == m.name) {
                 return Err(at(
                     Some(span),
@@ -340,14 +345,16 @@ impl MachineConfig {
         }
         if let Some(f) = self.max_feed {
             if !(f.is_finite() && f > 0.0) {
-                return Err(format!("max_feed must be a positive number, got {f}"));
+                return Err(format!(
+                    "key `max_feed`: must be a positive number, got {f}"
+                ));
             }
         }
         if let Some(w) = &self.work_area {
             for (i, axis) in ["X", "Y", "Z"].iter().enumerate() {
                 if !(w.min[i].is_finite() && w.max[i].is_finite() && w.min[i] < w.max[i]) {
                     return Err(format!(
-                        "work_area: min {axis} {} must be below max {axis} {}",
+                        "key `work_area`: min {axis} {} must be below max {axis} {}",
                         w.min[i], w.max[i]
                     ));
                 }
@@ -356,7 +363,7 @@ impl MachineConfig {
         for t in &self.tools {
             if !(t.diameter.is_finite() && t.diameter > 0.0) {
                 return Err(format!(
-                    "tool {}: the diameter must be a positive number, got {}",
+                    "key `tools`: tool {}: the diameter must be a positive number, got {}",
                     t.number, t.diameter
                 ));
             }
@@ -394,9 +401,13 @@ fn key_span(text: &str, span: std::ops::Range<usize>, message: &str) -> std::ops
     else {
         return span;
     };
+    // the table runs from its header to the next header
     let mut at = span.start;
-    for line in text[span.clone()].split_inclusive('\n') {
+    for (n, line) in text[span.start..].split_inclusive('\n').enumerate() {
         let t = line.trim_start();
+        if n > 0 && t.starts_with('[') {
+            break;
+        }
         if t.strip_prefix(key)
             .is_some_and(|r| r.trim_start().starts_with('='))
         {
@@ -733,7 +744,7 @@ time_scale = 20
             "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = -3\n",
         )
         .unwrap_err();
-        assert!(e.contains("max_feed must be a positive number"), "{e}");
+        assert!(e.contains("key `max_feed`: must be a positive number"), "{e}");
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbll\"\n").unwrap_err();
         assert!(e.contains("machine `mill`") && e.contains("grbll"), "{e}");
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbl\"\n").unwrap_err();

@@ -90,16 +90,25 @@ pub fn errors(text: &str, path: &Path) -> Vec<String> {
         return vec![first.to_string()];
     }
     let secs = sections(text);
-    let line_of = |i: usize| secs.iter().position(|s| s.lines.contains(&i));
+    let section_of = |i: usize| secs.iter().position(|s| s.lines.contains(&i));
     let mut found: Vec<(usize, String)> = Vec::new();
-    let mut groups: Vec<Option<usize>> = vec![None];
-    groups.extend(secs.iter().filter_map(|s| s.machine).map(Some));
-    groups.dedup();
-    for g in groups {
-        let part = only(text, |i| line_of(i).is_some_and(|s| secs[s].machine == g));
+    // each machine table alone
+    let mut machines: Vec<usize> = secs.iter().filter_map(|s| s.machine).collect();
+    machines.dedup();
+    let mut broken = Vec::new();
+    for m in machines {
+        let part = only(text, |i| section_of(i).is_some_and(|s| secs[s].machine == Some(m)));
         if let Err(e) = Config::parse(&part, path) {
             found.push((line(&e), e.to_string()));
+            broken.push(m);
         }
+    }
+    // the other tables, with the machines that read (a fleet names them)
+    let part = only(text, |i| {
+        section_of(i).is_none_or(|s| secs[s].machine.is_none_or(|m| !broken.contains(&m)))
+    });
+    if let Err(e) = Config::parse(&part, path) {
+        found.push((line(&e), e.to_string()));
     }
     if !found.iter().any(|(_, m)| *m == first.to_string()) {
         found.push((line(&first), first.to_string()));
