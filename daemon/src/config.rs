@@ -540,7 +540,10 @@ impl RawMachine {
         let Some(kind) = registry.kind(&link) else {
             return Err((
                 link_span,
-                format!("machine `{name}`: {}", unknown_link(registry, &link)),
+                format!(
+                    "machine `{name}`: key `link`: {}",
+                    unknown_link(registry, &link)
+                ),
             ));
         };
         let own: BTreeSet<&str> = kind.keys().into_iter().collect();
