@@ -468,3 +468,25 @@ fn machlink_metrics(socket: &Path) -> String {
     s.read_to_string(&mut out).unwrap();
     out
 }
+
+#[test]
+fn config_md_documents_every_kind_and_its_keys() {
+    let doc = std::fs::read_to_string(repo().join("docs/config.md")).unwrap();
+    let registry = machlink::registry::standard();
+    for kind in registry.kinds() {
+        let link = kind.link();
+        assert!(
+            doc.contains(&format!("`link = \"{link}\"`")),
+            "docs/config.md has no section for link = \"{link}\""
+        );
+        for key in kind.keys() {
+            assert!(
+                doc.contains(&format!("| `{key}` |")),
+                "docs/config.md does not document `{key}` of link = \"{link}\""
+            );
+        }
+    }
+    for key in ["url", "name", "machines", "group", "credentials", "ack_wait_ms", "events", "timeout_ms", "retries"] {
+        assert!(doc.contains(&format!("| `{key}` |")), "[fleet]/[[webhook]] key `{key}`");
+    }
+}
