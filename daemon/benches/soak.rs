@@ -85,7 +85,12 @@ fn usage(pid: u32) -> (f64, u64) {
         .rsplit_once(')')
         .map(|(_, r)| r.split_whitespace().collect())
         .unwrap_or_default();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
     // utime and stime are fields 14 and 15 of stat, 12 and 13 after the name
     let hz = 100.0;
     let cpu = (ticks(11) + ticks(12)) / hz;
@@ -114,7 +119,10 @@ async fn run_all(c: &Client, machines: &[String], text: &str) -> Vec<(String, us
     let start = Instant::now();
     let mut ids = Vec::new();
     for m in machines {
-        ids.push((m.clone(), c.submit(&job(m, text)).await.expect("submitted").id));
+        ids.push((
+            m.clone(),
+            c.submit(&job(m, text)).await.expect("submitted").id,
+        ));
     }
     let mut out = Vec::new();
     for (m, id) in ids {

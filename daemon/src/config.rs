@@ -747,7 +747,10 @@ time_scale = 20
             "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = -3\n",
         )
         .unwrap_err();
-        assert!(e.contains("key `max_feed`: must be a positive number"), "{e}");
+        assert!(
+            e.contains("key `max_feed`: must be a positive number"),
+            "{e}"
+        );
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbll\"\n").unwrap_err();
         assert!(e.contains("machine `mill`") && e.contains("grbll"), "{e}");
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbl\"\n").unwrap_err();

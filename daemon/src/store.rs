@@ -510,6 +510,50 @@ impl Journal {
     }
 }
 
+/// Queries for the service side: metrics and the fleet.
+impl Store {
+    /// How many jobs each machine has in each state (for the `machlink_jobs` gauge).
+    pub fn count_by_machine_state(
+        &self,
+    ) -> Result<std::collections::HashMap<(String, &'static str), usize>, StoreError> {
+        let conn = self.conn();
+        let mut st =
+            conn.prepare("SELECT machine, state, COUNT(*) FROM jobs GROUP BY machine, state")?;
+        let rows = st.query_map([], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, i64>(2)?,
+            ))
+        })?;
+        let mut out = std::collections::HashMap::new();
+        for r in rows {
+            let (machine, state, n) = r?;
+            let state = JobState::parse(&state)
+                .ok_or_else(|| StoreError::Corrupt(format!("an unknown job state `{state}`")))?;
+            out.insert((machine, state.as_str()), n as usize);
+        }
+        Ok(out)
+    }
+
+    /// The job whose parameters carry `"fleet_id": id` (a job taken from the fleet's queue).
+    pub fn job_by_fleet_id(&self, fleet_id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let conn = self.conn();
+        conn.execute_batch(
+            "CREATE INDEX IF NOT EXISTS jobs_fleet_id ON jobs(json_extract(params, '$.fleet_id'))",
+        )?;
+        conn.query_row(
+            &format!(
+                "SELECT {JOB_COLUMNS} FROM jobs WHERE json_extract(params, '$.fleet_id') = ?1"
+            ),
+            [fleet_id],
+            row_to_job,
+        )
+        .optional()?
+        .transpose()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -606,49 +650,5 @@ mod tests {
         }
         // 200 acks over 14 s: about one flush a second
         assert!((13..=15).contains(&flushes), "{flushes}");
-    }
-}
-
-/// Queries for the service side: metrics and the fleet.
-impl Store {
-    /// How many jobs each machine has in each state (for the `machlink_jobs` gauge).
-    pub fn count_by_machine_state(
-        &self,
-    ) -> Result<std::collections::HashMap<(String, &'static str), usize>, StoreError> {
-        let conn = self.conn();
-        let mut st =
-            conn.prepare("SELECT machine, state, COUNT(*) FROM jobs GROUP BY machine, state")?;
-        let rows = st.query_map([], |r| {
-            Ok((
-                r.get::<_, String>(0)?,
-                r.get::<_, String>(1)?,
-                r.get::<_, i64>(2)?,
-            ))
-        })?;
-        let mut out = std::collections::HashMap::new();
-        for r in rows {
-            let (machine, state, n) = r?;
-            let state = JobState::parse(&state)
-                .ok_or_else(|| StoreError::Corrupt(format!("an unknown job state `{state}`")))?;
-            out.insert((machine, state.as_str()), n as usize);
-        }
-        Ok(out)
-    }
-
-    /// The job whose parameters carry `"fleet_id": id` (a job taken from the fleet's queue).
-    pub fn job_by_fleet_id(&self, fleet_id: &str) -> Result<Option<JobRecord>, StoreError> {
-        let conn = self.conn();
-        conn.execute_batch(
-            "CREATE INDEX IF NOT EXISTS jobs_fleet_id ON jobs(json_extract(params, '$.fleet_id'))",
-        )?;
-        conn.query_row(
-            &format!(
-                "SELECT {JOB_COLUMNS} FROM jobs WHERE json_extract(params, '$.fleet_id') = ?1"
-            ),
-            [fleet_id],
-            row_to_job,
-        )
-        .optional()?
-        .transpose()
     }
 }

@@ -297,8 +297,8 @@ async fn three_daemons_run_300_jobs_exactly_once_through_a_kill() {
     }
     let interrupted: Vec<JobRecord> = stored0
         .iter()
-        .cloned()
         .filter(|j| j.state == JobState::Interrupted)
+        .cloned()
         .collect();
     assert!(
         interrupted.len() <= 2,
@@ -509,13 +509,21 @@ async fn a_job_not_stored_comes_again_and_a_stored_one_is_not_taken_twice() {
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    assert_eq!(stream.info().await.unwrap().state.messages, 0, "every job acknowledged");
+    assert_eq!(
+        stream.info().await.unwrap().state.messages,
+        0,
+        "every job acknowledged"
+    );
     let jobs = d.scheduler.jobs().unwrap();
     let ids: Vec<&str> = jobs
         .iter()
         .filter_map(machlink::fleet::node::fleet_id)
         .collect();
-    assert_eq!(ids, [b_id.as_str(), a.id.as_str()], "B stored once, A stored once");
+    assert_eq!(
+        ids,
+        [b_id.as_str(), a.id.as_str()],
+        "B stored once, A stored once"
+    );
     assert_eq!(jobs[0].state, JobState::Completed);
     let sim = d.device::<GrblSimHandle>("m0").unwrap();
     let ran: Vec<usize> = sim

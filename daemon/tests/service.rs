@@ -52,10 +52,14 @@ fn check_config_passes_every_shipped_config() {
         assert!(o.status.success(), "{}: {}", f.display(), text(&o.stderr));
         assert!(text(&o.stdout).contains(": ok ("), "{}", text(&o.stdout));
         // the example's /dev/ttyUSB0 is only a warning where no such port exists
-        if !Path::new("/dev/ttyUSB0").exists() && text(&std::fs::read(&f).unwrap()).contains("\nport = \"/dev/ttyUSB0\"") {
+        if !Path::new("/dev/ttyUSB0").exists()
+            && text(&std::fs::read(&f).unwrap()).contains("\nport = \"/dev/ttyUSB0\"")
+        {
             let e = text(&o.stderr);
             assert!(
-                e.contains("warning") && e.contains("key `port`") && e.contains("/dev/ttyUSB0 does not exist"),
+                e.contains("warning")
+                    && e.contains("key `port`")
+                    && e.contains("/dev/ttyUSB0 does not exist"),
                 "{}: {e}",
                 f.display()
             );
@@ -84,7 +88,12 @@ fn check_config_names_the_line_and_key_of_every_mistake() {
         assert_eq!(o.status.code(), Some(1), "{}: {err}", f.display());
         assert!(!err.contains("panicked"), "{err}");
         let lines: Vec<&str> = err.lines().collect();
-        assert_eq!(lines.len(), expected.len(), "{}: one sentence per mistake: {err}", f.display());
+        assert_eq!(
+            lines.len(),
+            expected.len(),
+            "{}: one sentence per mistake: {err}",
+            f.display()
+        );
         for ((line, key), got) in expected.iter().zip(&lines) {
             let want_at = format!("{}, {line}, column", f.display());
             assert!(
@@ -118,12 +127,22 @@ fn bash_completions_load_in_a_bash_subshell() {
     assert!(text(&o.stdout).contains("machlink"), "{}", text(&o.stdout));
     // the subcommands are offered
     let s = text(&std::fs::read(&script).unwrap());
-    for sub in ["serve", "submit", "events", "check-config", "completions", "man"] {
+    for sub in [
+        "serve",
+        "submit",
+        "events",
+        "check-config",
+        "completions",
+        "man",
+    ] {
         assert!(s.contains(sub), "{sub} is not completed");
     }
     for shell in ["zsh", "fish"] {
         let o = machlink().args(["completions", shell]).output().unwrap();
-        assert!(o.status.success() && text(&o.stdout).contains("check-config"), "{shell}");
+        assert!(
+            o.status.success() && text(&o.stdout).contains("check-config"),
+            "{shell}"
+        );
     }
 }
 
@@ -136,7 +155,12 @@ fn man_pages_render_with_man() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
-    for page in ["machlink.1", "machlink-serve.1", "machlink-check-config.1", "machlink-events.1"] {
+    for page in [
+        "machlink.1",
+        "machlink-serve.1",
+        "machlink-check-config.1",
+        "machlink-events.1",
+    ] {
         assert!(dir.path().join(page).is_file(), "{page} written");
     }
     if !have("man") {
@@ -151,7 +175,10 @@ fn man_pages_render_with_man() {
         .unwrap();
     assert!(o.status.success(), "{}", text(&o.stderr));
     let page = text(&o.stdout);
-    assert!(page.contains("--metrics-listen") && page.contains("--log-format"), "{page}");
+    assert!(
+        page.contains("--metrics-listen") && page.contains("--log-format"),
+        "{page}"
+    );
 }
 
 #[test]
@@ -264,7 +291,8 @@ fn readiness_and_watchdog_reach_systemd() {
     let dir = tempfile::tempdir().unwrap();
     let notify = dir.path().join("notify.sock");
     let sock = std::os::unix::net::UnixDatagram::bind(&notify).unwrap();
-    sock.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    sock.set_read_timeout(Some(Duration::from_secs(30)))
+        .unwrap();
     let _s = serve(
         dir.path(),
         "",
@@ -297,7 +325,10 @@ fn json_logs_name_job_machine_and_unit_and_carry_no_colour() {
     assert!(o.status.success(), "{}", text(&o.stderr));
     drop(s);
     let log = std::fs::read_to_string(dir.path().join("serve.log")).unwrap();
-    assert!(!log.contains('\u{1b}'), "no ANSI escapes off a terminal: {log}");
+    assert!(
+        !log.contains('\u{1b}'),
+        "no ANSI escapes off a terminal: {log}"
+    );
     let lines: Vec<serde_json::Value> = log
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not a JSON line ({e}): {l}")))
@@ -327,7 +358,10 @@ fn clients_find_the_socket_from_the_environment_then_the_config() {
     let s = serve(dir.path(), "", &[], &[]);
     let f = gcode(dir.path());
     // MACHLINK_SOCKET
-    let o = submit(Some(&s.socket), &[f.to_str().unwrap(), "--machine", "bench"]);
+    let o = submit(
+        Some(&s.socket),
+        &[f.to_str().unwrap(), "--machine", "bench"],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
     // the config's socket, by --config and by MACHLINK_CONFIG
     let cfg = dir.path().join("machlink.toml");
@@ -382,8 +416,15 @@ fn receiver() -> (u16, std::sync::mpsc::Receiver<String>) {
             }
             let mut body = vec![0; len];
             let _ = r.read_exact(&mut body);
-            let status = if first { "500 Internal Server Error" } else { "204 No Content" };
-            let _ = s.write_all(format!("HTTP/1.1 {status}\r\ncontent-length: 0\r\nconnection: close\r\n\r\n").as_bytes());
+            let status = if first {
+                "500 Internal Server Error"
+            } else {
+                "204 No Content"
+            };
+            let _ = s.write_all(
+                format!("HTTP/1.1 {status}\r\ncontent-length: 0\r\nconnection: close\r\n\r\n")
+                    .as_bytes(),
+            );
             if !first {
                 let _ = tx.send(text(&body));
             }
@@ -423,7 +464,10 @@ fn events_follow_every_job_and_webhooks_get_theirs_with_retries() {
     // give them the socket's accept first
     std::thread::sleep(Duration::from_millis(300));
     let f = gcode(dir.path());
-    let o = submit(Some(&s.socket), &[f.to_str().unwrap(), "--machine", "bench", "--watch"]);
+    let o = submit(
+        Some(&s.socket),
+        &[f.to_str().unwrap(), "--machine", "bench", "--watch"],
+    );
     assert!(o.status.success(), "{}", text(&o.stderr));
 
     let mut states = Vec::new();
@@ -457,13 +501,17 @@ fn events_follow_every_job_and_webhooks_get_theirs_with_retries() {
     assert_eq!(got, ["running", "completed"]);
     // the retry and the deliveries are counted
     let metrics = machlink_metrics(&s.socket);
-    assert!(metrics.contains("machlink_webhook_deliveries_total{result=\"ok\"} 2"), "{metrics}");
+    assert!(
+        metrics.contains("machlink_webhook_deliveries_total{result=\"ok\"} 2"),
+        "{metrics}"
+    );
 }
 
 /// `GET /metrics` over the Unix socket, by hand.
 fn machlink_metrics(socket: &Path) -> String {
     let mut s = std::os::unix::net::UnixStream::connect(socket).unwrap();
-    s.write_all(b"GET /metrics HTTP/1.0\r\nHost: x\r\n\r\n").unwrap();
+    s.write_all(b"GET /metrics HTTP/1.0\r\nHost: x\r\n\r\n")
+        .unwrap();
     let mut out = String::new();
     s.read_to_string(&mut out).unwrap();
     out
@@ -486,7 +534,20 @@ fn config_md_documents_every_kind_and_its_keys() {
             );
         }
     }
-    for key in ["url", "name", "machines", "group", "credentials", "ack_wait_ms", "events", "timeout_ms", "retries"] {
-        assert!(doc.contains(&format!("| `{key}` |")), "[fleet]/[[webhook]] key `{key}`");
+    for key in [
+        "url",
+        "name",
+        "machines",
+        "group",
+        "credentials",
+        "ack_wait_ms",
+        "events",
+        "timeout_ms",
+        "retries",
+    ] {
+        assert!(
+            doc.contains(&format!("| `{key}` |")),
+            "[fleet]/[[webhook]] key `{key}`"
+        );
     }
 }

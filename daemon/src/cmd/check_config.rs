@@ -97,7 +97,9 @@ pub fn errors(text: &str, path: &Path) -> Vec<String> {
     machines.dedup();
     let mut broken = Vec::new();
     for m in machines {
-        let part = only(text, |i| section_of(i).is_some_and(|s| secs[s].machine == Some(m)));
+        let part = only(text, |i| {
+            section_of(i).is_some_and(|s| secs[s].machine == Some(m))
+        });
         if let Err(e) = Config::parse(&part, path) {
             found.push((line(&e), e.to_string()));
             broken.push(m);
