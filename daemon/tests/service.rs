@@ -500,7 +500,17 @@ fn events_follow_every_job_and_webhooks_get_theirs_with_retries() {
     }
     assert_eq!(got, ["running", "completed"]);
     // the retry and the deliveries are counted
-    let metrics = machlink_metrics(&s.socket);
+    // (counted once the daemon has read the receiver's answer, just after the receiver
+    // handed the body over)
+    let want = "machlink_webhook_deliveries_total{result=\"ok\"} 2";
+    let mut metrics = String::new();
+    for _ in 0..200 {
+        metrics = machlink_metrics(&s.socket);
+        if metrics.contains(want) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(25));
+    }
     assert!(
         metrics.contains("machlink_webhook_deliveries_total{result=\"ok\"} 2"),
         "{metrics}"
