@@ -536,12 +536,18 @@ impl Store {
         Ok(out)
     }
 
+    /// Indexes jobs by the fleet id in their parameters (once, when the daemon joins a
+    /// fleet), so `job_by_fleet_id` is a lookup.
+    pub fn index_fleet_ids(&self) -> Result<(), StoreError> {
+        self.conn().execute_batch(
+            "CREATE INDEX IF NOT EXISTS jobs_fleet_id ON jobs(json_extract(params, '$.fleet_id'))",
+        )?;
+        Ok(())
+    }
+
     /// The job whose parameters carry `"fleet_id": id` (a job taken from the fleet's queue).
     pub fn job_by_fleet_id(&self, fleet_id: &str) -> Result<Option<JobRecord>, StoreError> {
         let conn = self.conn();
-        conn.execute_batch(
-            "CREATE INDEX IF NOT EXISTS jobs_fleet_id ON jobs(json_extract(params, '$.fleet_id'))",
-        )?;
         conn.query_row(
             &format!(
                 "SELECT {JOB_COLUMNS} FROM jobs WHERE json_extract(params, '$.fleet_id') = ?1"

@@ -41,6 +41,10 @@ pub enum FleetError {
     JetStream { what: String, message: String },
     #[error("no daemon in the fleet has announced machine `{machine}` (known: {known})")]
     UnknownMachine { machine: String, known: String },
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
+    #[error(transparent)]
+    Sched(#[from] crate::scheduler::SchedError),
     #[error("the fleet holds a bad record under `{key}`: {message}")]
     Corrupt { key: String, message: String },
 }

@@ -85,6 +85,7 @@ async fn setup(
     sched: &Scheduler,
     metrics: &Arc<Metrics>,
 ) -> Result<(Node, jetstream::stream::Stream), FleetError> {
+    sched.store().index_fleet_ids()?;
     let client = connect(&cfg.url, cfg.credentials.as_deref(), &cfg.name).await?;
     let js = jetstream::new(client);
     let kv = bucket(&js).await?;
@@ -124,10 +125,7 @@ impl Node {
                 self.put_machine(&m).await?;
             }
         }
-        let jobs = self
-            .sched
-            .jobs()
-            .map_err(|e| FleetError::js("reading the local store", e))?;
+        let jobs = self.sched.jobs()?;
         for j in &jobs {
             if let Some(id) = fleet_id(j) {
                 self.put(&job_key(id), &fleet_job(&self.cfg.name, j, id))
