@@ -49,6 +49,9 @@ pub enum ConfigError {
 pub struct Config {
     pub daemon: DaemonConfig,
     pub machines: Vec<MachineConfig>,
+    /// The `[access]` table: tokens, local users and groups, socket group, audit log
+    /// (`crate::access`).
+    pub access: crate::access::AccessConfig,
 }
 
 /// The `[daemon]` table, resolved.
@@ -175,6 +178,8 @@ struct RawConfig {
     daemon: RawDaemon,
     #[serde(default)]
     machine: Vec<toml::Spanned<RawMachine>>,
+    #[serde(default)]
+    access: crate::access::RawAccess,
 }
 
 #[derive(Default, Deserialize)]
@@ -186,14 +191,15 @@ struct RawDaemon {
     journal_max_lag_ms: Option<u64>,
 }
 
-/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`,
-/// else `/tmp/machlink-$USER.sock`.
+/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`
+/// (a folder only its user can enter), else `/tmp/machlink-$USER/machlink.sock` (a folder
+/// the daemon creates 0700).
 pub fn default_socket() -> PathBuf {
     match std::env::var_os("XDG_RUNTIME_DIR") {
         Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("machlink.sock"),
         _ => {
             let user = std::env::var("USER").unwrap_or_else(|_| "user".into());
-            PathBuf::from(format!("/tmp/machlink-{user}.sock"))
+            PathBuf::from(format!("/tmp/machlink-{user}/machlink.sock"))
         }
     }
 }
@@ -209,6 +215,7 @@ impl Config {
                 journal_max_lag: Duration::from_secs(1),
             },
             machines: Vec::new(),
+            access: Default::default(),
         }
     }
 
@@ -294,6 +301,8 @@ impl Config {
             }
             cfg.machines.push(m);
         }
+        let names: Vec<&str> = cfg.machines.iter().map(|m| m.name.as_str()).collect();
+        cfg.access = raw.access.resolve(&names, dir).map_err(|m| at(None, m))?;
         Ok(cfg)
     }
 

@@ -4,12 +4,21 @@
 //! (`machlink-tests`) drive the daemon through it. It knows machines only through the kind
 //! registry (`registry`); no device's protocol is spoken here.
 
+pub mod access;
+pub mod access_api;
 pub mod api;
+pub mod audit;
 pub mod check;
 pub mod client;
 pub mod config;
 pub mod daemon;
+pub mod fsperm;
 pub mod intake;
+pub mod limits;
+pub mod memory;
+pub mod planner;
 pub mod registry;
 pub mod scheduler;
 pub mod store;
+pub mod tls;
+pub mod upload;

@@ -7,8 +7,9 @@
 //! worker goes on with the next job; nothing a device says stops the daemon.
 
 use crate::config::MachineConfig;
-use crate::store::{JobId, JobRecord, JobState, Journal, NewJob, Store, StoreError};
+use crate::store::{JobId, JobRecord, JobState, Journal, NewJob, NewJobUnits, Store, StoreError};
 use machlink_protocols::kind::{Device, MachineLink};
+use machlink_protocols::untrusted::{printable, MAX_TEXT};
 use machlink_protocols::{
     Control, DeviceState, LinkError, LinkEvent, MachineStatus, Program, StreamEnd,
 };
@@ -276,6 +277,22 @@ impl Scheduler {
             ));
         }
         let id = self.inner.store.insert_job(&job)?;
+        let rec = self.job(id)?;
+        self.inner.broadcast_state(&rec);
+        let _ = m.queue.send(id);
+        Ok(rec)
+    }
+
+    /// Like [`Scheduler::submit`], for a program already in the store's form (a G-code file
+    /// stored as it streamed in).
+    pub fn submit_units(&self, job: NewJobUnits) -> Result<JobRecord, SchedError> {
+        let m = self.machine(&job.machine)?;
+        if job.total_units == 0 {
+            return Err(SchedError::Conflict(
+                "the program is empty: there is nothing to send".into(),
+            ));
+        }
+        let id = self.inner.store.insert_job_units(&job)?;
         let rec = self.job(id)?;
         self.inner.broadcast_state(&rec);
         let _ = m.queue.send(id);
@@ -598,7 +615,7 @@ async fn stream_job(
             (JobState::Cancelled, None)
         }
         Err(e) => {
-            let msg = describe_failure(&e, &program, journal.acked());
+            let msg = printable(&describe_failure(&e, &program, journal.acked()), MAX_TEXT);
             // a device that refused a line or raised an alarm is still talking (the link
             // resets it); a link that broke is opened afresh for the next job
             if !e.keeps_link() {
@@ -668,7 +685,9 @@ fn on_link_event(
                 total,
             });
         }
-        LinkEvent::Status(s) => {
+        LinkEvent::Status(mut s) => {
+            // device text is untrusted: no control characters reach a log or a terminal
+            s.detail = printable(&s.detail, MAX_TEXT);
             let _ = inner.events.send(Event::Status {
                 machine: m.config.name.clone(),
                 job: Some(id),
@@ -680,7 +699,7 @@ fn on_link_event(
             let _ = inner.events.send(Event::Message {
                 machine: m.config.name.clone(),
                 job: Some(id),
-                text,
+                text: printable(&text, MAX_TEXT),
             });
         }
     }

@@ -115,6 +115,19 @@ pub struct NewJob {
     pub program: Program,
 }
 
+/// A new job whose program is already in the store's form: the post's name and the units as
+/// a JSON array (what `AnyKind::decode` reads back), with their count.
+#[derive(Clone, Debug)]
+pub struct NewJobUnits {
+    pub machine: String,
+    pub op: String,
+    pub file_name: String,
+    pub params: serde_json::Value,
+    pub post: String,
+    pub units_json: String,
+    pub total_units: usize,
+}
+
 /// A program as the store holds it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StoredProgram {
@@ -211,6 +224,24 @@ impl Store {
 
     /// Inserts a queued job and its program in one transaction; returns its id.
     pub fn insert_job(&self, job: &NewJob) -> Result<JobId, StoreError> {
+        let units = job
+            .program
+            .to_json()
+            .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
+        self.insert_job_units(&NewJobUnits {
+            machine: job.machine.clone(),
+            op: job.op.clone(),
+            file_name: job.file_name.clone(),
+            params: job.params.clone(),
+            post: job.program.post().to_string(),
+            units_json: units,
+            total_units: job.program.len(),
+        })
+    }
+
+    /// Inserts a queued job whose program comes as the store keeps it (a G-code file whose
+    /// units were written as it streamed in), in one transaction; returns its id.
+    pub fn insert_job_units(&self, job: &NewJobUnits) -> Result<JobId, StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
@@ -222,17 +253,13 @@ impl Store {
                 job.file_name,
                 job.params.to_string(),
                 now_ms(),
-                job.program.len() as i64
+                job.total_units as i64
             ],
         )?;
         let id = tx.last_insert_rowid();
-        let units = job
-            .program
-            .to_json()
-            .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
         tx.execute(
             "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, ?3)",
-            params![id, job.program.post(), units],
+            params![id, job.post, job.units_json],
         )?;
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units) VALUES (?1, ?2, 'queued', 0)",

@@ -17,6 +17,7 @@ pub mod post;
 pub mod program;
 pub mod serial;
 pub mod sewing;
+pub mod untrusted;
 
 pub use kind::{AnyKind, MachineKind, MachineLink, Registry};
 pub use link::{

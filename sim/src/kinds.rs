@@ -73,6 +73,9 @@ impl MachineKind for SimGrblKind {
     ) -> Option<Result<Vec<String>, PostError>> {
         gcode_file_units(lines)
     }
+    fn gcode_lines_are_units(&self) -> bool {
+        true
+    }
     fn start(
         &self,
         _machine: &str,
