@@ -869,13 +869,18 @@ fn write<T>(m: &RwLock<T>) -> std::sync::RwLockWriteGuard<'_, T> {
     m.write().unwrap_or_else(|p| p.into_inner())
 }
 
-/// The bearer token of a request, if it carries one.
+/// The bearer token of a request, if it carries an `Authorization` header at all: any such
+/// header is an attempt at a token (one that is not `Bearer TOKEN` reads as empty, and is
+/// refused), never a fall-back to the socket's peer.
 fn bearer(req: &Request) -> Option<&str> {
-    req.headers()
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim)
+    let v = req.headers().get(header::AUTHORIZATION)?;
+    Some(
+        v.to_str()
+            .ok()
+            .and_then(|v| v.strip_prefix("Bearer"))
+            .map(str::trim)
+            .unwrap_or(""),
+    )
 }
 
 /// The segment of `path` where `template` has `{param}`.

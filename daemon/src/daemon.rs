@@ -110,6 +110,13 @@ impl Daemon {
             }
             _ => None,
         };
+        // the socket's folder and path are checked before any file is touched
+        let group = config.access.socket_group.as_ref().map(|g| g.0);
+        let socket = opts.socket.clone().unwrap_or(config.daemon.socket.clone());
+        if let Some(dir) = socket.parent().filter(|d| !d.as_os_str().is_empty()) {
+            crate::fsperm::socket_folder(dir, group)?;
+        }
+        crate::fsperm::clear_socket_path(&socket).await?;
         let store_path = config.daemon.store.clone();
         let store_err = |source| DaemonError::StoreMode {
             path: store_path.display().to_string(),
@@ -128,7 +135,6 @@ impl Daemon {
             path: audit_path.display().to_string(),
             source,
         })?;
-        let group = config.access.socket_group.as_ref().map(|g| g.0);
         let access = Arc::new(Access::new(
             config.access.clone(),
             opts.token.clone(),
@@ -140,12 +146,6 @@ impl Daemon {
                 "--listen: no token could reach the daemon on TCP; give --token or add [[access.token]] to the config (machlink token new)".into(),
             ));
         }
-        let socket = opts.socket.clone().unwrap_or(config.daemon.socket.clone());
-        // the socket's folder and path are checked before the store is touched
-        if let Some(dir) = socket.parent().filter(|d| !d.as_os_str().is_empty()) {
-            crate::fsperm::socket_folder(dir, group)?;
-        }
-        crate::fsperm::clear_socket_path(&socket).await?;
         let store = Store::open(&config.daemon.store)?;
         crate::fsperm::private_companions(&store_path).map_err(store_err)?;
         let mut machines = Vec::new();
@@ -267,18 +267,13 @@ impl Drop for Daemon {
     }
 }
 
-/// Binds the Unix socket (its path cleared and its folder checked by `fsperm`), then gives
-/// it its mode: 0600, or 0660 for a socket group.
+/// Binds the Unix socket (its path cleared and its folder checked by `fsperm`) with its mode
+/// set before anyone can reach it: 0600, or 0660 for a socket group.
 fn bind_unix(
     path: &std::path::Path,
     group: Option<u32>,
 ) -> Result<tokio::net::UnixListener, DaemonError> {
-    let l = tokio::net::UnixListener::bind(path).map_err(|source| DaemonError::Listen {
-        what: path.display().to_string(),
-        source,
-    })?;
-    crate::fsperm::set_socket_mode(path, group)?;
-    Ok(l)
+    Ok(crate::fsperm::bind_private(path, group)?)
 }
 
 /// Gives freed memory back to the system each time a job ends (a large program is freed

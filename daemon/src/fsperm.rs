@@ -1,6 +1,8 @@
-//! The daemon's files and socket, never reachable by others: the socket in a folder of its
-//! own (0700, or 0750 for a socket group) created with that mode, a socket path taken over
-//! only from a dead daemon, and the store, its WAL and the logs 0600.
+//! The daemon's files and socket, never reachable by others: the socket's folder created 0700
+//! (0750 for a socket group) or, when it exists, the daemon's own and writable by nobody else;
+//! the socket bound in a private folder and moved into place with its mode already set, so it
+//! is never reachable with a wider mode whatever the umask; a socket path taken over only
+//! from a dead daemon; the store, its WAL and the logs 0600.
 
 use std::fs::{DirBuilder, OpenOptions, Permissions};
 use std::io;
@@ -40,9 +42,10 @@ pub fn folder_mode(group: Option<u32>) -> u32 {
     }
 }
 
-/// Makes sure the socket's folder exists, belongs to the daemon's user and is reachable by
-/// nobody else (but `group`, when given). A missing folder is created with its mode (the
-/// umask can only narrow it), then given exactly that mode and group.
+/// Makes sure the socket's folder exists and nobody but the daemon's user can put anything
+/// in it. A missing folder is created with mode 0700 (0750 with a socket group; the umask can
+/// only narrow it), then given exactly that mode and group. An existing one must belong to
+/// the daemon's user and be writable by nobody else (`/tmp` is refused).
 pub fn socket_folder(dir: &Path, group: Option<u32>) -> Result<(), SocketError> {
     let mode = folder_mode(group);
     let err = io_err(dir);
@@ -77,15 +80,10 @@ pub fn socket_folder(dir: &Path, group: Option<u32>) -> Result<(), SocketError> 
                 )));
             }
             let bits = m.mode() & 0o7777;
-            let others = bits & 0o007;
-            let group_ok = match group {
-                Some(g) => m.gid() == g && bits & 0o020 == 0,
-                None => bits & 0o070 == 0,
-            };
-            if others != 0 || !group_ok {
+            if bits & 0o022 != 0 {
                 return Err(unsafe_folder(format!(
-                    "has mode {bits:04o}, open to {}",
-                    if others != 0 {
+                    "has mode {bits:04o}, writable by {}",
+                    if bits & 0o002 != 0 {
                         "every user"
                     } else {
                         "its group"
@@ -95,6 +93,40 @@ pub fn socket_folder(dir: &Path, group: Option<u32>) -> Result<(), SocketError> 
             Ok(())
         }
     }
+}
+
+/// Binds the socket at `path` (cleared by [`clear_socket_path`]) without a moment at a wider
+/// mode: it is bound inside a fresh 0700 folder beside `path`, given its mode (0600, or 0660
+/// for a socket group), then renamed into place.
+pub fn bind_private(
+    path: &Path,
+    group: Option<u32>,
+) -> Result<tokio::net::UnixListener, SocketError> {
+    let err = io_err(path);
+    let parent = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let nonce = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let private = parent.join(format!(".ml{}.{nonce:x}", std::process::id()));
+    DirBuilder::new()
+        .mode(0o700)
+        .create(&private)
+        .map_err(&err)?;
+    let result = (|| {
+        let tmp = private.join("s");
+        let l = tokio::net::UnixListener::bind(&tmp)?;
+        set_socket_mode(&tmp, group).map_err(|e| match e {
+            SocketError::Io { source, .. } => source,
+            other => io::Error::other(other.to_string()),
+        })?;
+        std::fs::rename(&tmp, path)?;
+        Ok(l)
+    })();
+    let _ = std::fs::remove_dir_all(&private);
+    result.map_err(err)
 }
 
 /// Clears the way for a socket at `path`: nothing there, or a socket no daemon answers on

@@ -155,7 +155,7 @@ fn a_folder_open_to_others_is_refused() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("has mode 0777, open to every user"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("has mode 0777, writable by every user"), "{}", stderr(&o));
 }
 
 #[test]
