@@ -239,7 +239,7 @@ fn a_token_is_printed_once_and_its_config_lines_work() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
-    let toml = String::from_utf8(o.stdout).unwrap();
+    let toml = String::from_utf8(o.stdout.clone()).unwrap();
     let e = stderr(&o);
     let token = e
         .trim()
