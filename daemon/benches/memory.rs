@@ -111,7 +111,13 @@ fn main() {
         let mut written = 0u64;
         let mut i = 0u64;
         while written < target_mb << 20 {
-            let l = format!("X{}.{:03} Y{}.{:02}\n", i % 97, i % 1000, (i / 97) % 89, i % 100);
+            let l = format!(
+                "X{}.{:03} Y{}.{:02}\n",
+                i % 97,
+                i % 1000,
+                (i / 97) % 89,
+                i % 100
+            );
             written += l.len() as u64;
             w.write_all(l.as_bytes()).unwrap();
             i += 1;
@@ -195,7 +201,11 @@ fn main() {
         mb(intake_peak)
     );
     println!("| peak while it streams | {:.1} MiB |", mb(streaming_peak));
-    println!("| peak overall | {:.1} MiB ({:.1}× the file) |", mb(peak), (peak.saturating_sub(baseline)) as f64 / size as f64);
+    println!(
+        "| peak overall | {:.1} MiB ({:.1}× the file) |",
+        mb(peak),
+        (peak.saturating_sub(baseline)) as f64 / size as f64
+    );
     println!(
         "| after cancel | {:.1} MiB ({:+.1} % of the baseline) |",
         mb(after),

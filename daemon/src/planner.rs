@@ -5,13 +5,16 @@
 //! saying so. A plan that runs past [`PLAN_TIME_LIMIT`] is killed the same way.
 //!
 //! The child returns the program through a pipe; the parent reads it back as the machine's
-//! kind reads a stored program.
+//! kind reads a stored program. The child takes no lock a thread of the parent could have
+//! held at the fork (it allocates, which glibc keeps safe across fork, and computes); its
+//! panics go through a hook installed once in the parent that stays silent in a child.
 
 use crate::config::MachineConfig;
 use crate::intake::{IntakeError, JobSpec, Planned, Target};
 use machlink_protocols::Program;
 use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, OwnedFd};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 /// The planning thread's stack: deep enough for any sane recursion, and a bound.
@@ -46,6 +49,26 @@ pub enum PlanError {
     Broken(String),
 }
 
+/// Set in a planning child right after the fork: its panics are reported through the pipe,
+/// and the panic hook must take no lock another thread of the parent may have held.
+static IN_PLANNER_CHILD: AtomicBool = AtomicBool::new(false);
+
+/// Installs, once and in the parent, a panic hook that stays silent in a planning child and
+/// hands every other panic to the hook that was there. (Setting a hook in the child could
+/// wait forever on the hook's lock, held by a thread that panicked in the parent at the
+/// moment of the fork.)
+fn quiet_panics_in_children() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !IN_PLANNER_CHILD.load(Ordering::Relaxed) {
+                previous(info);
+            }
+        }));
+    });
+}
+
 /// Plans `spec` for `machine` with `plan` in a forked child; waits at most `limit`.
 pub async fn plan_isolated(
     spec: JobSpec,
@@ -53,6 +76,7 @@ pub async fn plan_isolated(
     plan: PlanFn,
     limit: Duration,
 ) -> Result<PlanOutcome, PlanError> {
+    quiet_panics_in_children();
     let (pid_tx, pid_rx) = std::sync::mpsc::channel::<i32>();
     let (done_tx, done_rx) = tokio::sync::oneshot::channel();
     let machine2 = machine.clone();
@@ -130,7 +154,7 @@ fn fork_and_plan(
 /// The child's whole life: plan, write the answer, `_exit`.
 fn child(spec: &JobSpec, machine: &MachineConfig, plan: PlanFn, out: OwnedFd) -> ! {
     // a panic is reported through the pipe, not on the daemon's stderr
-    std::panic::set_hook(Box::new(|_| {}));
+    IN_PLANNER_CHILD.store(true, Ordering::Relaxed);
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         plan(spec, Target::Machine(machine))
     }));

@@ -103,8 +103,16 @@ fn the_socket_folder_socket_store_and_logs_are_private_under_umask_022_and_000()
         let folder = dir.path().join("run").join("machlink");
         let socket = folder.join("ml.sock");
         let s = serve(dir.path(), &socket, umask);
-        assert_eq!(mode(&folder), 0o700, "umask {umask:03o}: the socket's folder");
-        assert_eq!(mode(&socket) & 0o777, 0o600, "umask {umask:03o}: the socket");
+        assert_eq!(
+            mode(&folder),
+            0o700,
+            "umask {umask:03o}: the socket's folder"
+        );
+        assert_eq!(
+            mode(&socket) & 0o777,
+            0o600,
+            "umask {umask:03o}: the socket"
+        );
         for f in ["jobs.db", "jobs.db-wal", "jobs.db-shm", "jobs-audit.jsonl"] {
             let p = dir.path().join(f);
             assert_eq!(mode(&p), 0o600, "umask {umask:03o}: {f}");
@@ -155,7 +163,11 @@ fn a_folder_open_to_others_is_refused() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("has mode 0777, writable by every user"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("has mode 0777, writable by every user"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -173,9 +185,17 @@ fn a_live_daemons_socket_is_not_stolen_and_a_dead_ones_is_replaced() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("another daemon is already listening at"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("another daemon is already listening at"),
+        "{}",
+        stderr(&o)
+    );
     // the first daemon still answers
-    let o = machlink().args(["jobs", "--socket"]).arg(&socket).output().unwrap();
+    let o = machlink()
+        .args(["jobs", "--socket"])
+        .arg(&socket)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     // killed, it leaves its socket behind: the next daemon takes the path over
     first.child.kill().unwrap();
@@ -211,15 +231,27 @@ fn a_closed_stdout_is_no_crash() {
 fn exit_statuses_say_usage_refused_or_unreachable() {
     let dir = tempfile::tempdir().unwrap();
     let nobody = dir.path().join("nobody.sock");
-    let o = machlink().args(["jobs", "--socket"]).arg(&nobody).output().unwrap();
+    let o = machlink()
+        .args(["jobs", "--socket"])
+        .arg(&nobody)
+        .output()
+        .unwrap();
     assert_eq!(o.status.code(), Some(3), "unreachable: {}", stderr(&o));
-    let o = machlink().args(["jobs", "--no-such-flag"]).output().unwrap();
+    let o = machlink()
+        .args(["jobs", "--no-such-flag"])
+        .output()
+        .unwrap();
     assert_eq!(o.status.code(), Some(2), "usage: {}", stderr(&o));
     let o = machlink()
         .args(["jobs", "--connect", "127.0.0.1:9"])
         .output()
         .unwrap();
-    assert_eq!(o.status.code(), Some(2), "--connect needs --ca or --insecure-plaintext: {}", stderr(&o));
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "--connect needs --ca or --insecure-plaintext: {}",
+        stderr(&o)
+    );
     let socket = dir.path().join("ml.sock");
     let _s = serve(dir.path(), &socket, 0o022);
     let o = machlink()
@@ -235,7 +267,16 @@ fn exit_statuses_say_usage_refused_or_unreachable() {
 fn a_token_is_printed_once_and_its_config_lines_work() {
     let dir = tempfile::tempdir().unwrap();
     let o = machlink()
-        .args(["token", "new", "--role", "operator", "--machines", "bench", "--name", "tablet"])
+        .args([
+            "token",
+            "new",
+            "--role",
+            "operator",
+            "--machines",
+            "bench",
+            "--name",
+            "tablet",
+        ])
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
@@ -248,8 +289,14 @@ fn a_token_is_printed_once_and_its_config_lines_work() {
         .expect("the token on stderr")
         .to_string();
     assert!(token.starts_with("mlk_") && token.len() == 47, "{e}");
-    assert!(!toml.contains(&token), "the config lines never hold the token");
-    assert!(toml.contains("name = \"tablet\"") && toml.contains("machines = [\"bench\"]"), "{toml}");
+    assert!(
+        !toml.contains(&token),
+        "the config lines never hold the token"
+    );
+    assert!(
+        toml.contains("name = \"tablet\"") && toml.contains("machines = [\"bench\"]"),
+        "{toml}"
+    );
     // the lines go into the config as they are; the token then works, as an operator
     let cfg = write_config(dir.path(), &toml);
     let socket = dir.path().join("ml.sock");
@@ -280,7 +327,10 @@ fn a_token_is_printed_once_and_its_config_lines_work() {
     let o = run(&["whoami"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let who: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!((who["name"].as_str(), who["role"].as_str()), (Some("tablet"), Some("operator")));
+    assert_eq!(
+        (who["name"].as_str(), who["role"].as_str()),
+        (Some("tablet"), Some("operator"))
+    );
     let o = run(&["lock", "bench"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = run(&["locks", "--json"]);
@@ -292,7 +342,11 @@ fn a_token_is_printed_once_and_its_config_lines_work() {
     let o = run(&["release", "bench"]);
     assert!(o.status.success(), "{}", stderr(&o));
     // the daemon's own user (no token) is admin
-    let o = machlink().args(["reload", "--socket"]).arg(&socket).output().unwrap();
+    let o = machlink()
+        .args(["reload", "--socket"])
+        .arg(&socket)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", stderr(&o));
     let _ = child.kill();
     let _ = child.wait();

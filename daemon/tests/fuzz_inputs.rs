@@ -48,9 +48,9 @@ fn mutate(base: &str, edits: &[(usize, u8)], cut: usize) -> Vec<u8> {
 
 fn gcode_lines() -> impl Strategy<Value = Vec<String>> {
     let word = prop::sample::select(vec![
-        "G0", "G1", "G2", "G3", "G20", "G21", "G90", "G91", "G10", "G92", "G53", "X", "Y",
-        "Z", "I", "J", "R", "F", "F9000", "M3", "M6", "M30", "S1000", "1", "-3", "0.5", "45",
-        "60", "1e9", "(", ")", ";", "%", "$H", " ", "?", "\t", "é", "T1",
+        "G0", "G1", "G2", "G3", "G20", "G21", "G90", "G91", "G10", "G92", "G53", "X", "Y", "Z",
+        "I", "J", "R", "F", "F9000", "M3", "M6", "M30", "S1000", "1", "-3", "0.5", "45", "60",
+        "1e9", "(", ")", ";", "%", "$H", " ", "?", "\t", "é", "T1",
     ]);
     prop::collection::vec(
         prop::collection::vec(word, 0..8).prop_map(|w| w.concat()),

@@ -145,7 +145,15 @@ async fn try_route(
     done: JobId,
 ) -> (u16, serde_json::Value) {
     let path = template
-        .replace("{id}", &if template.ends_with("/events") { done } else { job }.to_string())
+        .replace(
+            "{id}",
+            &if template.ends_with("/events") {
+                done
+            } else {
+                job
+            }
+            .to_string(),
+        )
         .replace("{name}", "router");
     match (method, template) {
         ("GET", _) => call(c, "GET", &path, None).await,
@@ -165,7 +173,9 @@ async fn try_route(
             )
         }
         ("POST", _) => post(c, &path, None).await,
-        _ => panic!("the route {method} {template} has no request in this test: add one to try_route"),
+        _ => panic!(
+            "the route {method} {template} has no request in this test: add one to try_route"
+        ),
     }
 }
 
@@ -205,7 +215,11 @@ async fn every_route_as(role: &str) {
                 r.path
             );
         } else {
-            assert_eq!(st, 403, "{role}: {} {} should be refused: {b}", r.method, r.path);
+            assert_eq!(
+                st, 403,
+                "{role}: {} {} should be refused: {b}",
+                r.method, r.path
+            );
             assert!(
                 b["error"].as_str().is_some_and(|e| !e.is_empty()),
                 "{role}: {} {}: a JSON error, got {b}",
@@ -252,7 +266,10 @@ async fn an_operator_cannot_touch_a_machine_not_granted_to_it() {
     let (st, b) = post(&op, "/jobs", Some(small_job("mill"))).await;
     assert_eq!(st, 403, "{b}");
     assert!(
-        b["error"].as_str().unwrap().contains("may not act on machine `mill`"),
+        b["error"]
+            .as_str()
+            .unwrap()
+            .contains("may not act on machine `mill`"),
         "{b}"
     );
     let (st, _) = post(&op, "/machines/mill/lock", None).await;
@@ -287,7 +304,11 @@ async fn the_lock_holders_job_cannot_be_cancelled_by_another_operator() {
     wait_state(&admin, job, JobState::Running).await;
     let locks = b.locks().await.unwrap();
     assert_eq!(
-        (locks[0].machine.as_str(), locks[0].holder.as_str(), locks[0].explicit),
+        (
+            locks[0].machine.as_str(),
+            locks[0].holder.as_str(),
+            locks[0].explicit
+        ),
         ("router", "op-a", false)
     );
     for action in ["cancel", "pause", "resume"] {
@@ -306,10 +327,20 @@ async fn the_lock_holders_job_cannot_be_cancelled_by_another_operator() {
     assert_eq!(st, 409);
     // b watches: reads are not locked
     assert_eq!(b.job(job).await.unwrap().state, JobState::Running);
-    // an operator may not break a lock; an admin may
-    let (st, _) = post(&b, "/machines/router/lock", Some(serde_json::json!({"break": true}))).await;
-    assert_eq!(st, 403);
-    let (st, l) = post(&boss, "/machines/router/lock", Some(serde_json::json!({"break": true}))).await;
+    // an operator cannot break a lock; an admin may
+    let (st, _) = post(
+        &b,
+        "/machines/router/lock",
+        Some(serde_json::json!({"break": true})),
+    )
+    .await;
+    assert_eq!(st, 409);
+    let (st, l) = post(
+        &boss,
+        "/machines/router/lock",
+        Some(serde_json::json!({"break": true})),
+    )
+    .await;
     assert_eq!(st, 200, "{l}");
     assert_eq!(l["holder"], "boss");
     // now a holds nothing: its own job is the admin's to steer
@@ -329,6 +360,18 @@ async fn the_lock_holders_job_cannot_be_cancelled_by_another_operator() {
     let (st, _) = post(&b, "/machines/router/release", None).await;
     assert_eq!(st, 200);
     assert!(b.locks().await.unwrap().is_empty());
+    // breaking is an admin's, even of a free machine
+    let (st, e) = post(
+        &a,
+        "/machines/router/lock",
+        Some(serde_json::json!({"break": true})),
+    )
+    .await;
+    assert_eq!(st, 403, "{e}");
+    assert!(
+        e["error"].as_str().unwrap().contains("needs an admin"),
+        "{e}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -350,7 +393,10 @@ async fn the_audit_log_names_each_action_and_its_token() {
     let _ = v.jobs().await.unwrap();
     let log = machlink::audit::read(d.access.audit.path()).unwrap();
     use std::os::unix::fs::PermissionsExt;
-    let mode = std::fs::metadata(d.access.audit.path()).unwrap().permissions().mode();
+    let mode = std::fs::metadata(d.access.audit.path())
+        .unwrap()
+        .permissions()
+        .mode();
     assert_eq!(mode & 0o777, 0o600, "the audit log is private");
     let find = |token: &str, action: &str| {
         log.iter()
@@ -359,21 +405,36 @@ async fn the_audit_log_names_each_action_and_its_token() {
     };
     let submitted = find("op-a", "POST /jobs");
     assert_eq!(
-        (submitted.status, submitted.machine.as_deref(), submitted.job),
+        (
+            submitted.status,
+            submitted.machine.as_deref(),
+            submitted.job
+        ),
         (201, Some("router"), Some(job))
     );
     assert_eq!(submitted.who.as_deref(), Some("op-a"));
-    assert!(submitted.from.starts_with("unix socket, uid "), "{submitted:?}");
+    assert!(
+        submitted.from.starts_with("unix socket, uid "),
+        "{submitted:?}"
+    );
     let refused = find("op-b", &format!("POST /jobs/{job}/cancel"));
     assert_eq!(refused.status, 409);
     assert!(refused.outcome.starts_with("refused: "), "{refused:?}");
     let denied = find("viewer", &format!("POST /jobs/{job}/pause"));
     assert_eq!(denied.status, 403);
     let cancelled = find("op-a", &format!("POST /jobs/{job}/cancel"));
-    assert_eq!((cancelled.status, cancelled.outcome.as_str()), (200, "done"));
+    assert_eq!(
+        (cancelled.status, cancelled.outcome.as_str()),
+        (200, "done")
+    );
     // reads are not state changes
-    assert!(log.iter().all(|r| !r.action.starts_with("GET ")), "{log:#?}");
-    assert!(log.iter().any(|r| r.action == "start" && r.who.as_deref() == Some("daemon")));
+    assert!(
+        log.iter().all(|r| !r.action.starts_with("GET ")),
+        "{log:#?}"
+    );
+    assert!(log
+        .iter()
+        .any(|r| r.action == "start" && r.who.as_deref() == Some("daemon")));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -33,7 +33,8 @@ fn faulty_planner(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeE
 const MACHINES: &str = "[[machine]]\nname = \"a\"\nlink = \"sim-grbl\"\ntime_scale = 50.0\n\n\
                         [[machine]]\nname = \"b\"\nlink = \"sim-grbl\"\ntime_scale = 20.0\n";
 
-const SQUARE: &str = r#"{"units":"mm","paths":[{"closed":true,"vertices":[[0,0,0],[40,0,0],[40,40,0],[0,40,0]]}]}"#;
+const SQUARE: &str =
+    r#"{"units":"mm","paths":[{"closed":true,"vertices":[[0,0,0],[40,0,0],[40,40,0],[0,40,0]]}]}"#;
 
 fn shape_job(machine: &str, file_name: &str) -> JobSpec {
     let mut j = job(machine, file_name, SQUARE);
@@ -119,16 +120,31 @@ async fn a_gcode_file_streamed_in_is_stored_as_the_whole_file_is() {
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
     // refusals name the file and the line, as for the whole file
     std::fs::write(&path, "G21\nG1 X10 F500\nG1 X100\n").unwrap();
-    let e = c.submit_gcode_file("m", &path).await.unwrap_err().to_string();
+    let e = c
+        .submit_gcode_file("m", &path)
+        .await
+        .unwrap_err()
+        .to_string();
     assert!(
         e.starts_with("part.nc, line 3 `G1 X100`") && e.contains("outside machine `m`'s work area"),
         "{e}"
     );
     std::fs::write(&path, format!("G1 X1 F100\n({})\n", "x".repeat(5000))).unwrap();
-    let e = c.submit_gcode_file("m", &path).await.unwrap_err().to_string();
-    assert!(e.contains("line 2") && e.contains("limit of 4096 bytes"), "{e}");
+    let e = c
+        .submit_gcode_file("m", &path)
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("line 2") && e.contains("limit of 4096 bytes"),
+        "{e}"
+    );
     std::fs::write(&path, b"G1 X1 F100\nG1 X\xff\n").unwrap();
-    let e = c.submit_gcode_file("m", &path).await.unwrap_err().to_string();
+    let e = c
+        .submit_gcode_file("m", &path)
+        .await
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("line 2: the line is not text"), "{e}");
 }
 
@@ -144,7 +160,10 @@ async fn an_oversized_body_is_refused_in_json() {
     let c = client(&d);
     // declared larger than the limit: refused before a byte of it is read
     let big = vec![b' '; (machlink::limits::MAX_JSON_BODY) + 1];
-    let (st, body) = c.raw(hyper::Method::POST, "/jobs", Some(big)).await.unwrap();
+    let (st, body) = c
+        .raw(hyper::Method::POST, "/jobs", Some(big))
+        .await
+        .unwrap();
     assert_eq!(st.as_u16(), 413);
     let v: serde_json::Value = serde_json::from_slice(&body).unwrap();
     assert!(

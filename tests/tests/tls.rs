@@ -80,22 +80,45 @@ async fn a_client_with_the_daemons_ca_and_token_gets_in_and_no_other() {
         })
     };
     // the daemon's CA and the token: in, by address and by name
-    assert_eq!(tls(&ca, Some(&token), None).machines().await.unwrap()[0].name, "bench");
     assert_eq!(
-        tls(&ca, Some(&token), Some("localhost")).machines().await.unwrap()[0].name,
+        tls(&ca, Some(&token), None).machines().await.unwrap()[0].name,
+        "bench"
+    );
+    assert_eq!(
+        tls(&ca, Some(&token), Some("localhost"))
+            .machines()
+            .await
+            .unwrap()[0]
+            .name,
         "bench"
     );
     let who = tls(&ca, Some(&token), None).whoami().await.unwrap();
-    assert_eq!((who["name"].as_str(), who["role"].as_str()), (Some("command-line"), Some("admin")));
-    assert!(who["from"].as_str().unwrap().starts_with("tcp 127.0.0.1:"), "{who}");
+    assert_eq!(
+        (who["name"].as_str(), who["role"].as_str()),
+        (Some("command-line"), Some("admin"))
+    );
+    assert!(
+        who["from"].as_str().unwrap().starts_with("tcp 127.0.0.1:"),
+        "{who}"
+    );
     // a CA that did not sign the daemon's certificate: no connection
-    let e = tls(&other_ca, Some(&token), None).machines().await.unwrap_err();
+    let e = tls(&other_ca, Some(&token), None)
+        .machines()
+        .await
+        .unwrap_err();
     assert!(matches!(e, ClientError::Tls { .. }), "{e}");
     // a name the certificate does not carry: no connection
-    let e = tls(&ca, Some(&token), Some("machlink.example")).machines().await.unwrap_err();
+    let e = tls(&ca, Some(&token), Some("machlink.example"))
+        .machines()
+        .await
+        .unwrap_err();
     assert!(matches!(e, ClientError::Tls { .. }), "{e}");
     // no token, or a wrong one: refused
-    let e = tls(&ca, None, None).machines().await.unwrap_err().to_string();
+    let e = tls(&ca, None, None)
+        .machines()
+        .await
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("Authorization: Bearer"), "{e}");
     let e = tls(&ca, Some(&new_token().unwrap()), None)
         .machines()
@@ -122,7 +145,10 @@ async fn plaintext_tcp_only_when_spelled_out_and_never_with_a_weak_token() {
         .await
         .err()
         .expect("TCP without TLS is refused");
-    assert!(e.contains("--insecure-plaintext") && e.contains("--tls-cert"), "{e}");
+    assert!(
+        e.contains("--insecure-plaintext") && e.contains("--tls-cert"),
+        "{e}"
+    );
     for weak in ["", "s3cret", "0123456789012345678901234567890"] {
         let e = start_tcp(dir.path(), TcpSecurity::InsecurePlaintext, weak)
             .await
@@ -140,7 +166,8 @@ async fn plaintext_tcp_only_when_spelled_out_and_never_with_a_weak_token() {
     assert_eq!(c.machines().await.unwrap()[0].name, "bench");
     let log = machlink::audit::read(d.access.audit.path()).unwrap();
     assert!(
-        log.iter().any(|r| r.action.starts_with("listen plaintext") && r.outcome.contains("insecure")),
+        log.iter()
+            .any(|r| r.action.starts_with("listen plaintext") && r.outcome.contains("insecure")),
         "{log:#?}"
     );
     // the socket is still there, for the daemon's own user
