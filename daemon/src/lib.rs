@@ -2,7 +2,10 @@
 //! checked program, the job store, the per-machine scheduler, the HTTP API on a Unix socket
 //! and its client. The `machlink` binary's subcommands and the end-to-end tests
 //! (`machlink-tests`) drive the daemon through it. It knows machines only through the kind
-//! registry (`registry`); no device's protocol is spoken here.
+//! registry (`registry`); no device's protocol is spoken here. Who may call the API and what
+//! each caller may do is `access` (roles, tokens, peer credentials, the route table, control
+//! locks), written down by `audit`; `tls`, `fsperm`, `limits` and `planner` keep the daemon
+//! unreachable to others and up whatever a client sends (docs/security.md).
 
 pub mod access;
 pub mod access_api;
