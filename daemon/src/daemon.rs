@@ -116,7 +116,7 @@ impl Daemon {
         if let Some(dir) = socket.parent().filter(|d| !d.as_os_str().is_empty()) {
             crate::fsperm::socket_folder(dir, group)?;
         }
-        crate::fsperm::clear_socket_path(&socket).await?;
+        crate::fsperm::check_socket_path(&socket)?;
         let store_path = config.daemon.store.clone();
         let store_err = |source| DaemonError::StoreMode {
             path: store_path.display().to_string(),
@@ -172,6 +172,8 @@ impl Daemon {
                 max_lag: config.daemon.journal_max_lag,
             },
         )?;
+        // a live daemon's socket is never taken over; a dead one's is removed
+        crate::fsperm::clear_socket_path(&socket).await?;
         let listener = bind_unix(&socket, group)?;
         let planner = opts.planner.unwrap_or(crate::intake::plan);
         let mut servers = Vec::new();

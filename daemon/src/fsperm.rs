@@ -129,6 +129,16 @@ pub fn bind_private(
     result.map_err(err)
 }
 
+/// Refuses a socket path that holds anything but a socket (a regular file, a folder, a
+/// link), before the daemon touches any file: that path is left alone, and named.
+pub fn check_socket_path(path: &Path) -> Result<(), SocketError> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(io_err(path)(e)),
+        Ok(m) => not_a_socket(path, &m),
+    }
+}
+
 /// Clears the way for a socket at `path`: nothing there, or a socket no daemon answers on
 /// (removed). A live daemon's socket, a regular file, a folder or a link are left alone.
 pub async fn clear_socket_path(path: &Path) -> Result<(), SocketError> {
@@ -137,6 +147,14 @@ pub async fn clear_socket_path(path: &Path) -> Result<(), SocketError> {
         Err(e) => return Err(io_err(path)(e)),
         Ok(m) => m,
     };
+    not_a_socket(path, &m)?;
+    if tokio::net::UnixStream::connect(path).await.is_ok() {
+        return Err(SocketError::Busy(path.display().to_string()));
+    }
+    std::fs::remove_file(path).map_err(io_err(path))
+}
+
+fn not_a_socket(path: &Path, m: &std::fs::Metadata) -> Result<(), SocketError> {
     use std::os::unix::fs::FileTypeExt;
     let t = m.file_type();
     if !t.is_socket() {
@@ -154,10 +172,7 @@ pub async fn clear_socket_path(path: &Path) -> Result<(), SocketError> {
             what: what.into(),
         });
     }
-    if tokio::net::UnixStream::connect(path).await.is_ok() {
-        return Err(SocketError::Busy(path.display().to_string()));
-    }
-    std::fs::remove_file(path).map_err(io_err(path))
+    Ok(())
 }
 
 /// The socket's own mode: 0600, or 0660 for a socket group (the folder is what keeps others

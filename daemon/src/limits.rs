@@ -1,7 +1,6 @@
 //! The daemon's bounds on what a request may hold, and JSON for every refusal (docs/daemon.md,
 //! "Limits"). Each limit is refused with a sentence naming it, never with a plain-text page.
 
-use axum::body::Body;
 use axum::extract::Request;
 use axum::http::{header, StatusCode};
 use axum::middleware::Next;
@@ -104,9 +103,4 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
         }
     }
     r
-}
-
-/// An empty body (for a response built by hand).
-pub fn empty() -> Body {
-    Body::empty()
 }

@@ -13,7 +13,7 @@ use crate::config::MachineConfig;
 use crate::intake::{IntakeError, JobSpec, Planned, Target};
 use machlink_protocols::Program;
 use std::io::{Read, Write};
-use std::os::fd::{AsRawFd, OwnedFd};
+use std::os::fd::OwnedFd;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -172,7 +172,6 @@ fn child(spec: &JobSpec, machine: &MachineConfig, plan: PlanFn, out: OwnedFd) ->
     };
     let mut f = std::fs::File::from(out);
     let code = if f.write_all(&answer).is_ok() { 0 } else { 3 };
-    let _ = f.as_raw_fd();
     // SAFETY: _exit ends the child without running the parent's exit handlers or destructors
     unsafe { libc::_exit(code) }
 }

@@ -47,7 +47,7 @@ pub async fn gcode(
     }
     let declared = crate::limits::content_length(&req);
     if declared.is_some_and(|n| n > MAX_GCODE_BODY) {
-        return Err(too_large(&format!("{file}"), MAX_GCODE_BODY));
+        return Err(too_large(&file, MAX_GCODE_BODY));
     }
     if !machine.kind.gcode_lines_are_units() {
         return whole_file(st, name, file, req).await;
