@@ -287,7 +287,12 @@ async fn give_back_after_jobs(sched: Scheduler) {
             Ok(crate::scheduler::Event::State { state, .. }) if state.is_final() => {
                 // the worker drops the program right after it records the final state
                 tokio::time::sleep(std::time::Duration::from_millis(200)).await;
-                let _ = tokio::task::spawn_blocking(crate::memory::give_back).await;
+                let store = sched.store().clone();
+                let _ = tokio::task::spawn_blocking(move || {
+                    store.release_memory();
+                    crate::memory::give_back();
+                })
+                .await;
             }
             Ok(_) => {}
             Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}

@@ -257,10 +257,19 @@ impl Store {
             ],
         )?;
         let id = tx.last_insert_rowid();
+        // the units are written into a blob of their size, page by page: no copy of a large
+        // program is made on the way into the store
         tx.execute(
-            "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, ?3)",
-            params![id, job.post, job.units_json],
+            "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, zeroblob(?3))",
+            params![id, job.post, job.units_json.len() as i64],
         )?;
+        {
+            use std::io::Write;
+            let mut blob = tx.blob_open(rusqlite::MAIN_DB, "programs", "units", id, false)?;
+            blob.write_all(job.units_json.as_bytes()).map_err(|e| {
+                StoreError::Corrupt(format!("cannot write job {id}'s program: {e}"))
+            })?;
+        }
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units) VALUES (?1, ?2, 'queued', 0)",
             params![id, now_ms()],
@@ -309,7 +318,7 @@ impl Store {
             .query_row(
                 "SELECT kind, units FROM programs WHERE job_id = ?1",
                 [id],
-                |r| Ok((r.get(0)?, r.get(1)?)),
+                |r| Ok((r.get(0)?, text_or_blob(r.get_ref(1)?)?)),
             )
             .optional()?
             .ok_or_else(|| StoreError::Corrupt(format!("job {id} has no program")))?;
@@ -402,6 +411,14 @@ impl Store {
         Ok(())
     }
 
+    /// Gives the connection's page cache back to the allocator (after a large program went
+    /// in or out, so the daemon's memory returns to its baseline).
+    pub fn release_memory(&self) {
+        if let Err(e) = self.conn().execute_batch("PRAGMA shrink_memory") {
+            tracing::warn!("the job store could not release its cache: {e}");
+        }
+    }
+
     /// How many journal flushes this store has made (for tests and stats).
     pub fn flush_count(&self) -> u64 {
         self.flushes.load(std::sync::atomic::Ordering::Relaxed)
@@ -432,6 +449,20 @@ impl Store {
                     .ok_or_else(|| StoreError::Corrupt(format!("job {} vanished", j.id)))
             })
             .collect()
+    }
+}
+
+/// A program's units as text, stored as text (older stores) or as a blob written in place.
+fn text_or_blob(v: rusqlite::types::ValueRef<'_>) -> rusqlite::Result<String> {
+    use rusqlite::types::{FromSqlError, ValueRef};
+    match v {
+        ValueRef::Text(b) | ValueRef::Blob(b) => String::from_utf8(b.to_vec())
+            .map_err(|e| rusqlite::Error::FromSqlConversionFailure(1, v.data_type(), Box::new(e))),
+        other => Err(rusqlite::Error::FromSqlConversionFailure(
+            1,
+            other.data_type(),
+            Box::new(FromSqlError::InvalidType),
+        )),
     }
 }
 

@@ -138,6 +138,7 @@ pub async fn gcode(
         units_json,
         total_units: count,
     });
+    st.sched.store().release_memory();
     crate::memory::give_back();
     let rec = rec?;
     let mut resp = (StatusCode::CREATED, Json(&rec)).into_response();
