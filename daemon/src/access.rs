@@ -1108,6 +1108,61 @@ mod tests {
     }
 
     #[test]
+    fn socket_peers_get_the_role_of_their_uid_or_group() {
+        let viewer = Grant {
+            role: Role::Viewer,
+            machines: Machines::All,
+        };
+        let operator = Grant {
+            role: Role::Operator,
+            machines: Machines::Only(["router".to_string()].into()),
+        };
+        let cfg = AccessConfig {
+            users: vec![PeerRule {
+                id: 64001,
+                label: "uid 64001".into(),
+                grant: operator.clone(),
+            }],
+            groups: vec![PeerRule {
+                id: 64100,
+                label: "gid 64100".into(),
+                grant: viewer,
+            }],
+            ..Default::default()
+        };
+        let a = Access::new(cfg, None, Audit::none(), None);
+        let unix = |uid, gid| Peer::Unix {
+            uid,
+            gid,
+            pid: Some(7),
+        };
+        let me = nix::unistd::geteuid().as_raw();
+        let owner = a.authenticate(&unix(me, 0), None).unwrap();
+        assert_eq!(owner.role, Role::Admin);
+        let op = a.authenticate(&unix(64001, 64001), None).unwrap();
+        assert_eq!(
+            (op.role, op.may_operate("router"), op.may_operate("mill")),
+            (Role::Operator, true, false)
+        );
+        assert_eq!(op.from, "unix socket, uid 64001 gid 64001 pid 7");
+        let v = a.authenticate(&unix(64002, 64100), None).unwrap();
+        assert_eq!(v.role, Role::Viewer);
+        let e = a.authenticate(&unix(64003, 64003), None).unwrap_err();
+        assert_eq!(e.0, StatusCode::FORBIDDEN);
+        assert!(e.1.contains("has no role on this daemon"), "{}", e.1);
+        // a token on the socket decides over the peer
+        let e = a
+            .authenticate(&unix(me, 0), Some("not-a-token-but-long-enough-to-look-up"))
+            .unwrap_err();
+        assert_eq!(e.0, StatusCode::UNAUTHORIZED);
+        // TCP without a token: refused
+        let e = a
+            .authenticate(&Peer::Tcp("127.0.0.1:9".parse().unwrap()), None)
+            .unwrap_err();
+        assert_eq!(e.0, StatusCode::UNAUTHORIZED);
+    }
+
+    #[test]
     fn the_access_table_names_its_mistakes() {
         let raw: RawAccess = toml::from_str(
             "[[token]]\nname = \"t\"\nrole = \"operator\"\nmachines = [\"nope\"]\nsha256 = \"00\"\n",
