@@ -43,7 +43,7 @@ fn job_state(socket: &Path, id: &str) -> (String, u64) {
         .as_array()
         .unwrap()
         .iter()
-        .find(|j| j["id"].to_string() == id)
+        .find(|j| j["id"].as_i64().map(|n| n.to_string()).as_deref() == Some(id))
         .expect("the job")
         .clone();
     (
