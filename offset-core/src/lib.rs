@@ -10,6 +10,7 @@ pub mod check;
 pub mod flatten;
 pub mod geom;
 pub mod io;
+pub mod mesh;
 pub mod offset;
 pub mod ops;
 pub mod preview;
