@@ -6,6 +6,7 @@
 
 pub mod bvh;
 pub mod dropcutter;
+pub mod shapes;
 // pub mod finish;
 // pub mod offset;
 // pub mod rough;
