@@ -7,20 +7,20 @@
 pub mod bvh;
 pub mod dropcutter;
 pub mod shapes;
-// pub mod finish;
+pub mod finish;
 // pub mod offset;
 // pub mod rough;
-// pub mod slice;
+pub mod slice;
 pub mod stl;
 // pub mod surface;
 pub mod topology;
 pub mod v3;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
-// pub use finish::{finish3d, Finish3dParams};
+pub use finish::{finish3d, Finish3dParams};
 // pub use offset::{offset, OffsetReport, OffsetResult, MeshOffsetOptions};
 // pub use rough::{rough3d, Rough3dParams};
-// pub use slice::slice_at;
+pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
 // pub use surface::{read_point_grid, BicubicSurface, PointGrid};
 pub use topology::{MeshReport, Topology};
