@@ -8,7 +8,7 @@ pub mod bvh;
 pub mod dropcutter;
 pub mod shapes;
 pub mod finish;
-// pub mod offset;
+pub mod offset;
 // pub mod rough;
 pub mod slice;
 pub mod stl;
@@ -18,7 +18,7 @@ pub mod v3;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
 pub use finish::{finish3d, Finish3dParams};
-// pub use offset::{offset, OffsetReport, OffsetResult, MeshOffsetOptions};
+pub use offset::{offset, OffsetReport, OffsetResult, MeshOffsetOptions};
 // pub use rough::{rough3d, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
