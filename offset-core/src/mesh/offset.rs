@@ -483,36 +483,64 @@ impl<'a> Offsetter<'a> {
                 return pts;
             }
         }
+        let pts = self.arc_points(v, lo, hi, axis);
+        // an arc made about another sharp edge through the vertex that strays no more
+        // than a quarter of the tolerance from this one serves both (a curved sharp edge
+        // then leaves no sliver of a hole between two nearly equal arcs)
+        if let Some(list) = self.arcs.get(&(lo, hi)) {
+            for (_, other) in list {
+                if other.len() == pts.len() + 2
+                    && pts
+                        .iter()
+                        .zip(&other[1..])
+                        .all(|(p, &o)| p.dist(self.out_vertices[o as usize]) <= 0.25 * self.tol)
+                {
+                    let mut shared = other.clone();
+                    if a != lo {
+                        shared.reverse();
+                    }
+                    return shared;
+                }
+            }
+        }
+        let mut idx = vec![self.cluster_point[lo as usize]];
+        for q in pts {
+            idx.push(self.out_vertices.len() as u32);
+            self.out_vertices.push(q);
+            self.point_vertex.push(v);
+        }
+        idx.push(self.cluster_point[hi as usize]);
+        self.arcs.entry((lo, hi)).or_default().push((axis, idx.clone()));
+        if a != lo {
+            idx.reverse();
+        }
+        idx
+    }
+
+    /// The inner points of the arc from cluster `lo`'s point to `hi`'s about `axis`.
+    fn arc_points(&self, v: u32, lo: u32, hi: u32, axis: V3) -> Vec<V3> {
         let c = self.m.vertices[v as usize];
         let (wa, wb) = (self.clusters[lo as usize].w, self.clusters[hi as usize].w);
         let (along_a, along_b) = (axis * wa.dot(axis), axis * wb.dot(axis));
         let (pa, pb) = (wa - along_a, wb - along_b);
         let steps = self.steps(pa, pb);
-        let mut pts = vec![self.cluster_point[lo as usize]];
         // the parts along the axis: equal ones stay (the arc trims a flat both clusters
         // share, as at a boss's foot grown out); unequal ones follow the turn's own weights
         // (an arc ending on a corner point off the edge's foot stays in the plane that
         // bisects the two edges there, as at a boss's foot shrunk in)
         let ang = pa.unit().dot(pb.unit()).clamp(-1.0, 1.0).acos();
         let same_along = along_a.dist(along_b) <= 1e-9 * (1.0 + wa.len());
-        for s in 1..steps {
-            let t = s as f64 / steps as f64;
-            let (ka, kb) = if ang > 1e-9 && !same_along {
-                (((1.0 - t) * ang).sin() / ang.sin(), (t * ang).sin() / ang.sin())
-            } else {
-                (1.0 - t, t)
-            };
-            let q = c + along_a * ka + along_b * kb + slerp(pa, pb, t);
-            pts.push(self.out_vertices.len() as u32);
-            self.out_vertices.push(q);
-            self.point_vertex.push(v);
-        }
-        pts.push(self.cluster_point[hi as usize]);
-        self.arcs.entry((lo, hi)).or_default().push((axis, pts.clone()));
-        if a != lo {
-            pts.reverse();
-        }
-        pts
+        (1..steps)
+            .map(|s| {
+                let t = s as f64 / steps as f64;
+                let (ka, kb) = if ang > 1e-9 && !same_along {
+                    (((1.0 - t) * ang).sin() / ang.sin(), (t * ang).sin() / ang.sin())
+                } else {
+                    (1.0 - t, t)
+                };
+                c + along_a * ka + along_b * kb + slerp(pa, pb, t)
+            })
+            .collect()
     }
 
     /// Steps for turning from `wa` to `wb` with each chord's sagitta within a quarter of the
