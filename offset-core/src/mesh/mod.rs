@@ -12,7 +12,7 @@ pub mod offset;
 pub mod rough;
 pub mod slice;
 pub mod stl;
-// pub mod surface;
+pub mod surface;
 pub mod topology;
 pub mod v3;
 
@@ -22,7 +22,7 @@ pub use offset::{offset, OffsetReport, OffsetResult, MeshOffsetOptions};
 pub use rough::{rough3d, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
-// pub use surface::{read_point_grid, BicubicSurface, PointGrid};
+pub use surface::{read_point_grid, BicubicSurface, PointGrid};
 pub use topology::{MeshReport, Topology};
 pub use v3::V3;
 
