@@ -214,8 +214,18 @@ pub fn sample_line(
             if sb - sa > min_step {
                 let sm = 0.5 * (sa + sb);
                 let pm = at(sm);
-                let chord = 0.5 * (pa.z + pb.z);
-                if pm.z > chord + 0.1 * tol || pm.z < chord - tol {
+                // the middle and the quarters (a kink between two samples can hide
+                // from the middle alone)
+                // heights off the chord, measured square to it (on a steep wall a
+                // sliver of the chord's length is a long way in height)
+                let slope = (pb.z - pa.z) / (sb - sa);
+                let square = 1.0 / (1.0 + slope * slope).sqrt();
+                let off = |q: V3, t: f64| (q.z - (pa.z + (pb.z - pa.z) * t)) * square;
+                let bad = |d: f64| d > 0.1 * tol || d < -tol;
+                if bad(off(pm, 0.5))
+                    || bad(off(at(0.75 * sa + 0.25 * sb), 0.25))
+                    || bad(off(at(0.25 * sa + 0.75 * sb), 0.75))
+                {
                     // the right half waits under the left one
                     stack.push((sm, pm, sb, pb));
                     stack.push((sa, pa, sm, pm));
