@@ -16,8 +16,8 @@
 //! - edge: along an edge the demand z(t) − h(q(t)) is concave (a line less a convex
 //!   function of a convex one), so its maximum over the part of the edge within R is the
 //!   one stationary point: closed form for ball (a circle against a line in the edge's
-//!   vertical plane) and flat (the rim circle meeting the edge), bisection on the
-//!   derivative's sign for a bull.
+//!   vertical plane) and flat (the rim circle meeting the edge), the root of the
+//!   derivative by false position (Illinois) for a bull.
 //!
 //! Triangles come from a bounding-volume hierarchy split in plan view; a query visits
 //! only boxes overlapping the cutter's square and reaching above the height found so far
@@ -139,6 +139,8 @@ struct Tri {
     p: [V3; 3],
     n: V3,
     zmax: f64,
+    /// plan-view box: x_min, y_min, x_max, y_max
+    b: [f64; 4],
 }
 
 /// Where the cutter over a point touches the mesh.
@@ -178,6 +180,12 @@ impl DropCutter {
                     p,
                     n: if n.z < 0.0 { -n } else { n },
                     zmax: p[0].z.max(p[1].z).max(p[2].z),
+                    b: [
+                        p[0].x.min(p[1].x).min(p[2].x),
+                        p[0].y.min(p[1].y).min(p[2].y),
+                        p[0].x.max(p[1].x).max(p[2].x),
+                        p[0].y.max(p[1].y).max(p[2].y),
+                    ],
                 }
             })
             .collect();
@@ -211,6 +219,12 @@ impl DropCutter {
             .visit_xy_above(x - r, y - r, x + r, y + r, &mut best, |t, best| {
                 let tri = &self.tris[t];
                 if tri.zmax <= *best {
+                    return;
+                }
+                // the triangle's plan-view box beyond the cutter's reach
+                let dx = (tri.b[0] - x).max(0.0).max(x - tri.b[2]);
+                let dy = (tri.b[1] - y).max(0.0).max(y - tri.b[3]);
+                if dx * dx + dy * dy > r * r {
                     return;
                 }
                 if let Some((z, c)) = self.triangle(tri, x, y, *best) {
@@ -346,16 +360,44 @@ impl DropCutter {
                 } else if slope(tb) >= 0.0 {
                     tb
                 } else {
+                    // the root of the decreasing slope: false position (Illinois) while
+                    // both ends are finite, halving otherwise
                     let (mut lo, mut hi) = (ta, tb);
-                    for _ in 0..60 {
-                        let mid = 0.5 * (lo + hi);
-                        if mid <= lo || mid >= hi {
+                    let (mut glo, mut ghi) = (slope(lo), slope(hi));
+                    let mut side = 0i8;
+                    let eps = 1e-13 * (1.0 + l);
+                    for _ in 0..100 {
+                        if hi - lo <= eps {
                             break;
                         }
-                        if slope(mid) > 0.0 {
+                        let mut mid = if glo.is_finite() && ghi.is_finite() {
+                            lo + (hi - lo) * glo / (glo - ghi)
+                        } else {
+                            0.5 * (lo + hi)
+                        };
+                        if !(mid > lo && mid < hi) {
+                            mid = 0.5 * (lo + hi);
+                        }
+                        let g = slope(mid);
+                        if g == 0.0 {
                             lo = mid;
+                            hi = mid;
+                            break;
+                        }
+                        if g > 0.0 {
+                            lo = mid;
+                            glo = g;
+                            if side == 1 {
+                                ghi *= 0.5;
+                            }
+                            side = 1;
                         } else {
                             hi = mid;
+                            ghi = g;
+                            if side == -1 {
+                                glo *= 0.5;
+                            }
+                            side = -1;
                         }
                     }
                     0.5 * (lo + hi)

@@ -29,6 +29,45 @@ pub use v3::V3;
 use crate::ops::OpError;
 use serde::{Deserialize, Serialize};
 
+/// A fast hasher for the integer keys of the mesh code's maps (FxHash: rotate, xor,
+/// multiply); the default SipHash would make welding, slicing and offsets several times
+/// slower.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct FxHasher(u64);
+
+impl FxHasher {
+    fn add(&mut self, w: u64) {
+        self.0 = (self.0.rotate_left(5) ^ w).wrapping_mul(0x517c_c1b7_2722_0a95);
+    }
+}
+
+impl std::hash::Hasher for FxHasher {
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.add(b as u64);
+        }
+    }
+    fn write_u32(&mut self, i: u32) {
+        self.add(i as u64);
+    }
+    fn write_u64(&mut self, i: u64) {
+        self.add(i);
+    }
+    fn write_i64(&mut self, i: i64) {
+        self.add(i as u64);
+    }
+    fn write_usize(&mut self, i: usize) {
+        self.add(i as u64);
+    }
+    fn finish(&self) -> u64 {
+        self.0
+    }
+}
+
+/// A hash map keyed by integers, with [`FxHasher`].
+pub(crate) type FastMap<K, V> =
+    std::collections::HashMap<K, V, std::hash::BuildHasherDefault<FxHasher>>;
+
 /// A triangle mesh: shared vertices and faces of three vertex indices, counter-clockwise
 /// seen from outside (the right-hand normal points out of the material).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]

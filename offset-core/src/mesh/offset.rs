@@ -27,7 +27,7 @@ use super::topology::Topology;
 use super::v3::dist_to_triangle;
 use super::{Mesh, MeshError, V3};
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
+use super::FastMap;
 
 /// Settings of a mesh offset.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -154,9 +154,9 @@ struct Offsetter<'a> {
     cluster_point: Vec<u32>,
     /// the source vertex of each output vertex
     point_vertex: Vec<u32>,
-    arcs: HashMap<(u32, u32), Vec<(V3, Vec<u32>)>>,
+    arcs: FastMap<(u32, u32), Vec<(V3, Vec<u32>)>>,
     /// for a pair of clusters at a vertex split by a sharp edge: that edge's direction
-    pair_axis: HashMap<(u32, u32), V3>,
+    pair_axis: FastMap<(u32, u32), V3>,
     vertex_faces: Vec<Vec<u32>>,
 }
 
@@ -175,8 +175,8 @@ impl<'a> Offsetter<'a> {
             out_vertices: Vec::new(),
             cluster_point: Vec::new(),
             point_vertex: Vec::new(),
-            arcs: HashMap::new(),
-            pair_axis: HashMap::new(),
+            arcs: FastMap::default(),
+            pair_axis: FastMap::default(),
             vertex_faces: Vec::new(),
         }
     }
@@ -269,7 +269,7 @@ impl<'a> Offsetter<'a> {
     /// The faces round `v` in order, one list per fan (more than one at a vertex where
     /// two sheets touch).
     fn fans(&self, v: u32, faces: &[u32]) -> Vec<Vec<u32>> {
-        let mut seen: HashMap<u32, bool> = HashMap::new();
+        let mut seen: FastMap<u32, bool> = FastMap::default();
         let mut fans = Vec::new();
         for &start in faces {
             if seen.contains_key(&start) {
@@ -555,7 +555,7 @@ impl<'a> Offsetter<'a> {
 
     fn fill_corners(&mut self, faces: &mut Vec<[u32; 3]>) {
         // directed edges used once (their reverse unused)
-        let mut used: HashMap<(u32, u32), i32> = HashMap::new();
+        let mut used: FastMap<(u32, u32), i32> = FastMap::default();
         for f in faces.iter() {
             for k in 0..3 {
                 let (a, b) = (f[k], f[(k + 1) % 3]);
@@ -565,7 +565,7 @@ impl<'a> Offsetter<'a> {
                 *used.entry((a, b)).or_insert(0) += 1;
             }
         }
-        let mut open: HashMap<u32, Vec<u32>> = HashMap::new();
+        let mut open: FastMap<u32, Vec<u32>> = FastMap::default();
         let mut keys: Vec<(u32, u32)> = used
             .iter()
             .filter(|(&(a, b), &n)| n == 1 && !used.contains_key(&(b, a)))
@@ -610,7 +610,7 @@ impl<'a> Offsetter<'a> {
             .iter()
             .map(|&f| self.m.triangle(f as usize))
             .collect();
-        let d = self.d;
+        let (d, tol) = (self.d, self.tol);
         let place = |dir: V3, guess: f64| -> V3 {
             // the length along `dir` at which the point is d from the ring (the distance
             // grows with the length for directions out of the solid)
@@ -619,6 +619,9 @@ impl<'a> Offsetter<'a> {
                     .map(|t| dist_to_triangle(c + dir * r, t))
                     .fold(f64::INFINITY, f64::min)
             };
+            if (dist(guess) - d).abs() <= 1e-3 * tol {
+                return dir * guess; // on the sphere of a convex corner already
+            }
             let (mut lo, mut hi) = (0.0, guess.max(d) * 2.0);
             if dist(hi) < d {
                 return dir * guess;

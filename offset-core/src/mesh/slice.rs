@@ -11,7 +11,7 @@
 
 use super::{Mesh, MeshError, V3};
 use crate::geom::{Point, Polyline};
-use std::collections::HashMap;
+use super::FastMap;
 
 /// The contours of the closed mesh's section just above the plane Z = `z`: loops
 /// counter-clockwise round material and clockwise round holes, repeated points dropped.
@@ -27,8 +27,8 @@ pub fn slice_at(m: &Mesh, z: f64) -> Result<Vec<Polyline>, MeshError> {
         Point::new(lo.x + (hi.x - lo.x) * t, lo.y + (hi.y - lo.y) * t)
     };
     // each crossed face gives one piece: from its edge going down to its edge going up
-    let mut next: HashMap<(u32, u32), ((u32, u32), usize)> = HashMap::new();
-    let mut points: HashMap<(u32, u32), Point> = HashMap::new();
+    let mut next: FastMap<(u32, u32), ((u32, u32), usize)> = FastMap::default();
+    let mut points: FastMap<(u32, u32), Point> = FastMap::default();
     for (f, face) in m.faces.iter().enumerate() {
         let up: [bool; 3] = [above(face[0]), above(face[1]), above(face[2])];
         if up[0] == up[1] && up[1] == up[2] {
@@ -53,7 +53,7 @@ pub fn slice_at(m: &Mesh, z: f64) -> Result<Vec<Polyline>, MeshError> {
         }
     }
     let mut loops = Vec::new();
-    let mut done: HashMap<(u32, u32), bool> = HashMap::with_capacity(next.len());
+    let mut done: FastMap<(u32, u32), bool> = FastMap::default();
     let mut starts: Vec<(u32, u32)> = next.keys().copied().collect();
     starts.sort_unstable();
     for s in starts {

@@ -2,13 +2,13 @@
 //! a solid must not have (non-manifold edges, holes, flipped faces), reported by face.
 
 use super::{Mesh, V3};
-use std::collections::HashMap;
+use super::FastMap;
 
 /// Welds points closer than a tolerance into one vertex, through a hash grid of cells the
 /// size of the tolerance (a point's twin lies in one of the 27 cells around it).
 pub struct Welder {
     tol: f64,
-    cells: HashMap<(i64, i64, i64), Vec<u32>>,
+    cells: FastMap<(i64, i64, i64), Vec<u32>>,
     vertices: Vec<V3>,
 }
 
@@ -16,7 +16,7 @@ impl Welder {
     pub fn new(tol: f64) -> Self {
         Welder {
             tol: if tol > 0.0 { tol } else { 1e-12 },
-            cells: HashMap::new(),
+            cells: FastMap::default(),
             vertices: Vec::new(),
         }
     }
