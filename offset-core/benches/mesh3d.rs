@@ -60,25 +60,52 @@ fn shape_name(c: &Cutter) -> &'static str {
 }
 
 /// OpenCAMLib over `pts`: (seconds, heights) or why it could not run.
-fn ocl(stl: &Path, pts: &[(f64, f64)], min_z: f64, c: &Cutter) -> Result<(f64, Vec<f64>, u64), String> {
+fn ocl(
+    stl: &Path,
+    pts: &[(f64, f64)],
+    min_z: f64,
+    c: &Cutter,
+) -> Result<(f64, Vec<f64>, u64), String> {
     let dir = stl.parent().unwrap();
     let job = dir.join("pts.json");
     let out = dir.join("ocl.json");
-    std::fs::write(&job, serde_json::json!({"min_z": min_z, "points": pts}).to_string()).unwrap();
+    std::fs::write(
+        &job,
+        serde_json::json!({"min_z": min_z, "points": pts}).to_string(),
+    )
+    .unwrap();
     let r = Command::new(python())
         .arg(script())
-        .args(["ocl", &stl.display().to_string(), &job.display().to_string(), shape_name(c)])
+        .args([
+            "ocl",
+            &stl.display().to_string(),
+            &job.display().to_string(),
+            shape_name(c),
+        ])
         .arg(c.diameter.to_string())
         .arg(c.corner_radius.to_string())
         .arg(&out)
         .output()
         .map_err(|e| e.to_string())?;
     if !r.status.success() {
-        return Err(String::from_utf8_lossy(&r.stderr).lines().last().unwrap_or("failed").to_string());
+        return Err(String::from_utf8_lossy(&r.stderr)
+            .lines()
+            .last()
+            .unwrap_or("failed")
+            .to_string());
     }
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
-    let zs = v["heights"].as_array().unwrap().iter().map(|z| z.as_f64().unwrap()).collect();
-    Ok((v["seconds"].as_f64().unwrap(), zs, v["threads"].as_u64().unwrap_or(0)))
+    let zs = v["heights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|z| z.as_f64().unwrap())
+        .collect();
+    Ok((
+        v["seconds"].as_f64().unwrap(),
+        zs,
+        v["threads"].as_u64().unwrap_or(0),
+    ))
 }
 
 fn main() {
@@ -95,8 +122,16 @@ fn main() {
     println!("| case | implementation | points | time | points/s | worst difference (mm) |");
     println!("|---|---|---:|---:|---:|---:|");
     for (label, m, file) in [
-        (format!("height field, {} triangles", field.faces.len()), &field, "field.stl"),
-        (format!("solid, {} triangles", solid.faces.len()), &solid, "solid.stl"),
+        (
+            format!("height field, {} triangles", field.faces.len()),
+            &field,
+            "field.stl",
+        ),
+        (
+            format!("solid, {} triangles", solid.faces.len()),
+            &solid,
+            "solid.stl",
+        ),
     ] {
         let stl = dir.path().join(file);
         for c in [Cutter::ball(6.0), Cutter::flat(6.0), Cutter::bull(6.0, 1.0)] {
@@ -110,18 +145,43 @@ fn main() {
                     std::hint::black_box(dc.drop(x, y, min_z));
                 }
             });
-            let name = format!("{label}, {} d{}{}", shape_name(&c), c.diameter, if c.shape == CutterShape::Bull { format!(" r{}", c.corner_radius) } else { String::new() });
-            println!("| {name} | machlink, 2 threads (rayon) | {} | {:.1} ms | {:.0} | |", pts.len(), t * 1e3, pts.len() as f64 / t);
-            println!("| {name} | machlink, 1 thread | {} | {:.1} ms | {:.0} | |", pts.len(), t1 * 1e3, pts.len() as f64 / t1);
+            let name = format!(
+                "{label}, {} d{}{}",
+                shape_name(&c),
+                c.diameter,
+                if c.shape == CutterShape::Bull {
+                    format!(" r{}", c.corner_radius)
+                } else {
+                    String::new()
+                }
+            );
+            println!(
+                "| {name} | machlink, 2 threads (rayon) | {} | {:.1} ms | {:.0} | |",
+                pts.len(),
+                t * 1e3,
+                pts.len() as f64 / t
+            );
+            println!(
+                "| {name} | machlink, 1 thread | {} | {:.1} ms | {:.0} | |",
+                pts.len(),
+                t1 * 1e3,
+                pts.len() as f64 / t1
+            );
             // the anchor on fewer points (it is slow), the same points for both
             let few = grid_points(m, if quick { 20 } else { 40 });
             match ocl(&stl, &few, min_z, &c) {
                 Ok((secs, theirs, threads)) => {
                     let ours = dc.drop_many(&few, min_z);
-                    let diff = ours.iter().zip(&theirs).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+                    let diff = ours
+                        .iter()
+                        .zip(&theirs)
+                        .map(|(a, b)| (a - b).abs())
+                        .fold(0.0, f64::max);
                     println!("| {name} | OpenCAMLib BatchDropCutter ({threads} threads) | {} | {:.1} ms | {:.0} | {diff:.1e} |", few.len(), secs * 1e3, few.len() as f64 / secs);
                 }
-                Err(e) => println!("| {name} | OpenCAMLib BatchDropCutter | – | could not run: {e} | | |"),
+                Err(e) => {
+                    println!("| {name} | OpenCAMLib BatchDropCutter | – | could not run: {e} | | |")
+                }
             }
             let _ = zs;
         }
@@ -136,7 +196,11 @@ fn main() {
             let t = best_of(5, || out = Some(offset(&solid, d, &opts).unwrap()));
             let out = out.unwrap();
             let (err, _) = measure_error(&solid, &out.mesh, d, 3);
-            let closed = if out.mesh.report().closed { "closed" } else { "NOT closed" };
+            let closed = if out.mesh.report().closed {
+                "closed"
+            } else {
+                "NOT closed"
+            };
             println!("| solid | machlink (multiple normals), {closed} | {d} | {tol} | {:.1} ms | {} | {err:.4} |", t * 1e3, out.mesh.faces.len());
         }
         for voxels in [1e6, 1e7] {
@@ -144,14 +208,25 @@ fn main() {
             let out_json = dir.path().join("ml.json");
             let r = Command::new(python())
                 .arg(script())
-                .args(["meshlib", &dir.path().join("solid.stl").display().to_string(), &d.to_string(), &voxels.to_string()])
+                .args([
+                    "meshlib",
+                    &dir.path().join("solid.stl").display().to_string(),
+                    &d.to_string(),
+                    &voxels.to_string(),
+                ])
                 .arg(&out_stl)
                 .arg(&out_json)
                 .output();
             match r {
                 Ok(o) if o.status.success() => {
-                    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap();
-                    let theirs = read_stl(&std::fs::read(&out_stl).unwrap(), "meshlib.stl", &Default::default()).unwrap();
+                    let v: serde_json::Value =
+                        serde_json::from_slice(&std::fs::read(&out_json).unwrap()).unwrap();
+                    let theirs = read_stl(
+                        &std::fs::read(&out_stl).unwrap(),
+                        "meshlib.stl",
+                        &Default::default(),
+                    )
+                    .unwrap();
                     let (err, _) = measure_error(&solid, &theirs, d, 3);
                     println!(
                         "| solid | MeshLib offsetMesh, voxel {:.3} mm (≈{voxels:.0e} voxels) | {d} | | {:.1} ms | {} | {err:.4} |",
@@ -160,8 +235,16 @@ fn main() {
                         v["faces"]
                     );
                 }
-                Ok(o) => println!("| solid | MeshLib offsetMesh | {d} | | could not run: {} | | |", String::from_utf8_lossy(&o.stderr).lines().last().unwrap_or("failed")),
-                Err(e) => println!("| solid | MeshLib offsetMesh | {d} | | could not run: {e} | | |"),
+                Ok(o) => println!(
+                    "| solid | MeshLib offsetMesh | {d} | | could not run: {} | | |",
+                    String::from_utf8_lossy(&o.stderr)
+                        .lines()
+                        .last()
+                        .unwrap_or("failed")
+                ),
+                Err(e) => {
+                    println!("| solid | MeshLib offsetMesh | {d} | | could not run: {e} | | |")
+                }
             }
         }
     }

@@ -158,7 +158,8 @@ fn ball_flat_and_bull_over_a_tilted_plane_are_exact() {
 
 #[test]
 fn ball_flat_and_bull_over_a_level_plane_sit_on_it() {
-    let m = offset_core::mesh::shapes::height_field((-50.0, 50.0), (-50.0, 50.0), 6, 6, |_, _| 3.25);
+    let m =
+        offset_core::mesh::shapes::height_field((-50.0, 50.0), (-50.0, 50.0), 6, 6, |_, _| 3.25);
     for c in cutters(5.0) {
         let dc = DropCutter::new(&m, c).unwrap();
         for i in 0..50 {
@@ -194,7 +195,11 @@ fn ball_location_follows_the_contact_point_and_the_surface_normal() {
             (centre - cc).len()
         );
         let rl = cc + (n_facet - V3::Z) * r;
-        assert!(rl.dist(ct.tip) < 1e-9, "ball at ({x}, {y}): r_L {rl:?} vs tip {:?}", ct.tip);
+        assert!(
+            rl.dist(ct.tip) < 1e-9,
+            "ball at ({x}, {y}): r_L {rl:?} vs tip {:?}",
+            ct.tip
+        );
         let n_sphere = cc.unit();
         assert!(
             n_facet.dot(n_sphere) > (0.03f64).cos(),

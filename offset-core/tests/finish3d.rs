@@ -56,7 +56,11 @@ fn stays_on_the_drop_surface(case: &str, m: &Mesh, p: &Finish3dParams) {
                 if pos.z < 1e2 && (pos.x != to.x || pos.y != to.y) {
                     for k in 1..n {
                         let t = k as f64 / n as f64;
-                        let q = P3::new(pos.x + (to.x - pos.x) * t, pos.y + (to.y - pos.y) * t, pos.z + (to.z - pos.z) * t);
+                        let q = P3::new(
+                            pos.x + (to.x - pos.x) * t,
+                            pos.y + (to.y - pos.y) * t,
+                            pos.z + (to.z - pos.z) * t,
+                        );
                         let z = dc.drop(q.x, q.y, floor);
                         // measured square to the move (a steep move's height error is
                         // mostly along it)
@@ -101,7 +105,9 @@ fn a_bull_finish_of_a_dome_at_30_degrees_stays_on_the_drop_cutter_surface() {
 
 #[test]
 fn a_flat_finish_of_a_wavy_field_without_zigzag_stays_on_the_drop_cutter_surface() {
-    let m = height_field((0.0, 30.0), (0.0, 20.0), 30, 20, |x, y| 2.0 * (x / 4.0).sin() * (y / 5.0).cos());
+    let m = height_field((0.0, 30.0), (0.0, 20.0), 30, 20, |x, y| {
+        2.0 * (x / 4.0).sin() * (y / 5.0).cos()
+    });
     let p = Finish3dParams {
         zigzag: false,
         ..params(Cutter::flat(4.0))
@@ -119,20 +125,35 @@ fn rows_lie_a_step_over_apart_in_the_direction_asked() {
         };
         let tp = finish3d(&m, &p).unwrap();
         let pts = cut_points(&tp);
-        let mut across: Vec<f64> = pts.iter().map(|q| if along_x { q.y } else { q.x }).collect();
+        let mut across: Vec<f64> = pts
+            .iter()
+            .map(|q| if along_x { q.y } else { q.x })
+            .collect();
         across.sort_by(f64::total_cmp);
         across.dedup_by(|a, b| (*a - *b).abs() < 1e-9);
         let width = if along_x { 20.0 } else { 30.0 };
-        assert!((across[0] - 0.0).abs() < 1e-9 && (across[across.len() - 1] - width).abs() < 1e-9, "angle {angle}: rows from {} to {}", across[0], across[across.len() - 1]);
+        assert!(
+            (across[0] - 0.0).abs() < 1e-9 && (across[across.len() - 1] - width).abs() < 1e-9,
+            "angle {angle}: rows from {} to {}",
+            across[0],
+            across[across.len() - 1]
+        );
         for w in across.windows(2) {
-            assert!(w[1] - w[0] <= 1.5 + 1e-9, "angle {angle}: rows {} and {} are more than a step-over apart", w[0], w[1]);
+            assert!(
+                w[1] - w[0] <= 1.5 + 1e-9,
+                "angle {angle}: rows {} and {} are more than a step-over apart",
+                w[0],
+                w[1]
+            );
         }
     }
 }
 
 #[test]
 fn a_flat_plane_finishes_in_one_move_a_row() {
-    let m = height_field((0.0, 30.0), (0.0, 20.0), 12, 8, |x, y| 0.1 * x - 0.05 * y + 2.0);
+    let m = height_field((0.0, 30.0), (0.0, 20.0), 12, 8, |x, y| {
+        0.1 * x - 0.05 * y + 2.0
+    });
     // the cutter kept off the plane's edges, where it would hang over
     let p = Finish3dParams {
         area: Some([3.0, 0.0, 27.0, 20.0]),
@@ -143,7 +164,10 @@ fn a_flat_plane_finishes_in_one_move_a_row() {
     // the rows along the plane's bottom and top edges still hang over: three moves each
     let linears = cut_points(&tp).len();
     // per row: one move along it; between rows: one link (zigzag); plus the first plunge
-    assert!(linears <= 2 * rows + 1 + 8, "{linears} cutting moves for {rows} rows");
+    assert!(
+        linears <= 2 * rows + 1 + 8,
+        "{linears} cutting moves for {rows} rows"
+    );
 }
 
 #[test]
@@ -152,8 +176,23 @@ fn the_path_starts_and_ends_at_the_safe_height_with_the_tool_named() {
     let p = params(Cutter::ball(6.0));
     let tp = finish3d(&m, &p).unwrap();
     let safe = m.bounds().unwrap().1.z + p.safe_z;
-    let first = tp.moves.iter().find_map(|mv| match mv { Move::Rapid { to } => Some(*to), _ => None }).unwrap();
-    let last = tp.moves.iter().rev().find_map(|mv| match mv { Move::Rapid { to } => Some(*to), _ => None }).unwrap();
+    let first = tp
+        .moves
+        .iter()
+        .find_map(|mv| match mv {
+            Move::Rapid { to } => Some(*to),
+            _ => None,
+        })
+        .unwrap();
+    let last = tp
+        .moves
+        .iter()
+        .rev()
+        .find_map(|mv| match mv {
+            Move::Rapid { to } => Some(*to),
+            _ => None,
+        })
+        .unwrap();
     assert!((first.z - safe).abs() < 1e-9 && (last.z - safe).abs() < 1e-9);
     let tool = tp.tool.unwrap();
     assert_eq!(tool.kind, offset_core::toolpath::ToolKind::BallEnd);
@@ -164,8 +203,20 @@ fn the_path_starts_and_ends_at_the_safe_height_with_the_tool_named() {
 fn bad_finishing_parameters_are_refused_by_name() {
     let (m, _) = dome_outside(20.0, 12, 24);
     let cases = [
-        (Finish3dParams { stepover: Stepover::Mm(8.0), ..params(Cutter::ball(6.0)) }, "more than the cutter diameter"),
-        (Finish3dParams { tolerance: 0.0, ..params(Cutter::ball(6.0)) }, "the tolerance must be a positive number"),
+        (
+            Finish3dParams {
+                stepover: Stepover::Mm(8.0),
+                ..params(Cutter::ball(6.0))
+            },
+            "more than the cutter diameter",
+        ),
+        (
+            Finish3dParams {
+                tolerance: 0.0,
+                ..params(Cutter::ball(6.0))
+            },
+            "the tolerance must be a positive number",
+        ),
         (params(Cutter::bull(6.0, 4.0)), "corner radius"),
         (params(Cutter::flat(f64::NAN)), "the cutter diameter"),
     ];

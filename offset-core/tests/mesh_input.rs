@@ -48,13 +48,20 @@ fn a_cut_short_ascii_stl_names_the_face() {
     let m = cuboid(V3::ZERO, V3::new(1.0, 1.0, 1.0));
     let t = write_ascii_stl(&m);
     let cut = &t[..t.len() / 2];
-    let e = read_stl(cut.as_bytes(), "part.stl", &opts()).unwrap_err().to_string();
-    assert!(e.starts_with("part.stl: the ASCII STL is cut short in face "), "{e}");
+    let e = read_stl(cut.as_bytes(), "part.stl", &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with("part.stl: the ASCII STL is cut short in face "),
+        "{e}"
+    );
 }
 
 #[test]
 fn a_tiny_file_is_not_an_stl() {
-    let e = read_stl(b"hello", "part.stl", &opts()).unwrap_err().to_string();
+    let e = read_stl(b"hello", "part.stl", &opts())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("too short for an STL file"), "{e}");
 }
 
@@ -66,14 +73,22 @@ fn a_nan_vertex_names_the_face_and_corner() {
     let at = 84 + 50 * 5 + 12 + 24 + 4;
     b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
     let e = read_stl(&b, "part.stl", &opts()).unwrap_err();
-    assert_eq!(e.to_string(), "part.stl: vertex 2 of face 5 is not a finite number");
+    assert_eq!(
+        e.to_string(),
+        "part.stl: vertex 2 of face 5 is not a finite number"
+    );
 }
 
 #[test]
 fn a_nan_vertex_in_ascii_names_the_face() {
     let t = "solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 nan\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n";
-    let e = read_stl(t.as_bytes(), "part.stl", &opts()).unwrap_err().to_string();
-    assert!(e.contains("face 0") && e.contains("not a finite number"), "{e}");
+    let e = read_stl(t.as_bytes(), "part.stl", &opts())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("face 0") && e.contains("not a finite number"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -85,7 +100,10 @@ fn a_mesh_of_degenerate_faces_has_no_area() {
     );
     let e = read_stl(&write_stl(&m), "flat.stl", &opts()).unwrap_err();
     assert!(matches!(e, MeshError::NoArea { .. }), "{e}");
-    assert_eq!(e.to_string(), "flat.stl has no area: all of its 2 faces are degenerate (zero area)");
+    assert_eq!(
+        e.to_string(),
+        "flat.stl has no area: all of its 2 faces are degenerate (zero area)"
+    );
 }
 
 #[test]
@@ -95,9 +113,16 @@ fn too_many_faces_are_refused_by_the_budget_before_reading() {
         max_faces: 10,
         ..opts()
     };
-    let e = read_stl(&write_stl(&m), "big.stl", &small).unwrap_err().to_string();
-    assert_eq!(e, "big.stl has 12 faces, more than the budget of 10 (MeshOptions::max_faces)");
-    let e = read_stl(write_ascii_stl(&m).as_bytes(), "big.stl", &small).unwrap_err().to_string();
+    let e = read_stl(&write_stl(&m), "big.stl", &small)
+        .unwrap_err()
+        .to_string();
+    assert_eq!(
+        e,
+        "big.stl has 12 faces, more than the budget of 10 (MeshOptions::max_faces)"
+    );
+    let e = read_stl(write_ascii_stl(&m).as_bytes(), "big.stl", &small)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("more than the budget of 10"), "{e}");
 }
 
@@ -109,10 +134,15 @@ fn a_non_manifold_mesh_is_refused_by_the_solid_operations() {
     let f0 = m.faces[0];
     m.faces.push([f0[0], f0[1], extra]);
     let m = read_stl(&write_stl(&m), "fin.stl", &opts()).unwrap();
-    let e1 = offset(&m, 1.0, &Default::default()).unwrap_err().to_string();
+    let e1 = offset(&m, 1.0, &Default::default())
+        .unwrap_err()
+        .to_string();
     let e2 = rough3d(&m, &Default::default()).unwrap_err().to_string();
     for e in [e1, e2] {
-        assert!(e.starts_with("fin.stl: the edge from vertex") && e.contains("is shared by 3 faces"), "{e}");
+        assert!(
+            e.starts_with("fin.stl: the edge from vertex") && e.contains("is shared by 3 faces"),
+            "{e}"
+        );
     }
 }
 
@@ -122,7 +152,7 @@ fn vertices_within_the_weld_tolerance_become_one() {
     let mut tris: Vec<[V3; 3]> = m.triangles().collect();
     // nudge every corner of one face by less than the tolerance
     for p in &mut tris[3] {
-        *p = *p + V3::new(3e-5, -2e-5, 1e-5);
+        *p += V3::new(3e-5, -2e-5, 1e-5);
     }
     let n = offset_core::mesh::Mesh::from_triangles("nudged", &tris, 1e-4);
     assert_eq!(n.vertices.len(), 8);

@@ -97,7 +97,11 @@ fn an_open_mesh_is_refused_naming_a_face_of_the_hole() {
     m.faces.remove(3);
     let e = offset(&m, 1.0, &Default::default()).unwrap_err();
     assert!(matches!(e, MeshError::Open { .. }), "{e}");
-    assert!(e.to_string().contains("is not closed: 3 edges bound a hole"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("is not closed: 3 edges bound a hole"),
+        "{e}"
+    );
 }
 
 #[test]

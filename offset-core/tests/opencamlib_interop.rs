@@ -83,7 +83,13 @@ fn agree(case: &str, m: &Mesh, pts: &[(f64, f64)]) {
     let min_z = ours_mesh.bounds().unwrap().0.z - 10.0;
     let theirs = ocl_heights(&stl, pts, min_z);
     for ((name, c), zs) in cutters().iter().zip(theirs) {
-        assert_eq!(zs.len(), pts.len(), "{case}, {name}: OpenCAMLib returned {} points for {}", zs.len(), pts.len());
+        assert_eq!(
+            zs.len(),
+            pts.len(),
+            "{case}, {name}: OpenCAMLib returned {} points for {}",
+            zs.len(),
+            pts.len()
+        );
         let dc = DropCutter::new(&ours_mesh, *c).unwrap();
         let mut worst = (0.0f64, 0usize);
         for (i, (&(x, y), &z_ocl)) in pts.iter().zip(&zs).enumerate() {
@@ -95,7 +101,10 @@ fn agree(case: &str, m: &Mesh, pts: &[(f64, f64)]) {
         }
         let (d, i) = worst;
         let touching = zs.iter().filter(|&&z| z > min_z).count();
-        eprintln!("{case}, {name}: worst difference {d:.2e} mm over {} points ({touching} touching)", pts.len());
+        eprintln!(
+            "{case}, {name}: worst difference {d:.2e} mm over {} points ({touching} touching)",
+            pts.len()
+        );
         assert!(
             touching * 2 > pts.len(),
             "{case}, {name}: only {touching} of {} points touch the part: the case tests little",
@@ -130,17 +139,29 @@ fn drop_cutter_agrees_with_opencamlib_on_a_wavy_height_field() {
     let m = height_field((0.0, 40.0), (0.0, 30.0), 40, 30, |x, y| {
         3.0 * (x / 5.0).sin() * (y / 7.0).cos() + 0.05 * x
     });
-    agree("wavy height field", &m, &grid(V3::new(-2.0, -2.0, 0.0), V3::new(42.0, 32.0, 0.0), 40));
+    agree(
+        "wavy height field",
+        &m,
+        &grid(V3::new(-2.0, -2.0, 0.0), V3::new(42.0, 32.0, 0.0), 40),
+    );
 }
 
 #[test]
 fn drop_cutter_agrees_with_opencamlib_on_a_cube_with_a_boss() {
     let m = cube_with_boss(30.0, 7.0, 8.0, 48);
-    agree("cube with boss", &m, &grid(V3::new(-4.0, -4.0, 0.0), V3::new(34.0, 34.0, 0.0), 40));
+    agree(
+        "cube with boss",
+        &m,
+        &grid(V3::new(-4.0, -4.0, 0.0), V3::new(34.0, 34.0, 0.0), 40),
+    );
 }
 
 #[test]
 fn drop_cutter_agrees_with_opencamlib_on_a_sphere() {
     let m = sphere(V3::new(0.0, 0.0, 0.0), 15.0, 24, 48);
-    agree("sphere r15", &m, &grid(V3::new(-19.0, -19.0, 0.0), V3::new(19.0, 19.0, 0.0), 40));
+    agree(
+        "sphere r15",
+        &m,
+        &grid(V3::new(-19.0, -19.0, 0.0), V3::new(19.0, 19.0, 0.0), 40),
+    );
 }

@@ -54,7 +54,10 @@ fn keeps_allowance(case: &str, m: &Mesh, p: &Rough3dParams, slack: f64) -> Vec<f
         }
     });
     levels.sort_by(|a, b| b.total_cmp(a));
-    eprintln!("{case}: {} moves, levels {levels:?}, closest approach {worst:.4} mm past the allowance", tp.moves.len());
+    eprintln!(
+        "{case}: {} moves, levels {levels:?}, closest approach {worst:.4} mm past the allowance",
+        tp.moves.len()
+    );
     levels
 }
 
@@ -79,12 +82,28 @@ fn rough_of_a_cube_with_a_boss_keeps_the_allowance_and_reaches_the_floor() {
     };
     let levels = keeps_allowance("cube with boss", &m, &p, 0.02);
     let top = 38.0;
-    assert!(levels[0] <= top && levels[0] >= top - 3.0 - 1e-9, "first level {}", levels[0]);
-    assert!((levels.last().unwrap() - 0.0).abs() < 1e-9, "last level {:?}", levels.last());
+    assert!(
+        levels[0] <= top && levels[0] >= top - 3.0 - 1e-9,
+        "first level {}",
+        levels[0]
+    );
+    assert!(
+        (levels.last().unwrap() - 0.0).abs() < 1e-9,
+        "last level {:?}",
+        levels.last()
+    );
     // a level on the cube's top grown by the allowance clears the flat
-    assert!(levels.iter().any(|z| (z - 30.5).abs() < 1e-6), "no level on the flat at 30.5: {levels:?}");
+    assert!(
+        levels.iter().any(|z| (z - 30.5).abs() < 1e-6),
+        "no level on the flat at 30.5: {levels:?}"
+    );
     for w in levels.windows(2) {
-        assert!(w[0] - w[1] <= 3.0 + 1e-9, "levels {} and {} are more than a step-down apart", w[0], w[1]);
+        assert!(
+            w[0] - w[1] <= 3.0 + 1e-9,
+            "levels {} and {} are more than a step-down apart",
+            w[0],
+            w[1]
+        );
     }
 }
 
@@ -102,7 +121,12 @@ fn rough_with_no_allowance_keeps_the_tool_off_the_part() {
 fn rough_leaves_levels_the_part_fills_alone() {
     // stock no wider than the part: below the cube's top there is nothing to clear
     let m = cube_with_boss(30.0, 6.0, 8.0, 32);
-    let levels = keeps_allowance("cube with boss in a tight stock", &m, &params(6.0, 0.5), 0.02);
+    let levels = keeps_allowance(
+        "cube with boss in a tight stock",
+        &m,
+        &params(6.0, 0.5),
+        0.02,
+    );
     assert!(
         levels.iter().all(|&z| z >= 30.5 - 1e-9),
         "levels below the grown cube's top: {levels:?}"
@@ -125,7 +149,11 @@ fn rough_starts_at_the_stock_top_given() {
         ..params(6.0, 0.5)
     };
     let levels = keeps_allowance("cube with boss under a higher stock", &m, &p, 0.02);
-    assert!(levels[0] > 38.0, "the first level {} should clear the stock above the part", levels[0]);
+    assert!(
+        levels[0] > 38.0,
+        "the first level {} should clear the stock above the part",
+        levels[0]
+    );
 }
 
 #[test]
@@ -169,16 +197,17 @@ fn rough_paths_retract_between_levels() {
     let mut up_since = false;
     for mv in &tp.moves {
         match mv {
-            Move::Rapid { to } => {
-                if to.z >= safe - 1e-9 {
-                    up_since = true;
-                }
-            }
+            Move::Rapid { to } if to.z >= safe - 1e-9 => up_since = true,
             Move::Linear { to, .. } | Move::Arc { to, .. } => {
                 if let Some(l) = last_cut {
                     if (l.z - to.z).abs() > 1e-9 && to.z < l.z {
                         // a plunge to a new level: it came from the safe height
-                        assert!(up_since || (l.x - to.x).abs() + (l.y - to.y).abs() < 1e-9, "a level change at ({}, {}) without a retract", to.x, to.y);
+                        assert!(
+                            up_since || (l.x - to.x).abs() + (l.y - to.y).abs() < 1e-9,
+                            "a level change at ({}, {}) without a retract",
+                            to.x,
+                            to.y
+                        );
                     }
                 }
                 last_cut = Some(*to);

@@ -20,14 +20,14 @@ fn known_patch(u: f64, v: f64) -> V3 {
     };
     let (bu, bv) = (b(u), b(v));
     let mut q = V3::ZERO;
-    for k in 0..4 {
-        for l in 0..4 {
+    for (k, &wu) in bu.iter().enumerate() {
+        for (l, &wv) in bv.iter().enumerate() {
             let c = V3::new(
                 10.0 * k as f64 + 1.5 * (l as f64 - 1.5).powi(2),
                 8.0 * l as f64 - 2.0 * (k as f64 - 1.0).powi(2),
                 3.0 * ((k * 7 + l * 3) % 5) as f64 - 4.0,
             );
-            q += c * (bu[k] * bv[l]);
+            q += c * (wu * wv);
         }
     }
     q
@@ -37,7 +37,10 @@ fn grid_of(f: impl Fn(f64, f64) -> V3, cols: usize, rows: usize) -> PointGrid {
     let mut points = Vec::new();
     for r in 0..rows {
         for c in 0..cols {
-            points.push(f(c as f64 / (cols - 1) as f64, r as f64 / (rows - 1) as f64));
+            points.push(f(
+                c as f64 / (cols - 1) as f64,
+                r as f64 / (rows - 1) as f64,
+            ));
         }
     }
     PointGrid { rows, cols, points }
@@ -55,7 +58,10 @@ fn a_fit_to_points_of_a_bicubic_patch_reproduces_the_patch() {
             worst = worst.max(q.dist(known_patch(u, v)));
         }
     }
-    assert!(worst < 1e-9, "the fitted surface strays {worst} mm from the patch");
+    assert!(
+        worst < 1e-9,
+        "the fitted surface strays {worst} mm from the patch"
+    );
 }
 
 #[test]
@@ -76,7 +82,11 @@ fn a_tessellation_stays_within_its_tolerance() {
                 worst = worst.max(bvh.nearest(&tris, p).0);
             }
         }
-        assert!(worst <= tol, "tolerance {tol}: the surface lies {worst} mm from its tessellation ({} faces)", m.faces.len());
+        assert!(
+            worst <= tol,
+            "tolerance {tol}: the surface lies {worst} mm from its tessellation ({} faces)",
+            m.faces.len()
+        );
     }
 }
 
@@ -89,7 +99,10 @@ fn a_hemisphere_fitted_from_its_points_and_finished_matches_the_sphere() {
     let mut csv = String::from("x,y,z\n");
     for r in 0..n {
         for c in 0..n {
-            let (x, y) = (-half + 2.0 * half * c as f64 / (n - 1) as f64, -half + 2.0 * half * r as f64 / (n - 1) as f64);
+            let (x, y) = (
+                -half + 2.0 * half * c as f64 / (n - 1) as f64,
+                -half + 2.0 * half * r as f64 / (n - 1) as f64,
+            );
             csv.push_str(&format!("{x},{y},{}\n", sphere_z(x, y)));
         }
         csv.push('\n');
@@ -100,7 +113,10 @@ fn a_hemisphere_fitted_from_its_points_and_finished_matches_the_sphere() {
     let mut fit_err: f64 = 0.0;
     for a in 0..=300 {
         for b in 0..=300 {
-            let p = s.eval(a as f64 * (n - 1) as f64 / 300.0, b as f64 * (n - 1) as f64 / 300.0);
+            let p = s.eval(
+                a as f64 * (n - 1) as f64 / 300.0,
+                b as f64 * (n - 1) as f64 / 300.0,
+            );
             fit_err = fit_err.max((p.z - sphere_z(p.x, p.y)).abs());
         }
     }
@@ -138,7 +154,18 @@ fn a_hemisphere_fitted_from_its_points_and_finished_matches_the_sphere() {
 fn ragged_rows_are_refused_naming_the_row() {
     let csv = b"0,0,0\n1,0,0\n2,0,0\n\n0,1,0\n1,1,0\n";
     let e = read_point_grid(csv, "probe.csv").unwrap_err();
-    assert!(matches!(e, MeshError::Ragged { row: 2, len: 2, expected: 3, .. }), "{e}");
+    assert!(
+        matches!(
+            e,
+            MeshError::Ragged {
+                row: 2,
+                len: 2,
+                expected: 3,
+                ..
+            }
+        ),
+        "{e}"
+    );
     assert_eq!(
         e.to_string(),
         "probe.csv: row 2 (line 5) has 2 points but row 1 has 3: a point grid needs rows of equal length"
@@ -161,13 +188,20 @@ fn a_nan_among_the_numbers_is_refused_naming_the_line() {
 
 #[test]
 fn a_line_of_two_values_is_refused() {
-    let e = read_point_grid(b"0,0,0\n1,0\n", "probe.csv").unwrap_err().to_string();
-    assert!(e.contains("line 2") && e.contains("3 values a point"), "{e}");
+    let e = read_point_grid(b"0,0,0\n1,0\n", "probe.csv")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("line 2") && e.contains("3 values a point"),
+        "{e}"
+    );
 }
 
 #[test]
 fn a_single_row_is_not_a_grid() {
-    let e = read_point_grid(b"0,0,0,1,0,0,2,0,0\n", "probe.csv").unwrap_err().to_string();
+    let e = read_point_grid(b"0,0,0,1,0,0,2,0,0\n", "probe.csv")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("at least 2 rows"), "{e}");
 }
 

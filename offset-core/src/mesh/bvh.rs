@@ -233,12 +233,18 @@ mod tests {
         let mut tris = Vec::new();
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 11) as f64 / (1u64 << 53) as f64) * 10.0
         };
         for _ in 0..500 {
             let a = V3::new(rnd(), rnd(), rnd());
-            tris.push([a, a + V3::new(rnd() * 0.1, 0.0, 0.0), a + V3::new(0.0, rnd() * 0.1, rnd() * 0.1)]);
+            tris.push([
+                a,
+                a + V3::new(rnd() * 0.1, 0.0, 0.0),
+                a + V3::new(0.0, rnd() * 0.1, rnd() * 0.1),
+            ]);
         }
         let bvh = Bvh::new(&tris, false);
         for _ in 0..50 {

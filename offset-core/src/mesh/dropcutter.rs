@@ -47,9 +47,7 @@ impl FromStr for CutterShape {
             "ball" => Ok(CutterShape::Ball),
             "flat" => Ok(CutterShape::Flat),
             "bull" | "bullnose" | "torus" => Ok(CutterShape::Bull),
-            other => Err(format!(
-                "cutter \"{other}\" is not one of ball, flat, bull"
-            )),
+            other => Err(format!("cutter \"{other}\" is not one of ball, flat, bull")),
         }
     }
 }
@@ -351,7 +349,11 @@ impl DropCutter {
                     }
                     let rest = rc * rc - u * u;
                     if rest <= 0.0 {
-                        return if t > t0 { f64::NEG_INFINITY } else { f64::INFINITY };
+                        return if t > t0 {
+                            f64::NEG_INFINITY
+                        } else {
+                            f64::INFINITY
+                        };
                     }
                     m - u / rest.sqrt() * (t - t0) / q
                 };
@@ -454,7 +456,10 @@ mod tests {
         for (c, want) in [
             (Cutter::ball(2.0), 1.5 + 1.25f64.sqrt() - 1.0),
             (Cutter::flat(2.0), 2.0),
-            (Cutter::bull(2.0, 0.3), 1.5 + 0.35 + 0.3 * (1.25f64.sqrt() - 1.0)),
+            (
+                Cutter::bull(2.0, 0.3),
+                1.5 + 0.35 + 0.3 * (1.25f64.sqrt() - 1.0),
+            ),
         ] {
             let dc = DropCutter::new(&m, c).unwrap();
             let z = dc.drop(3.0, 3.0, -100.0);

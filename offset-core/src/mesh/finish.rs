@@ -187,13 +187,7 @@ pub fn raster_rows(area: [f64; 4], angle: f64, step: f64, zigzag: bool) -> Vec<[
 
 /// Drop-cutter locations along the straight plan-view line a→b, sampled adaptively (see
 /// the module's note), as points.
-pub fn sample_line(
-    dc: &DropCutter,
-    a: (f64, f64),
-    b: (f64, f64),
-    floor: f64,
-    tol: f64,
-) -> Vec<V3> {
+pub fn sample_line(dc: &DropCutter, a: (f64, f64), b: (f64, f64), floor: f64, tol: f64) -> Vec<V3> {
     let len = ((b.0 - a.0).powi(2) + (b.1 - a.1).powi(2)).sqrt();
     let at = |s: f64| {
         let t = if len > 0.0 { s / len } else { 0.0 };
@@ -389,7 +383,15 @@ mod tests {
         let pts: Vec<V3> = (0..=20)
             .map(|i| {
                 let x = i as f64;
-                V3::new(x, 0.0, if x > 8.0 && x < 12.0 { 1.0 - (x - 10.0).abs() * 0.4 } else { 0.0 })
+                V3::new(
+                    x,
+                    0.0,
+                    if x > 8.0 && x < 12.0 {
+                        1.0 - (x - 10.0).abs() * 0.4
+                    } else {
+                        0.0
+                    },
+                )
             })
             .collect();
         let fit = fit_row(&pts, 0.01);

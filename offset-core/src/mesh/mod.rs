@@ -6,10 +6,10 @@
 
 pub mod bvh;
 pub mod dropcutter;
-pub mod shapes;
 pub mod finish;
 pub mod offset;
 pub mod rough;
+pub mod shapes;
 pub mod slice;
 pub mod stl;
 pub mod surface;
@@ -18,7 +18,7 @@ pub mod v3;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
 pub use finish::{finish3d, Finish3dParams};
-pub use offset::{offset, OffsetReport, OffsetResult, MeshOffsetOptions};
+pub use offset::{offset, MeshOffsetOptions, OffsetReport, OffsetResult};
 pub use rough::{rough3d, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
@@ -137,13 +137,19 @@ pub enum MeshError {
         count: usize,
         faces: Vec<usize>,
     },
-    #[error("{name} is not closed: {edges} edges bound a hole, at faces {}", list(faces))]
+    #[error(
+        "{name} is not closed: {edges} edges bound a hole, at faces {}",
+        list(faces)
+    )]
     Open {
         name: String,
         edges: usize,
         faces: Vec<usize>,
     },
-    #[error("{name}: {count} faces turn the other way from their neighbours (flipped), faces {}", list(faces))]
+    #[error(
+        "{name}: {count} faces turn the other way from their neighbours (flipped), faces {}",
+        list(faces)
+    )]
     Flipped {
         name: String,
         count: usize,
@@ -274,7 +280,8 @@ impl Mesh {
         }
         for (f, face) in self.faces.iter().enumerate() {
             for (k, &v) in face.iter().enumerate() {
-                let ok = (v as usize) < self.vertices.len() && self.vertices[v as usize].is_finite();
+                let ok =
+                    (v as usize) < self.vertices.len() && self.vertices[v as usize].is_finite();
                 if !ok {
                     return Err(MeshError::NotFinite {
                         name: self.name.clone(),

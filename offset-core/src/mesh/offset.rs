@@ -25,9 +25,9 @@
 use super::bvh::Bvh;
 use super::topology::Topology;
 use super::v3::dist_to_triangle;
+use super::FastMap;
 use super::{Mesh, MeshError, V3};
 use serde::{Deserialize, Serialize};
-use super::FastMap;
 
 /// Settings of a mesh offset.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -65,7 +65,11 @@ pub struct OffsetResult {
 }
 
 /// Offsets the closed solid `m` by `distance` (positive grows it, negative shrinks it).
-pub fn offset(m: &Mesh, distance: f64, opts: &MeshOffsetOptions) -> Result<OffsetResult, MeshError> {
+pub fn offset(
+    m: &Mesh,
+    distance: f64,
+    opts: &MeshOffsetOptions,
+) -> Result<OffsetResult, MeshError> {
     if !distance.is_finite() {
         return Err(MeshError::BadParam(format!(
             "the offset distance must be a number, got {distance}"
@@ -122,7 +126,9 @@ pub fn measure_error(input: &Mesh, out: &Mesh, distance: f64, k: usize) -> (f64,
             let mut n = 0;
             for i in 0..=k {
                 for j in 0..=(k - i) {
-                    let p = t[0] + (t[1] - t[0]) * (i as f64 / k as f64) + (t[2] - t[0]) * (j as f64 / k as f64);
+                    let p = t[0]
+                        + (t[1] - t[0]) * (i as f64 / k as f64)
+                        + (t[2] - t[0]) * (j as f64 / k as f64);
                     worst = worst.max((bvh.nearest(&tris, p).0 - d).abs());
                     n += 1;
                 }
@@ -137,6 +143,10 @@ pub fn measure_error(input: &Mesh, out: &Mesh, distance: f64, k: usize) -> (f64,
 struct Cluster {
     w: V3,
 }
+
+/// An arc of output points between two clusters' points: the axis it turns about (zero:
+/// about the vertex) and the points.
+type Arc = (V3, Vec<u32>);
 
 struct Offsetter<'a> {
     m: &'a Mesh,
@@ -154,7 +164,7 @@ struct Offsetter<'a> {
     cluster_point: Vec<u32>,
     /// the source vertex of each output vertex
     point_vertex: Vec<u32>,
-    arcs: FastMap<(u32, u32), Vec<(V3, Vec<u32>)>>,
+    arcs: FastMap<(u32, u32), Vec<Arc>>,
     /// for a pair of clusters at a vertex split by a sharp edge: that edge's direction
     pair_axis: FastMap<(u32, u32), V3>,
     vertex_faces: Vec<Vec<u32>>,
@@ -185,12 +195,12 @@ impl<'a> Offsetter<'a> {
         let vf = Topology::vertex_faces(self.m);
         self.vertex_faces = vf.clone();
         let mut split = 0;
-        for v in 0..self.m.vertices.len() {
-            if vf[v].is_empty() {
+        for (v, around) in vf.iter().enumerate() {
+            if around.is_empty() {
                 continue;
             }
             let before = self.clusters.len();
-            for fan in self.fans(v as u32, &vf[v]) {
+            for fan in self.fans(v as u32, around) {
                 self.cluster_fan(v as u32, &fan);
             }
             if self.clusters.len() - before > 1 {
@@ -218,7 +228,11 @@ impl<'a> Offsetter<'a> {
             let e = self.topo.edges[ei];
             let (f, g) = (e.faces[0] as usize, e.faces[1] as usize);
             // f runs u→v
-            let (f, g) = if Topology::runs_forward(self.m, f, &e) { (f, g) } else { (g, f) };
+            let (f, g) = if Topology::runs_forward(self.m, f, &e) {
+                (f, g)
+            } else {
+                (g, f)
+            };
             let (u, v) = (e.v[0], e.v[1]);
             let (fu, gu) = (self.cluster_at(f, u), self.cluster_at(g, u));
             let (fv, gv) = (self.cluster_at(f, v), self.cluster_at(g, v));
@@ -233,7 +247,10 @@ impl<'a> Offsetter<'a> {
                 if convex {
                     dir
                 } else {
-                    self.pair_axis.get(&(a.min(b), a.max(b))).copied().unwrap_or(V3::ZERO)
+                    self.pair_axis
+                        .get(&(a.min(b), a.max(b)))
+                        .copied()
+                        .unwrap_or(V3::ZERO)
                 }
             };
             let (au, av) = (axis_at(fu, gu), axis_at(fv, gv));
@@ -262,7 +279,10 @@ impl<'a> Offsetter<'a> {
 
     fn cluster_at(&self, f: usize, v: u32) -> u32 {
         let face = self.m.faces[f];
-        let k = face.iter().position(|&x| x == v).expect("the face holds the vertex");
+        let k = face
+            .iter()
+            .position(|&x| x == v)
+            .expect("the face holds the vertex");
         self.corner_cluster[f][k]
     }
 
@@ -331,7 +351,13 @@ impl<'a> Offsetter<'a> {
                 if n == 1 {
                     return Kind::Flat;
                 }
-                edge_kind(self.m, fan[i] as usize, fan[(i + 1) % n] as usize, normals[i], normals[(i + 1) % n])
+                edge_kind(
+                    self.m,
+                    fan[i] as usize,
+                    fan[(i + 1) % n] as usize,
+                    normals[i],
+                    normals[(i + 1) % n],
+                )
             })
             .collect();
         let solve = |members: &[usize]| -> (V3, f64) {
@@ -431,9 +457,7 @@ impl<'a> Offsetter<'a> {
                         let k = (i + n - c) % n;
                         k.min(n - k)
                     };
-                    turn(i)
-                        .total_cmp(&turn(j))
-                        .then(ring(i).cmp(&ring(j)))
+                    turn(i).total_cmp(&turn(j)).then(ring(i).cmp(&ring(j)))
                 });
             if let Some(f) = far {
                 cut[f] = true;
@@ -510,7 +534,10 @@ impl<'a> Offsetter<'a> {
             self.point_vertex.push(v);
         }
         idx.push(self.cluster_point[hi as usize]);
-        self.arcs.entry((lo, hi)).or_default().push((axis, idx.clone()));
+        self.arcs
+            .entry((lo, hi))
+            .or_default()
+            .push((axis, idx.clone()));
         if a != lo {
             idx.reverse();
         }
@@ -534,7 +561,10 @@ impl<'a> Offsetter<'a> {
             .map(|s| {
                 let t = s as f64 / steps as f64;
                 let (ka, kb) = if ang > 1e-9 && !same_along {
-                    (((1.0 - t) * ang).sin() / ang.sin(), (t * ang).sin() / ang.sin())
+                    (
+                        ((1.0 - t) * ang).sin() / ang.sin(),
+                        (t * ang).sin() / ang.sin(),
+                    )
                 } else {
                     (1.0 - t, t)
                 };
@@ -636,7 +666,10 @@ impl<'a> Offsetter<'a> {
             }
             dir * (0.5 * (lo + hi))
         };
-        let dirs: Vec<V3> = lp.iter().map(|&i| self.out_vertices[i as usize] - c).collect();
+        let dirs: Vec<V3> = lp
+            .iter()
+            .map(|&i| self.out_vertices[i as usize] - c)
+            .collect();
         let mut mid = dirs.iter().fold(V3::ZERO, |s, &w| s + w.unit());
         if mid.len() < 1e-9 {
             mid = dirs[0];
@@ -774,6 +807,7 @@ fn least_squares(normals: impl Iterator<Item = (V3, f64)>, d: f64) -> V3 {
 }
 
 /// Eigenvalues and eigenvectors (columns) of a symmetric 3×3 matrix, by Jacobi rotations.
+#[allow(clippy::needless_range_loop)] // index arithmetic reads as the textbook's
 fn jacobi3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     for _ in 0..32 {
@@ -819,8 +853,12 @@ mod tests {
     #[test]
     fn least_squares_meets_three_planes_and_one() {
         let w = least_squares(
-            [(V3::new(1.0, 0.0, 0.0), 1.0), (V3::new(0.0, 1.0, 0.0), 2.0), (V3::new(0.0, 0.0, 1.0), 0.5)]
-                .into_iter(),
+            [
+                (V3::new(1.0, 0.0, 0.0), 1.0),
+                (V3::new(0.0, 1.0, 0.0), 2.0),
+                (V3::new(0.0, 0.0, 1.0), 0.5),
+            ]
+            .into_iter(),
             2.0,
         );
         assert!(w.dist(V3::new(2.0, 2.0, 2.0)) < 1e-12, "{w:?}");
@@ -838,9 +876,15 @@ mod tests {
         assert!(err <= 0.01, "worst error {err}");
         assert_eq!(r.report.split_vertices, 8);
         // volume of the rounded box: V + A d + (edges) π d²/4 + 4/3 π d³
-        let want = 480.0 + 2.0 * (80.0 + 60.0 + 48.0) + std::f64::consts::PI * 24.0 / 4.0 * 4.0 / 1.0 * 1.0
+        let want = 480.0
+            + 2.0 * (80.0 + 60.0 + 48.0)
+            + std::f64::consts::PI * 24.0 / 4.0 * 4.0 / 1.0 * 1.0
             + 4.0 / 3.0 * std::f64::consts::PI;
-        assert!((r.mesh.volume() - want).abs() < 0.5, "volume {} vs {want}", r.mesh.volume());
+        assert!(
+            (r.mesh.volume() - want).abs() < 0.5,
+            "volume {} vs {want}",
+            r.mesh.volume()
+        );
     }
 
     #[test]
@@ -848,6 +892,10 @@ mod tests {
         let m = cuboid(V3::ZERO, V3::new(10.0, 8.0, 6.0));
         let r = offset(&m, -1.0, &MeshOffsetOptions { tolerance: 0.01 }).unwrap();
         assert!(r.mesh.report().closed);
-        assert!((r.mesh.volume() - 8.0 * 6.0 * 4.0).abs() < 1e-9, "{}", r.mesh.volume());
+        assert!(
+            (r.mesh.volume() - 8.0 * 6.0 * 4.0).abs() < 1e-9,
+            "{}",
+            r.mesh.volume()
+        );
     }
 }

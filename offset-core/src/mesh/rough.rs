@@ -139,7 +139,10 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     let m = p.stock_margin + p.stock_allowance;
     // the stock in plan, grown by the tool radius (and a hair) so the tool runs off it
     let g = m + r + p.tolerance;
-    let outline = Polyline::rect(Point::new(lo.x - g, lo.y - g), Point::new(hi.x + g, hi.y + g));
+    let outline = Polyline::rect(
+        Point::new(lo.x - g, lo.y - g),
+        Point::new(hi.x + g, hi.y + g),
+    );
     let mut levels: Vec<f64> = pass_depths(top - floor, p.stepdown)
         .into_iter()
         .map(|d| top + d)

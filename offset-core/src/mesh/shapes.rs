@@ -212,9 +212,19 @@ pub fn cube_with_boss(size: f64, boss_radius: f64, boss_height: f64, segments: u
         let a = TAU * k as f64 / n as f64;
         let (ca, sa) = (a.cos(), a.sin());
         let s = h / ca.abs().max(sa.abs());
-        let snap = |v: f64| if (v.abs() - h).abs() < 1e-12 { h * v.signum() } else { v };
+        let snap = |v: f64| {
+            if (v.abs() - h).abs() < 1e-12 {
+                h * v.signum()
+            } else {
+                v
+            }
+        };
         sq.push(push(V3::new(c.x + snap(s * ca), c.y + snap(s * sa), size)));
-        foot.push(push(V3::new(c.x + boss_radius * ca, c.y + boss_radius * sa, size)));
+        foot.push(push(V3::new(
+            c.x + boss_radius * ca,
+            c.y + boss_radius * sa,
+            size,
+        )));
         head.push(push(V3::new(
             c.x + boss_radius * ca,
             c.y + boss_radius * sa,

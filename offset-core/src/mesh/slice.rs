@@ -9,9 +9,9 @@
 //! coordinates. Loops run counter-clockwise round material (seen from above) and
 //! clockwise round holes.
 
+use super::FastMap;
 use super::{Mesh, MeshError, V3};
 use crate::geom::{Point, Polyline};
-use super::FastMap;
 
 /// The contours of the closed mesh's section just above the plane Z = `z`: loops
 /// counter-clockwise round material and clockwise round holes, repeated points dropped.
@@ -129,7 +129,11 @@ mod tests {
         let m = cuboid(V3::ZERO, V3::new(4.0, 3.0, 2.0));
         let loops = slice_at(&m, 1.0).unwrap();
         assert_eq!(loops.len(), 1);
-        assert!((loops[0].area() - 12.0).abs() < 1e-12, "{}", loops[0].area());
+        assert!(
+            (loops[0].area() - 12.0).abs() < 1e-12,
+            "{}",
+            loops[0].area()
+        );
     }
 
     #[test]
@@ -149,7 +153,11 @@ mod tests {
         for z in [20.0, 23.0] {
             let loops = slice_at(&m, z).unwrap();
             assert_eq!(loops.len(), 1, "at {z}");
-            assert!((loops[0].area() - circle).abs() < 1e-9, "at {z}: {}", loops[0].area());
+            assert!(
+                (loops[0].area() - circle).abs() < 1e-9,
+                "at {z}: {}",
+                loops[0].area()
+            );
         }
         let loops = slice_at(&m, 19.999).unwrap();
         assert_eq!(loops.len(), 1);

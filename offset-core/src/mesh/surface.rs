@@ -41,7 +41,10 @@ impl PointGrid {
 pub fn read_point_grid(bytes: &[u8], name: &str) -> Result<PointGrid, MeshError> {
     let text = std::str::from_utf8(bytes).map_err(|e| MeshError::Csv {
         name: name.into(),
-        line: 1 + bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count(),
+        line: 1 + bytes[..e.valid_up_to()]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count(),
         message: "is not text (UTF-8)".into(),
     })?;
     let csv_err = |line: usize, message: String| MeshError::Csv {
@@ -77,12 +80,18 @@ pub fn read_point_grid(bytes: &[u8], name: &str) -> Result<PointGrid, MeshError>
         };
         seen_data = true;
         if let Some(i) = nums.iter().position(|v| !v.is_finite()) {
-            return Err(csv_err(ln, format!("value {} is not a finite number", i + 1)));
+            return Err(csv_err(
+                ln,
+                format!("value {} is not a finite number", i + 1),
+            ));
         }
         if nums.len() % 3 != 0 {
             return Err(csv_err(
                 ln,
-                format!("has {} values; a point is x,y,z (3 values a point)", nums.len()),
+                format!(
+                    "has {} values; a point is x,y,z (3 values a point)",
+                    nums.len()
+                ),
             ));
         }
         total += nums.len() / 3;
@@ -127,12 +136,19 @@ pub fn read_point_grid(bytes: &[u8], name: &str) -> Result<PointGrid, MeshError>
             // rows where the fixed coordinate of the first row changes
             let pts: Vec<(usize, V3)> = data.iter().map(|(l, p)| (*l, p[0])).collect();
             if pts.len() < 2 {
-                return Err(csv_err(pts[0].0, "a grid needs at least 2 rows and 2 columns".into()));
+                return Err(csv_err(
+                    pts[0].0,
+                    "a grid needs at least 2 rows and 2 columns".into(),
+                ));
             }
             let (a, b) = (pts[0].1, pts[1].1);
             let along_x = (b.x - a.x).abs() >= (b.y - a.y).abs();
             let fixed = |p: V3| if along_x { p.y } else { p.x };
-            let step = if along_x { (b.x - a.x).abs() } else { (b.y - a.y).abs() };
+            let step = if along_x {
+                (b.x - a.x).abs()
+            } else {
+                (b.y - a.y).abs()
+            };
             let tol = (step * 1e-3).max(1e-9);
             for &(ln, p) in &pts {
                 match rows.last_mut() {
@@ -280,6 +296,7 @@ impl BicubicSurface {
 
     /// Bounds on |Puu|, |Puv|, |Pvv| over the cell (row j, column i), from its control
     /// points.
+    #[allow(clippy::needless_range_loop)] // index arithmetic reads as the formulas
     fn second_derivative_bounds(&self, j: usize, i: usize) -> (f64, f64, f64) {
         let b = self.bezier(j, i);
         let (mut uu, mut uv, mut vv) = (0.0f64, 0.0f64, 0.0f64);
@@ -299,6 +316,7 @@ impl BicubicSurface {
 
     /// Parameter steps per column and per row of cells that keep every triangle within
     /// `tol` of the surface.
+    #[allow(clippy::needless_range_loop)] // cells indexed by (row, column)
     fn steps(&self, tol: f64) -> (Vec<usize>, Vec<usize>) {
         let mut nu = vec![1usize; self.cols - 1];
         let mut nv = vec![1usize; self.rows - 1];
@@ -383,7 +401,7 @@ impl BicubicSurface {
     pub fn solid(&self, name: &str, tol: f64, base: f64) -> Result<Mesh, MeshError> {
         let mut m = self.tessellate(name, tol)?;
         let (lo, _) = m.bounds().expect("a tessellation has faces");
-        if !(base < lo.z) {
+        if base.partial_cmp(&lo.z) != Some(std::cmp::Ordering::Less) {
             return Err(MeshError::BadParam(format!(
                 "the base Z {base} of the solid must lie below the surface's lowest point, Z {}",
                 lo.z
@@ -408,7 +426,10 @@ impl BicubicSurface {
         // counter-clockwise seen from above
         let area: f64 = (0..rim.len())
             .map(|k| {
-                let (a, b) = (m.vertices[rim[k] as usize], m.vertices[rim[(k + 1) % rim.len()] as usize]);
+                let (a, b) = (
+                    m.vertices[rim[k] as usize],
+                    m.vertices[rim[(k + 1) % rim.len()] as usize],
+                );
                 a.x * b.y - b.x * a.y
             })
             .sum();
@@ -466,10 +487,10 @@ fn spline_slopes(y: &[V3]) -> Vec<V3> {
     let mut rhs: Vec<V3> = (1..n - 1).map(|i| (y[i + 1] - y[i - 1]) * 3.0).collect();
     // first row: (m2 + c0) + 4 m1 + m2
     sup[0] = 2.0;
-    rhs[0] = rhs[0] - c0;
-    // last row: m[n-3] + 4 m[n-2] + (m[n-3] - c1)
+    rhs[0] = rhs[0] - c0; // (V3 has no -=)
+                          // last row: m[n-3] + 4 m[n-2] + (m[n-3] - c1)
     sub[k - 1] = 2.0;
-    rhs[k - 1] = rhs[k - 1] + c1;
+    rhs[k - 1] += c1;
     // Thomas algorithm
     for i in 1..k {
         let w = sub[i] / diag[i - 1];
@@ -508,7 +529,11 @@ mod tests {
         let whole = b"0,0,1, 1,0,1, 2,0,1\n0,1,2, 1,1,2, 2,1,2\n";
         // scanned back and forth, one point a line
         let scan = b"0 0 1\n1 0 1\n2 0 1\n2 1 2\n1 1 2\n0 1 2\n";
-        for (case, bytes) in [("blank", &blank[..]), ("whole", &whole[..]), ("scan", &scan[..])] {
+        for (case, bytes) in [
+            ("blank", &blank[..]),
+            ("whole", &whole[..]),
+            ("scan", &scan[..]),
+        ] {
             let g = read_point_grid(bytes, case).unwrap();
             assert_eq!((g.rows, g.cols), (2, 3), "{case}");
             assert_eq!(g.at(1, 0), V3::new(0.0, 1.0, 2.0), "{case}");

@@ -1,8 +1,8 @@
 //! Mesh topology: welding vertices, the edges and which faces share them, and the defects
 //! a solid must not have (non-manifold edges, holes, flipped faces), reported by face.
 
-use super::{Mesh, V3};
 use super::FastMap;
+use super::{Mesh, V3};
 
 /// Welds points closer than a tolerance into one vertex, through a hash grid of cells the
 /// size of the tolerance (a point's twin lies in one of the 27 cells around it).
@@ -157,7 +157,11 @@ impl Topology {
         if e.count != 2 {
             return None;
         }
-        Some(if e.faces[0] == f { e.faces[1] } else { e.faces[0] })
+        Some(if e.faces[0] == f {
+            e.faces[1]
+        } else {
+            e.faces[0]
+        })
     }
 
     /// The defects of the mesh as a solid.

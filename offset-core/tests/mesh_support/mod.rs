@@ -40,7 +40,10 @@ pub fn bowl_inside(rs: f64, zc: f64, rings: usize, segments: usize) -> (Mesh, f6
     let profile: Vec<(f64, f64)> = (0..=rings)
         .map(|j| {
             let phi = 0.5 * PI * j as f64 / rings as f64;
-            (if j == 0 { 0.0 } else { rs * phi.sin() }, zc - rs * phi.cos())
+            (
+                if j == 0 { 0.0 } else { rs * phi.sin() },
+                zc - rs * phi.cos(),
+            )
         })
         .collect();
     let mut m = revolve(0.0, 0.0, &profile, segments);
