@@ -19,6 +19,7 @@ pub mod mesh;
 pub mod offset;
 pub mod ops;
 pub mod preview;
+pub mod preview3d;
 pub mod stitch;
 pub mod toolpath;
 
