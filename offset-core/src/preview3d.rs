@@ -15,7 +15,11 @@ use std::fmt::Write;
 /// the viewer (a preview, not a render).
 pub const MAX_PREVIEW_FACES: usize = 200_000;
 
-const RIGHT: V3 = V3::new(std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2, 0.0);
+const RIGHT: V3 = V3::new(
+    std::f64::consts::FRAC_1_SQRT_2,
+    std::f64::consts::FRAC_1_SQRT_2,
+    0.0,
+);
 
 fn up() -> V3 {
     V3::new(-1.0, 1.0, 2.0) / 6f64.sqrt()
@@ -260,7 +264,11 @@ mod tests {
         assert!(tree.root().abs_bounding_box().width() > 0.0);
         // a closed part shows only faces turned to the viewer: fewer than all
         let polys = s.matches("<polygon").count();
-        assert!(polys > 0 && polys < m.faces.len(), "{polys} of {}", m.faces.len());
+        assert!(
+            polys > 0 && polys < m.faces.len(),
+            "{polys} of {}",
+            m.faces.len()
+        );
         assert!(s.contains(LINEAR_COLOUR) && s.contains(RAPID_COLOUR));
     }
 }

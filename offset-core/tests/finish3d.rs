@@ -225,3 +225,53 @@ fn bad_finishing_parameters_are_refused_by_name() {
         assert!(e.contains(want), "{e}");
     }
 }
+
+#[test]
+fn ball_waterlines_round_a_sphere_lie_at_the_exact_radius() {
+    use offset_core::mesh::shapes::sphere;
+    use offset_core::mesh::{waterline3d, WaterlineParams, V3};
+    // a sphere of radius 15 about (0, 0, 15), its facets pushed out so they lie outside it
+    let rs = 15.0;
+    let mut m = sphere(V3::new(0.0, 0.0, 0.0), rs, 48, 96);
+    let inner = m
+        .triangles()
+        .map(|t| offset_core::mesh::v3::dist_to_triangle(V3::ZERO, &t))
+        .fold(f64::INFINITY, f64::min);
+    let eps = m.vertices.iter().map(|v| v.len()).fold(0.0, f64::max) * rs / inner - rs;
+    for v in &mut m.vertices {
+        *v = *v * (rs / inner) + V3::new(0.0, 0.0, rs);
+    }
+    let r = 3.0;
+    let p = WaterlineParams {
+        cutter: Cutter::ball(2.0 * r),
+        stepdown: 2.0,
+        tolerance: 0.01,
+        floor: Some(rs),
+        ..Default::default()
+    };
+    let tp = waterline3d(&m, &p).unwrap();
+    let mut n = 0;
+    for q in cut_points(&tp) {
+        // the ball's centre is rs + r from the sphere's centre (within the tolerance of
+        // the offset the contours come from, and the facets' distance outside the sphere)
+        let d = V3::new(q.x, q.y, q.z + r - rs).len();
+        assert!(
+            d >= rs + r - p.tolerance - 1e-9 && d <= rs + r + eps + p.tolerance,
+            "waterline at Z {}: the ball's centre is {d} from the sphere's, exact {} (tessellation {eps}, tolerance {})",
+            q.z,
+            rs + r,
+            p.tolerance
+        );
+        n += 1;
+    }
+    assert!(n > 100, "only {n} points");
+    let e = waterline3d(
+        &m,
+        &WaterlineParams {
+            cutter: Cutter::flat(6.0),
+            ..p
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("ball cutters only"), "{e}");
+}

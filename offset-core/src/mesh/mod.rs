@@ -15,6 +15,7 @@ pub mod stl;
 pub mod surface;
 pub mod topology;
 pub mod v3;
+pub mod waterline;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
 pub use finish::{finish3d, Finish3dParams};
@@ -25,6 +26,7 @@ pub use stl::{read_stl, write_stl};
 pub use surface::{read_point_grid, BicubicSurface, PointGrid};
 pub use topology::{MeshReport, Topology};
 pub use v3::V3;
+pub use waterline::{waterline3d, WaterlineParams};
 
 use crate::ops::OpError;
 use serde::{Deserialize, Serialize};
