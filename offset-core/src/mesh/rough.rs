@@ -176,6 +176,9 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         let mut paths = vec![outline.clone()];
         paths.extend(slice_at(&grown, z)?);
         let shape = Shape::new(paths);
+        // one pass at the level (depth 0 below a stock top at Z = z); the pocket's other
+        // settings (its entries among them) keep their defaults
+        #[allow(clippy::needless_update)]
         let level = PocketParams {
             cut: Cutting {
                 tool: p.tool,
@@ -187,8 +190,10 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
                 climb: p.climb,
                 spindle_rpm: 0.0,
                 tolerance: p.tolerance,
+                ..Cutting::default()
             },
             stepover: p.stepover,
+            ..PocketParams::default()
         };
         let cut = match pocket(&shape, &level) {
             Ok(t) => t,
