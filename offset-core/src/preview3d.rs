@@ -8,7 +8,7 @@
 
 use crate::mesh::{Mesh, V3};
 use crate::preview::{ARC_COLOUR, LINEAR_COLOUR, PLUNGE_COLOUR, RAPID_COLOUR};
-use crate::toolpath::{arc_segment, Move, Toolpath, P3};
+use crate::toolpath::{arc_segment, Move, Toolpath};
 use std::fmt::Write;
 
 /// The most faces a preview paints; a bigger mesh paints every k-th face of those facing
@@ -210,18 +210,6 @@ fn n(v: f64) -> String {
     } else {
         "0".into()
     }
-}
-
-/// The point of the path `tp` nearest the viewer, for tests and labels.
-pub fn nearest_point(tp: &Toolpath) -> Option<P3> {
-    let mut best: Option<(f64, P3)> = None;
-    tp.walk(P3::default(), |_, _, to| {
-        let d = project(V3::from_p3(to)).2;
-        if best.is_none_or(|(b, _)| d > b) {
-            best = Some((d, to));
-        }
-    });
-    best.map(|(_, p)| p)
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
-//! Triangle meshes (STL parts, fitted surfaces) and the 3D work on them: offsets by
-//! multiple normals, z-level slices for roughing, drop-cutter finishing.
+//! Triangle meshes (STL parts, surfaces fitted to measured points) and the 3D work on
+//! them: offsets by multiple normals, z-level slices for roughing, drop-cutter and
+//! waterline finishing (docs/3d.md).
 //!
 //! Meshes are machined in their own frame: the STL's coordinates are the work coordinates
 //! and the stock top defaults to the mesh's highest Z (DESIGN.md, Geometry).
@@ -19,11 +20,11 @@ pub mod waterline;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
 pub use finish::{finish3d, Finish3dParams};
-pub use offset::{offset, MeshOffsetOptions, OffsetReport, OffsetResult};
+pub use offset::{measure_error, offset, MeshOffsetOptions, OffsetReport, OffsetResult};
 pub use rough::{rough3d, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
-pub use surface::{read_point_grid, BicubicSurface, PointGrid};
+pub use surface::{mesh_from_points, read_point_grid, BicubicSurface, PointGrid};
 pub use topology::{MeshReport, Topology};
 pub use v3::V3;
 pub use waterline::{waterline3d, WaterlineParams};

@@ -10,7 +10,7 @@
 //! clockwise round holes.
 
 use super::FastMap;
-use super::{Mesh, MeshError, V3};
+use super::{Mesh, MeshError};
 use crate::geom::{Point, Polyline};
 
 /// The contours of the closed mesh's section just above the plane Z = `z`: loops
@@ -114,15 +114,11 @@ pub fn flat_heights(m: &Mesh) -> Vec<f64> {
     zs
 }
 
-/// The point of the plane Z = `z` on edge a–b, for tests.
-pub fn edge_at(a: V3, b: V3, z: f64) -> V3 {
-    a.lerp(b, (z - a.z) / (b.z - a.z))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::mesh::shapes::{cube_with_boss, cuboid, sphere};
+    use crate::mesh::V3;
 
     #[test]
     fn a_box_sliced_through_its_middle_is_one_square_counter_clockwise() {
