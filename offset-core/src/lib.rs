@@ -3,16 +3,23 @@
 //! islands), the offset kernel that grows and shrinks them (pair-wise interference
 //! removal after Choi & Park 1999 and Park 2001), the operations that turn shapes into
 //! tool paths and stitch paths, and the Toolpath IR those operations hand to the posts.
-//! It does no I/O beyond parsing bytes handed to it, and needs no async runtime.
+//! For 3D work it holds triangle meshes read from STL (welded, their defects reported by
+//! face), their offsets by multiple normals (Kim & Yang 2005), z-level roughing on their
+//! slices, drop-cutter finishing with ball, flat and bull cutters, and bicubic surfaces
+//! fitted to grids of measured points (`mesh`, docs/3d.md).
+//! It does no I/O beyond parsing bytes handed to it, and needs no async runtime (the
+//! drop-cutter spreads rows over rayon's thread pool).
 
 pub mod biarc;
 pub mod check;
 pub mod flatten;
 pub mod geom;
 pub mod io;
+pub mod mesh;
 pub mod offset;
 pub mod ops;
 pub mod preview;
+pub mod preview3d;
 pub mod stitch;
 pub mod toolpath;
 
