@@ -3,7 +3,7 @@
 
 use super::job::{print_warnings, JobArgs};
 use anyhow::Context;
-use machlink::intake::{self, Input, JobSpec};
+use machlink::intake::{self, Input, InputKind, JobSpec};
 use offset_core::preview;
 use std::path::PathBuf;
 
@@ -18,6 +18,10 @@ pub struct PreviewArgs {
     /// Width of the drawing in pixels.
     #[arg(long, default_value_t = 1000)]
     pub width: u32,
+    /// Draw a G-code program in an isometric view (the default for programs that cut while
+    /// Z changes, as 3D finishing does; meshes are always drawn so).
+    #[arg(long)]
+    pub iso: bool,
     /// Plan options, as for `machlink plan`; with --op the plan is drawn over the part.
     #[command(flatten)]
     pub job: JobArgs,
@@ -31,12 +35,26 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             .unwrap_or_default()
     };
     let input = Input::from_path(&a.file)?;
-    let svg = if intake::is_gcode_file(&input.file_name) {
+    let kind = input.kind();
+    let svg = if matches!(kind, InputKind::Mesh | InputKind::Points) {
+        // a mesh, shaded in an isometric view, with the 3D plan over it
+        let spec = a.job.spec(&a.file, None, None)?;
+        let mesh = intake::read_mesh(&spec)?;
+        let tp = match spec.operation {
+            Some(_) => Some(intake::toolpath_3d(&spec, &mesh)?),
+            None => None,
+        };
+        offset_core::preview3d::svg(Some(&mesh), tp.as_ref(), a.width as f64)
+    } else if intake::is_gcode_file(&input.file_name) {
         let text = String::from_utf8(input.bytes()?)
             .with_context(|| format!("{} is not a text file", a.file.display()))?;
         let tp = machlink_protocols::gcode_read::read(&text)
             .with_context(|| format!("{} is not G-code we can draw", a.file.display()))?;
-        preview::svg(None, Some(&tp), a.width as f64)
+        if is_3d(&tp) || a.iso {
+            offset_core::preview3d::svg(None, Some(&tp), a.width as f64)
+        } else {
+            preview::svg(None, Some(&tp), a.width as f64)
+        }
     } else {
         let spec = JobSpec {
             post: None,
@@ -67,6 +85,22 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", a.output.display());
     Ok(())
+}
+
+/// Whether a program cuts in 3D: over a fifth of its cutting moves change Z while they
+/// move in XY (a 2D job's ramps and helical entries are far fewer).
+fn is_3d(tp: &offset_core::Toolpath) -> bool {
+    use offset_core::toolpath::{Move, P3};
+    let (mut cutting, mut sloped) = (0usize, 0usize);
+    tp.walk(P3::default(), |from, m, to| {
+        if matches!(m, Move::Linear { .. } | Move::Arc { .. }) {
+            cutting += 1;
+            if (to.z - from.z).abs() > 1e-6 && from.xy().dist(to.xy()) > 1e-6 {
+                sloped += 1;
+            }
+        }
+    });
+    sloped * 5 > cutting
 }
 
 /// Renders the drawing to PNG bytes.

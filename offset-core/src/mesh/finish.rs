@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 /// Everything a drop-cutter finish needs besides the mesh.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Finish3dParams {
     pub cutter: Cutter,
     /// The tool's number in the machine's magazine.

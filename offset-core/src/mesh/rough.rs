@@ -1,30 +1,35 @@
 //! Roughing (rough3d): z-level clearing of the stock round a mesh, each level a pocket of
 //! the stock outline with the part's section (grown by the stock allowance) as islands.
 //!
-//! The closed mesh is offset by the stock allowance (multiple normals, so the allowance
-//! is kept on slopes and flats too, not only on walls) and sliced at levels from the
-//! stock top down to the floor, no more than the step-down apart, plus a level on every
-//! flat the part shows between them. A slice is the section just above its plane, which is
-//! what a flat cutter whose tip stands there meets; the levels are cleared from the top
-//! down with the 2D pocket (`ops::pocket`, with its entries and clean-up), whose outline
-//! is the stock's plan view grown by the tool radius so the tool runs off the stock's
-//! edge. Every level starts and ends at the safe height, so levels are linked by safe
-//! retracts.
+//! Levels run from the stock top down to the floor, no more than the step-down apart, plus
+//! a level on every flat the part shows between them (raised by the allowance). A level
+//! at Z keeps the stock allowance a by taking the part's section at Z - a (the section
+//! just above that plane) grown by a in 2D, with the exact offset kernel: for a part with
+//! no undercut, sections only shrink upward, so every point of the part within a of the
+//! level's plane lies in that grown section, and a flat cutter kept out of it stands at
+//! least a above and a beside the part. (Slicing the mesh offset by multiple normals
+//! instead would keep the allowance exactly on slopes, but that offset is not trimmed
+//! in concave corners, and its folds there make crossing sections.) The levels are
+//! cleared from the top down with the 2D pocket (`ops::pocket`, with its entries and
+//! clean-up), whose outline is the stock's plan view grown by the tool radius so the tool
+//! runs off the stock's edge. Every level starts and ends at the safe height, so levels
+//! are linked by safe retracts.
 //!
 //! A section is all a cutter at that level meets only when no face of the part looks down
 //! above the floor (no undercut): such a face is refused by name, with the height to raise
 //! the floor to.
 
-use super::offset::{offset, MeshOffsetOptions};
 use super::slice::{flat_heights, slice_at};
 use super::{Mesh, MeshError};
 use crate::geom::{Point, Polyline, Shape};
+use crate::offset::{offset_shape, Join, OffsetOptions};
 use crate::ops::{pass_depths, pocket, Cutting, OpError, PocketParams, Stepover};
 use crate::toolpath::{Move, Tool, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 
 /// Everything a z-level rough needs besides the mesh.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Rough3dParams {
     /// The roughing cutter (flat end).
     pub tool: Tool,
@@ -123,18 +128,7 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         )));
     }
     check_undercuts(&solid, floor, p.tolerance)?;
-    let grown = if p.stock_allowance > 0.0 {
-        offset(
-            &solid,
-            p.stock_allowance,
-            &MeshOffsetOptions {
-                tolerance: p.tolerance,
-            },
-        )?
-        .mesh
-    } else {
-        solid.clone()
-    };
+    let a = p.stock_allowance;
     let r = p.tool.radius();
     let m = p.stock_margin + p.stock_allowance;
     // the stock in plan, grown by the tool radius (and a hair) so the tool runs off it
@@ -147,8 +141,8 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         .into_iter()
         .map(|d| top + d)
         .collect();
-    // a level on each flat of the grown part between the top and the floor
-    for z in flat_heights(&grown) {
+    // a level on each flat of the part, the allowance above it, between the top and the floor
+    for z in flat_heights(&solid).into_iter().map(|z| z + a) {
         if z < top - p.tolerance && z > floor + p.tolerance {
             levels.push(z);
         }
@@ -174,7 +168,7 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     });
     for &z in &levels {
         let mut paths = vec![outline.clone()];
-        paths.extend(slice_at(&grown, z)?);
+        paths.extend(section(&solid, (z - a).max(lo.z + p.tolerance), a, p.tolerance)?.paths);
         let shape = Shape::new(paths);
         // one pass at the level (depth 0 below a stock top at Z = z); the pocket's other
         // settings (its entries among them) keep their defaults
@@ -234,6 +228,25 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
     Ok(tp)
+}
+
+/// The part's section just above `z`, grown by `allowance` in the plane.
+fn section(solid: &Mesh, z: f64, allowance: f64, tol: f64) -> Result<Shape, MeshError> {
+    let cut = Shape::new(slice_at(solid, z)?);
+    if allowance <= 0.0 || cut.paths.is_empty() {
+        return Ok(cut);
+    }
+    let opts = OffsetOptions {
+        join: Join::Round,
+        tolerance: tol,
+        ..OffsetOptions::default()
+    };
+    offset_shape(&cut, allowance, &opts).map_err(|e| {
+        MeshError::BadParam(format!(
+            "{}: the section at Z {z} cannot be grown by the allowance: {e}",
+            solid.name
+        ))
+    })
 }
 
 /// Refuses a face that looks down above the floor (an undercut a 3-axis rough by slices

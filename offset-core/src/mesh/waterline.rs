@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 /// Everything a waterline finish needs besides the mesh.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct WaterlineParams {
     /// A ball cutter.
     pub cutter: Cutter,
