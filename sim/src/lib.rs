@@ -4,6 +4,7 @@
 
 pub mod grbl;
 pub mod kinds;
+pub mod line;
 pub mod modbus;
 pub mod pty;
 pub mod sewing;

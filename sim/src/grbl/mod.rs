@@ -13,13 +13,13 @@ pub mod machine;
 pub use deviation::max_deviation;
 pub use interp::Motion;
 
-use crate::pty::{wait_ready, Pty};
+use crate::pty::{wait_ready, Pty, PtyLink};
 use machine::Machine;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -109,6 +109,7 @@ pub struct GrblSimHandle {
     shared: Arc<Shared>,
     threads: Vec<JoinHandle<()>>,
     port: PathBuf,
+    link: Option<PtyLink>,
     _pty: Arc<Pty>,
 }
 
@@ -142,9 +143,16 @@ impl GrblSim {
     /// Starts a simulated controller on a new pty. Runs on its own threads; it may be
     /// called inside or outside a tokio runtime.
     pub fn spawn_pty(cfg: GrblSimConfig) -> io::Result<GrblSimHandle> {
+        Self::spawn_pty_at(cfg, None)
+    }
+
+    /// As [`GrblSim::spawn_pty`], with `link` made a symbolic link to the pty (an old link
+    /// of that name is replaced; the link goes when the handle is dropped).
+    pub fn spawn_pty_at(cfg: GrblSimConfig, link: Option<&Path>) -> io::Result<GrblSimHandle> {
         check_config(&cfg)?;
         let pty = Arc::new(Pty::open()?);
         let port = pty.path.clone();
+        let link = PtyLink::optional(&port, link)?;
         let byte_time = cfg.baud.map(|b| Duration::from_secs_f64(10.0 / b as f64));
         let shared = Arc::new(Shared {
             machine: Mutex::new(Machine::new(cfg, Instant::now())),
@@ -152,8 +160,7 @@ impl GrblSim {
             stop: AtomicBool::new(false),
         });
         let (out_tx, out_rx) = mpsc::channel::<Vec<u8>>();
-        let master_r = File::from(pty.master.try_clone()?);
-        let master_w = File::from(pty.master.try_clone()?);
+        let (master_r, master_w) = pty.blocking()?;
         let mut threads = Vec::new();
 
         // the writer: replies back to the client, paced like a UART
@@ -180,6 +187,7 @@ impl GrblSim {
             shared,
             threads,
             port,
+            link,
             _pty: pty,
         })
     }
@@ -326,9 +334,12 @@ fn writer_loop(
 }
 
 impl GrblSimHandle {
-    /// The pty path a client opens (e.g. with `GrblLink::open`).
+    /// The path a client opens (e.g. with `GrblLink::open`): the link if one was asked
+    /// for, else the pty.
     pub fn port(&self) -> PathBuf {
-        self.port.clone()
+        self.link
+            .as_ref()
+            .map_or_else(|| self.port.clone(), |l| l.path().to_path_buf())
     }
     /// Every motion line executed to its end, in order.
     pub fn trace(&self) -> Vec<Executed> {

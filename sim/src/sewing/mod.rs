@@ -43,6 +43,9 @@ pub struct SewingSimConfig {
     pub area: [i32; 4],
     /// The longest step of one record, 0.1 mm.
     pub max_stitch: u16,
+    /// Pace the line both ways at this baud rate (10 bits a byte); `None`: as fast as the
+    /// pty or stream carries bytes.
+    pub baud: Option<u32>,
 }
 
 impl Default for SewingSimConfig {
@@ -56,6 +59,7 @@ impl Default for SewingSimConfig {
             power_loss_at: vec![],
             area: [-1500, -1000, 1500, 1000],
             max_stitch: 127,
+            baud: None,
         }
     }
 }
@@ -532,17 +536,53 @@ pub async fn run(
 
 /// A machine running on a fresh pty: the path a host opens, and the trace.
 pub struct SewingSim {
+    /// The pty's path (a symbolic link's target when one was asked for).
     pub path: String,
     pub trace: Trace,
     pub task: tokio::task::JoinHandle<std::io::Result<()>>,
+    /// The symbolic link to the pty, when one was asked for; removed on drop.
+    pub link: Option<crate::pty::PtyLink>,
 }
 
 /// Starts a machine on a new pty inside the current tokio runtime.
 pub fn spawn_on_pty(cfg: SewingSimConfig) -> std::io::Result<SewingSim> {
-    let port = pty::PtyPort::open()?;
+    spawn_on_pty_at(cfg, None)
+}
+
+/// As [`spawn_on_pty`], with `link` made a symbolic link to the pty (an old link of that
+/// name is replaced).
+pub fn spawn_on_pty_at(
+    cfg: SewingSimConfig,
+    link: Option<&std::path::Path>,
+) -> std::io::Result<SewingSim> {
+    let port = crate::pty::PtyPort::open()?;
     let path = port.slave_path.clone();
+    let link = crate::pty::PtyLink::optional(std::path::Path::new(&path), link)?;
     let trace: Trace = Arc::default();
-    let t = trace.clone();
-    let task = tokio::spawn(async move { run(port, cfg, t).await });
-    Ok(SewingSim { path, trace, task })
+    let task = spawn_on(port, cfg, trace.clone());
+    Ok(SewingSim {
+        path,
+        trace,
+        task,
+        link,
+    })
+}
+
+/// Starts a machine on any byte stream (an in-memory [`crate::line::cable`] in tests),
+/// behind a line paced at `cfg.baud` when one is set.
+pub fn spawn_on<S>(
+    io: S,
+    cfg: SewingSimConfig,
+    trace: Trace,
+) -> tokio::task::JoinHandle<std::io::Result<()>>
+where
+    S: AsyncRead + AsyncWrite + Send + 'static,
+{
+    match cfg.baud {
+        Some(baud) => {
+            let line = crate::line::paced(io, baud);
+            tokio::spawn(run(line, cfg, trace))
+        }
+        None => tokio::spawn(run(Box::pin(io), cfg, trace)),
+    }
 }
