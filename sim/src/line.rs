@@ -32,6 +32,35 @@ pub fn t35(baud: u32) -> Duration {
     chars(baud, 3.5)
 }
 
+/// Whether tokio's clock is paused (a `start_paused` test): time then moves only when every
+/// task waits, so a thread that sleeps does not move it.
+pub fn clock_is_paused() -> bool {
+    let before = Instant::now();
+    std::thread::sleep(Duration::from_micros(100));
+    Instant::now() == before
+}
+
+/// Sleeps until `due` to within a few tens of microseconds. tokio's timers tick in whole
+/// milliseconds, which at 115200 baud is 11 characters; so in real time the last stretch
+/// is slept on the thread (blocking it for at most 1.5 ms). In paused time (`paused`) the
+/// timer alone is exact.
+pub async fn sleep_until_precise(due: Instant, paused: bool) {
+    const COARSE: Duration = Duration::from_micros(1500);
+    if paused {
+        tokio::time::sleep_until(due).await;
+        return;
+    }
+    if let Some(early) = due.checked_sub(COARSE) {
+        if early > Instant::now() {
+            tokio::time::sleep_until(early).await;
+        }
+    }
+    let now = Instant::now();
+    if due > now {
+        std::thread::sleep(due - now);
+    }
+}
+
 /// Puts a serial line of `baud` in front of `inner`: bytes written to the returned stream
 /// reach `inner` no faster than the line carries them, and bytes from `inner` reach the
 /// reader likewise. Spawns two pump tasks on the current runtime.

@@ -165,9 +165,10 @@ async fn rtu_job_of_5000_blocks_survives_drops_late_replies_busy_and_a_dead_line
 
 #[tokio::test]
 async fn an_exception_names_the_register_and_the_code() {
-    // Request 6 is the first block write (status, write seq, sync, status; status, blocks).
+    // Request 3 is the first block write (the status read, the sync with the header read
+    // back in the same FC23 request, then the blocks).
     let faults = Faults {
-        exceptions: vec![(6, 0x02)],
+        exceptions: vec![(3, 0x02)],
         ..Faults::default()
     };
     let sim = ModbusSim::spawn_tcp(sim_config(faults), "127.0.0.1:0".parse().unwrap())

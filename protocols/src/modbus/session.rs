@@ -102,7 +102,7 @@ impl Session {
                 ReplyFate::Taken { request } => ReplyFate::Taken {
                     request: request + base,
                 },
-                ReplyFate::Stale => ReplyFate::Stale,
+                other => other,
             }));
         }
         v
@@ -176,7 +176,7 @@ impl Session {
                     ReplyFate::Taken { request } => ReplyFate::Taken {
                         request: request + base,
                     },
-                    ReplyFate::Stale => ReplyFate::Stale,
+                    other => other,
                 }));
             self.past.requests += n.requests;
             self.past.replies += n.replies;

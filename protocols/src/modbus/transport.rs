@@ -68,6 +68,8 @@ pub enum ReplyFate {
     Taken { request: u64 },
     /// Discarded: a late reply to an earlier request, or another unit's.
     Stale,
+    /// Discarded unread while the line settled after a timeout.
+    Drained,
 }
 
 /// What the wire did, for benchmarks and logs.
@@ -189,22 +191,41 @@ impl Wire {
     /// Discards what arrives until the line has been silent for the quiet time (at most
     /// twenty quiet times in all, so that a chattering line cannot hold the link forever).
     async fn drain(&mut self) -> Result<(), WireError> {
-        self.counters.drained += self.buf.len() as u64;
-        self.buf.clear();
         let give_up = Instant::now() + self.quiet * 20;
         let mut tmp = [0u8; 256];
+        let mut result = Ok(());
         while Instant::now() < give_up {
             match tokio::time::timeout(self.quiet, self.io.read(&mut tmp)).await {
                 Err(_) => break,
-                Ok(Ok(0)) => return Err(WireError::Closed),
+                Ok(Ok(0)) => {
+                    result = Err(WireError::Closed);
+                    break;
+                }
                 Ok(Ok(n)) => {
-                    self.counters.drained += n as u64;
+                    self.buf.extend_from_slice(&tmp[..n]);
                     self.last_rx = Some(Instant::now());
                 }
-                Ok(Err(e)) => return Err(e.into()),
+                Ok(Err(e)) => {
+                    result = Err(e.into());
+                    break;
+                }
             }
         }
-        Ok(())
+        self.discard_buffer();
+        result
+    }
+
+    /// Throws away what was received and not asked for, logging the frames in it.
+    fn discard_buffer(&mut self) {
+        self.counters.drained += self.buf.len() as u64;
+        if let Some(log) = &mut self.log {
+            let mut at = 0;
+            while let Some((Ok(_), n)) = frame::rtu_split(&self.buf[at..], Side::Reply) {
+                log.push(ReplyFate::Drained);
+                at += n;
+            }
+        }
+        self.buf.clear();
     }
 
     async fn send(&mut self, req: &Request) -> Result<(), WireError> {
@@ -216,8 +237,7 @@ impl Wire {
             }
             Framing::Rtu { .. } => {
                 // Bytes that came unasked (noise, a reply nobody waits for) are not an answer.
-                self.counters.drained += self.buf.len() as u64;
-                self.buf.clear();
+                self.discard_buffer();
                 self.keep_silence().await;
                 frame::rtu_encode(self.unit, &pdu)
             }
