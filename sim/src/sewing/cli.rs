@@ -37,6 +37,10 @@ pub struct SewingArgs {
     /// Pace the line both ways as a UART at this baud rate would (10 bits a byte).
     #[arg(long)]
     pub baud: Option<u32>,
+    /// The upload window INFO reports (chunk frames in flight); 0 behaves as a machine of
+    /// protocol version 1 (no window in INFO, no NAK for a frame that stops short).
+    #[arg(long, default_value_t = 4)]
+    pub window: u8,
     /// Append every needle drop to this file as a JSON line {"index","x","y"} (0.1 mm).
     #[arg(long)]
     pub trace: Option<PathBuf>,
@@ -81,6 +85,7 @@ impl SewingArgs {
             area: [u(a[0]), u(a[1]), u(a[2]), u(a[3])],
             max_stitch: (self.max_stitch * 10.0).round() as u16,
             baud: self.baud,
+            window: (self.window > 0).then_some(self.window),
         })
     }
 }

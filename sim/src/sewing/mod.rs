@@ -46,6 +46,11 @@ pub struct SewingSimConfig {
     /// Pace the line both ways at this baud rate (10 bits a byte); `None`: as fast as the
     /// pty or stream carries bytes.
     pub baud: Option<u32>,
+    /// The upload window INFO reports (protocol version 2: chunks acknowledged with the
+    /// records loaded, repeats of loaded chunks acknowledged again, a NAK for a frame whose
+    /// bytes stop short). `None` is a machine of protocol version 1: no window byte in INFO
+    /// (the host sends one chunk at a time), none of those.
+    pub window: Option<u8>,
 }
 
 impl Default for SewingSimConfig {
@@ -60,6 +65,7 @@ impl Default for SewingSimConfig {
             area: [-1500, -1000, 1500, 1000],
             max_stitch: 127,
             baud: None,
+            window: Some(4),
         }
     }
 }
@@ -188,6 +194,7 @@ impl Machine {
             max_y,
             max_stitch: self.cfg.max_stitch,
             spm: self.cfg.spm.min(u16::MAX as u32) as u16,
+            window: self.cfg.window,
         }
     }
 
@@ -269,27 +276,31 @@ impl Machine {
                 Ok(vec![])
             }
             req::LOAD_CHUNK => {
-                let offset = u32at(0)?;
+                let offset = u32at(0)? as usize;
                 let count = p
                     .get(4..6)
                     .map(|b| u16::from_le_bytes([b[0], b[1]]) as usize)
                     .ok_or((refusal::BAD_REQUEST, "the chunk has no count".to_string()))?;
+                let v2 = self.cfg.window.is_some();
                 let l = self
                     .loading
                     .as_mut()
                     .ok_or((refusal::NO_PATTERN, "no upload was begun".to_string()))?;
-                if offset as usize != l.records.len() {
-                    return Err((
+                let loaded = l.records.len();
+                let repeat = v2 && offset < loaded && offset + count <= loaded;
+                let wrong_offset = || {
+                    (
                         refusal::WRONG_OFFSET,
                         format!(
-                            "the chunk starts at record {offset}, but {} records are loaded",
-                            l.records.len()
+                            "the chunk starts at record {offset}, but {loaded} records are loaded"
                         ),
-                    ));
+                    )
+                };
+                if !repeat && offset != loaded {
+                    return Err(wrong_offset());
                 }
                 let body = &p[6..];
-                if body.len() != count * StitchRecord::WIRE_LEN
-                    || l.records.len() + count > l.total as usize
+                if body.len() != count * StitchRecord::WIRE_LEN || offset + count > l.total as usize
                 {
                     return Err((refusal::BAD_REQUEST, "the chunk has the wrong size".into()));
                 }
@@ -297,11 +308,24 @@ impl Machine {
                 for (i, b) in body.chunks(StitchRecord::WIRE_LEN).enumerate() {
                     recs.push(StitchRecord::from_wire(b).ok_or((
                         refusal::BAD_REQUEST,
-                        format!("record {} has an unknown kind", offset as usize + i),
+                        format!("record {} has an unknown kind", offset + i),
                     ))?);
                 }
-                l.records.extend(recs);
-                Ok(vec![])
+                if !repeat {
+                    l.records.extend(recs);
+                } else if l.records[offset..offset + count] == recs[..] {
+                    // A chunk sent again (its acknowledgement was lost): acknowledged, not loaded.
+                    if let Ok(mut t) = self.trace.lock() {
+                        t.duplicates += 1;
+                    }
+                } else {
+                    return Err(wrong_offset());
+                }
+                Ok(if v2 {
+                    (l.records.len() as u32).to_le_bytes().to_vec()
+                } else {
+                    vec![]
+                })
             }
             req::LOAD_END => {
                 let l = self
@@ -520,9 +544,16 @@ pub async fn run(
                 }
             }
             _ = tokio::time::sleep_until(last_rx + idle_gap), if pending => {
-                dec.resync_on_idle();
+                let stuck = dec.resync_on_idle();
                 while let Some(d) = dec.next_frame() {
                     out.extend(m.handle(d));
+                }
+                // Version 2: a frame whose bytes stopped short of its length is NAKed.
+                if let (Some(seq), Some(_)) = (stuck, m.cfg.window) {
+                    if let Ok(mut t) = m.trace.lock() {
+                        t.corrupt_frames += 1;
+                    }
+                    out.extend(Frame::new(seq, reply::NAK, vec![]).encode());
                 }
                 last_rx = Instant::now();
             }
