@@ -87,6 +87,112 @@ pub fn cable(baud: Option<u32>) -> (DuplexStream, DuplexStream) {
     }
 }
 
+/// Which way bytes went through a [`Tap`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Direction {
+    /// Written by the side holding the tap (the host).
+    Sent,
+    /// Read by it.
+    Received,
+}
+
+/// Bytes that went through a [`Tap`], when (tokio's clock) and which way.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Tapped {
+    pub at: Instant,
+    pub direction: Direction,
+    pub bytes: Vec<u8>,
+}
+
+/// A stream that records every byte written to and read from it: the transcripts of the
+/// protocol documents' example sessions.
+pub struct Tap<S> {
+    inner: S,
+    log: std::sync::Arc<std::sync::Mutex<Vec<Tapped>>>,
+}
+
+impl<S> Tap<S> {
+    /// The tapped stream and a handle on its record.
+    pub fn new(inner: S) -> (Tap<S>, std::sync::Arc<std::sync::Mutex<Vec<Tapped>>>) {
+        let log = std::sync::Arc::default();
+        (
+            Tap {
+                inner,
+                log: std::sync::Arc::clone(&log),
+            },
+            log,
+        )
+    }
+    fn record(&self, direction: Direction, bytes: &[u8]) {
+        if bytes.is_empty() {
+            return;
+        }
+        if let Ok(mut log) = self.log.lock() {
+            log.push(Tapped {
+                at: Instant::now(),
+                direction,
+                bytes: bytes.to_vec(),
+            });
+        }
+    }
+}
+
+impl<S: AsyncRead + Unpin> AsyncRead for Tap<S> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        let before = buf.filled().len();
+        let r = std::pin::Pin::new(&mut self.inner).poll_read(cx, buf);
+        if let std::task::Poll::Ready(Ok(())) = r {
+            let got = buf.filled()[before..].to_vec();
+            self.record(Direction::Received, &got);
+        }
+        r
+    }
+}
+
+impl<S: AsyncWrite + Unpin> AsyncWrite for Tap<S> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        data: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        let r = std::pin::Pin::new(&mut self.inner).poll_write(cx, data);
+        if let std::task::Poll::Ready(Ok(n)) = r {
+            self.record(Direction::Sent, &data[..n]);
+        }
+        r
+    }
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// Hex bytes, `per_line` a line, each line after the first indented by `indent` spaces.
+pub fn hex_lines(bytes: &[u8], per_line: usize, indent: usize) -> String {
+    bytes
+        .chunks(per_line)
+        .map(|c| {
+            c.iter()
+                .map(|b| format!("{b:02X}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        })
+        .collect::<Vec<_>>()
+        .join(&format!("\n{}", " ".repeat(indent)))
+}
+
 /// Moves bytes from `from` to `to`, each taking `byte` on the line.
 async fn pump<R, W>(mut from: R, mut to: W, byte: Duration)
 where

@@ -341,6 +341,7 @@ impl Ring {
             p.written = s.consumed_seq.max(p.committed);
         }
         p.touched = p.written;
+        p.status = Some(s);
         Ok(())
     }
 

@@ -152,11 +152,37 @@ impl Wire {
         req: &Request,
         timeout: Duration,
     ) -> Result<Response, WireError> {
-        if !self.owed.is_empty() {
-            self.settle(timeout).await?;
+        if self.owed.is_empty() {
+            self.send(req).await?;
+            return self.await_reply(req, timeout).await;
         }
+        // A read whose count no owed read has settles the line by itself.
+        if self.is_barrier(req) {
+            self.drain().await?;
+            self.counters.barriers += 1;
+            self.send(req).await?;
+            let r = self.await_reply(req, timeout).await?;
+            self.owed.clear();
+            return Ok(r);
+        }
+        self.settle(timeout).await?;
         self.send(req).await?;
         self.await_reply(req, timeout).await
+    }
+
+    /// Register counts of the owed reads.
+    fn owed_reads(&self) -> Vec<u16> {
+        self.owed
+            .iter()
+            .filter_map(|r| match r {
+                Request::Read { count, .. } => Some(*count),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn is_barrier(&self, req: &Request) -> bool {
+        matches!(req, Request::Read { count, .. } if !self.owed_reads().contains(count))
     }
 
     /// After a timeout on RTU: drain until quiet, then read past every owed reply.
@@ -166,14 +192,7 @@ impl Wire {
             self.owed.clear();
             return Ok(());
         };
-        let taken: Vec<u16> = self
-            .owed
-            .iter()
-            .filter_map(|r| match r {
-                Request::Read { count, .. } => Some(*count),
-                _ => None,
-            })
-            .collect();
+        let taken = self.owed_reads();
         let count = (b.counts.0..=b.counts.1)
             .find(|c| !taken.contains(c))
             .ok_or(WireError::NoBarrier)?;
