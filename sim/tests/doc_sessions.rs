@@ -6,6 +6,7 @@
 use machlink_protocols::modbus::frame::{self, Request, Response, Side};
 use machlink_protocols::modbus::map::{BlockKind, ModbusState, MotionBlock, Status, WordOrder};
 use machlink_protocols::modbus::{ModbusLink, ModbusPost, ModbusSettings};
+use machlink_protocols::sewing;
 use machlink_protocols::Post;
 use machlink_protocols::{Control, Link, StreamEnd};
 use machlink_sim::conformance::document_holds;
@@ -187,4 +188,204 @@ fn the_modbus_document_shows_what_the_post_writes() {
     let blocks = ModbusPost.units(&tp).unwrap();
     let text = String::from_utf8(ModbusPost.file(&blocks, "doc").unwrap()).unwrap();
     document_holds("modbus.md", &text).unwrap();
+}
+
+/// A stream that flips one bit of the `nth` write (counting from 1) on its way out.
+struct Garble<S> {
+    inner: S,
+    nth: usize,
+    writes: usize,
+}
+
+impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for Garble<S> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
+    }
+}
+
+impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for Garble<S> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        data: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        self.writes += 1;
+        if self.writes == self.nth && data.len() > 12 {
+            let mut bad = data.to_vec();
+            bad[12] ^= 0x10;
+            return std::pin::Pin::new(&mut self.inner).poll_write(cx, &bad);
+        }
+        std::pin::Pin::new(&mut self.inner).poll_write(cx, data)
+    }
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+fn sewing_kind(k: u8) -> String {
+    use sewing::wire::req;
+    match k {
+        req::INFO => "INFO".into(),
+        req::LOAD_BEGIN => "LOAD_BEGIN".into(),
+        req::LOAD_CHUNK => "LOAD_CHUNK".into(),
+        req::LOAD_END => "LOAD_END".into(),
+        req::START => "START".into(),
+        req::STOP => "STOP".into(),
+        req::RESUME => "RESUME".into(),
+        req::ABORT => "ABORT".into(),
+        req::STATUS => "STATUS".into(),
+        other => format!("0x{other:02X}"),
+    }
+}
+
+fn sewing_request(f: &sewing::wire::Frame) -> String {
+    use sewing::wire::req;
+    let p = &f.payload;
+    let u32at = |i: usize| u32::from_le_bytes([p[i], p[i + 1], p[i + 2], p[i + 3]]);
+    let what = match f.kind {
+        req::INFO => "INFO".to_string(),
+        req::STATUS => "STATUS".to_string(),
+        req::LOAD_BEGIN => format!("LOAD_BEGIN {} records, CRC-32 {:08X}", u32at(0), u32at(4)),
+        req::LOAD_CHUNK => format!(
+            "LOAD_CHUNK at {}, {} records",
+            u32at(0),
+            u16::from_le_bytes([p[4], p[5]])
+        ),
+        req::LOAD_END => "LOAD_END".to_string(),
+        req::START => format!("START at {}, CRC-32 {:08X}", u32at(0), u32at(4)),
+        other => format!("request 0x{other:02X}"),
+    };
+    format!("seq {}: {what}", f.seq)
+}
+
+fn sewing_reply(f: &sewing::wire::Frame) -> String {
+    use sewing::wire::{reply, req, Info, Status};
+    let p = &f.payload;
+    let what = match (f.kind, p.first().copied()) {
+        (reply::NAK, _) => "NAK: the frame arrived damaged".to_string(),
+        (reply::ACK, Some(req::INFO)) => {
+            let i = Info::decode(&p[1..]).unwrap();
+            format!(
+                "ACK INFO: area {}..{} × {}..{} (0.1 mm), longest step {}, {} spm, window {}",
+                i.min_x,
+                i.max_x,
+                i.min_y,
+                i.max_y,
+                i.max_stitch,
+                i.spm,
+                i.window()
+            )
+        }
+        (reply::ACK, Some(req::STATUS)) => {
+            let s = Status::decode(&p[1..]).unwrap();
+            format!(
+                "ACK STATUS: {}, counter {}, at ({}, {}), flags {}, pattern {} records CRC-32 {:08X}",
+                s.state.name(),
+                s.counter,
+                s.x,
+                s.y,
+                s.thread_break as u8 | (s.needle_down as u8) << 1,
+                s.pattern_len,
+                s.pattern_crc
+            )
+        }
+        (reply::ACK, Some(req::LOAD_CHUNK)) => format!(
+            "ACK LOAD_CHUNK: {} records loaded",
+            u32::from_le_bytes([p[1], p[2], p[3], p[4]])
+        ),
+        (reply::ACK, Some(k)) => format!("ACK {} (no data)", sewing_kind(k)),
+        (reply::REFUSED, Some(k)) => format!("REFUSED {}, code {}", sewing_kind(k), p[1]),
+        _ => format!("{f:?}"),
+    };
+    format!("seq {}: {what}", f.seq)
+}
+
+/// The transcript of a sewing session: frames each way.
+fn sewing_transcript(log: &[Tapped]) -> String {
+    use sewing::wire::{Decoded, Decoder};
+    let t0 = log[0].at;
+    let mut out = String::new();
+    let (mut tx, mut rx) = (Decoder::default(), Decoder::default());
+    for e in log {
+        let ms = (e.at - t0).as_secs_f64() * 1e3;
+        let (dec, arrow, sent) = match e.direction {
+            Direction::Sent => (&mut tx, "→", true),
+            Direction::Received => (&mut rx, "←", false),
+        };
+        dec.push(&e.bytes);
+        let mut frames = Vec::new();
+        while let Some(d) = dec.next_frame() {
+            frames.push(d);
+        }
+        for d in frames {
+            let (bytes, meaning) = match d {
+                Decoded::Frame(f) => (
+                    f.encode(),
+                    if sent { sewing_request(&f) } else { sewing_reply(&f) },
+                ),
+                Decoded::Corrupt { seq } => (
+                    e.bytes.clone(),
+                    format!("seq {seq}: a LOAD_CHUNK with bit 4 of byte 12 flipped on the line (its CRC fails)"),
+                ),
+            };
+            out.push_str(&line_of(ms, arrow, &bytes, &meaning));
+        }
+    }
+    out
+}
+
+/// docs/sewing-link.md, "Example session": a three-record pattern sewn by a machine of
+/// protocol version 2 at 115200 baud, whose first chunk is damaged on the line.
+#[tokio::test(start_paused = true)]
+async fn the_sewing_document_shows_the_session_the_link_and_machine_have() {
+    use machlink_protocols::sewing::link::{SewingLink, SewingTiming};
+    use machlink_protocols::sewing::{StitchKind, StitchRecord};
+    use machlink_sim::sewing::{spawn_on, SewingSimConfig, Trace};
+    let pattern = vec![
+        StitchRecord::new(StitchKind::Stitch, 0, 0),
+        StitchRecord::new(StitchKind::Stitch, 20, 0),
+        StitchRecord::new(StitchKind::Stitch, 20, 15),
+    ];
+    let (host, dev) = line::cable(None);
+    let (host, log) = Tap::new(host);
+    // the link's fourth write is the first LOAD_CHUNK
+    let host = Garble {
+        inner: host,
+        nth: 4,
+        writes: 0,
+    };
+    let trace = Trace::default();
+    let cfg = SewingSimConfig {
+        baud: Some(115_200),
+        time_scale: 100.0,
+        ..SewingSimConfig::default()
+    };
+    let _machine = spawn_on(dev, cfg, trace.clone());
+    let mut link = SewingLink::new(host, SewingTiming::default());
+    let (tx, _rx) = mpsc::unbounded_channel();
+    let (_ctl, ctl) = watch::channel(Control::Run);
+    assert_eq!(
+        link.stream(&pattern, 0, tx, ctl).await.unwrap(),
+        StreamEnd::Completed
+    );
+    assert_eq!(
+        trace.lock().unwrap().drops.len(),
+        3,
+        "every stitch sewn once"
+    );
+    let text = sewing_transcript(&log.lock().unwrap());
+    document_holds("sewing-link.md", &text).unwrap();
 }
