@@ -389,3 +389,101 @@ async fn the_sewing_document_shows_the_session_the_link_and_machine_have() {
     let text = sewing_transcript(&log.lock().unwrap());
     document_holds("sewing-link.md", &text).unwrap();
 }
+
+/// The transcript of a GRBL session: lines (and real-time bytes) each way.
+fn grbl_transcript(log: &[Tapped]) -> String {
+    let t0 = log[0].at;
+    let mut out = String::new();
+    let mut rx = String::new();
+    for e in log {
+        let ms = (e.at - t0).as_secs_f64() * 1e3;
+        match e.direction {
+            Direction::Sent => {
+                let mut line = String::new();
+                for &b in &e.bytes {
+                    match b {
+                        b'\n' => {
+                            out.push_str(&format!("{ms:8.1}  →  {line}\n"));
+                            line.clear();
+                        }
+                        b'?' | b'!' | b'~' if line.is_empty() => {
+                            out.push_str(&format!("{ms:8.1}  →  {}   (real time)\n", b as char))
+                        }
+                        0x18 => {
+                            out.push_str(&format!("{ms:8.1}  →  0x18 (real time: soft reset)\n"))
+                        }
+                        b => line.push(b as char),
+                    }
+                }
+            }
+            Direction::Received => {
+                rx.push_str(&String::from_utf8_lossy(&e.bytes));
+                while let Some(i) = rx.find("\r\n") {
+                    let line: String = rx.drain(..i + 2).collect();
+                    let line = line.trim_end();
+                    if !line.is_empty() {
+                        out.push_str(&format!("{ms:8.1}  ←  {line}\n"));
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// docs/grbl.md, "Example session": a short program whose fifth line GRBL refuses, and the
+/// resume after it.
+#[tokio::test(start_paused = true)]
+async fn the_grbl_document_shows_the_session_the_link_and_controller_have() {
+    use machlink_protocols::grbl::{GrblLink, GrblOptions};
+    use machlink_protocols::LinkError;
+    use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
+    let program: Vec<String> = [
+        "G21 G90 G17 G94",
+        "G0 Z5",
+        "G0 X0 Y0",
+        "G1 Z-1 F300",
+        "G1 X10 F600",
+        "G1 Y10",
+        "G1 X0",
+        "G0 Z5",
+        "M2",
+    ]
+    .map(String::from)
+    .to_vec();
+    let (host, dev) = line::cable(None);
+    let (host, log) = Tap::new(host);
+    let sim = GrblSim::spawn_on(
+        dev,
+        GrblSimConfig {
+            time_scale: 50.0,
+            faults: vec![GrblFault::ErrorAtLine { line: 5, code: 20 }],
+            ..GrblSimConfig::default()
+        },
+    )
+    .unwrap();
+    let mut link = GrblLink::from_stream(host, GrblOptions::default())
+        .await
+        .unwrap();
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (_ctl, ctl) = watch::channel(Control::Run);
+    let e = link
+        .stream(&program, 0, tx.clone(), ctl.clone())
+        .await
+        .unwrap_err();
+    let LinkError::Rejected { unit, .. } = e else {
+        panic!("{e}")
+    };
+    assert_eq!(unit, 4, "the fifth line is refused");
+    while rx.try_recv().is_ok() {}
+    // GRBL had planned lines 1 to 4 (and said ok) but the reset dropped them unexecuted:
+    // the operator runs the job again from its start
+    assert!(sim.trace().is_empty(), "nothing ran before the reset");
+    assert_eq!(
+        link.stream(&program, 0, tx, ctl).await.unwrap(),
+        StreamEnd::Completed
+    );
+    assert_eq!(sim.trace().len(), 7, "every move of the job ran once");
+    let text = grbl_transcript(&log.lock().unwrap());
+    document_holds("grbl.md", &text).unwrap();
+}

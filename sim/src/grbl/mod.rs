@@ -193,6 +193,76 @@ impl GrblSim {
     }
 }
 
+/// A simulated controller served on a byte stream by a tokio task instead of threads (no
+/// UART pacing): in a `start_paused` test its motion runs on tokio's simulated clock, so a
+/// session replays the same to the byte every time.
+pub struct GrblTask {
+    machine: Arc<Mutex<Machine>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl GrblSim {
+    /// Serves a simulated controller on `io` from a tokio task (see [`GrblTask`]).
+    pub fn spawn_on<S>(io: S, cfg: GrblSimConfig) -> io::Result<GrblTask>
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + 'static,
+    {
+        check_config(&cfg)?;
+        // The machine counts std time; map tokio's (perhaps paused) clock onto it.
+        let (t0, s0) = (tokio::time::Instant::now(), Instant::now());
+        let clock = move || s0 + (tokio::time::Instant::now() - t0);
+        let machine = Arc::new(Mutex::new(Machine::new(cfg, clock())));
+        let m = Arc::clone(&machine);
+        let task = tokio::spawn(async move {
+            use tokio::io::{AsyncReadExt, AsyncWriteExt};
+            let (mut rd, mut wr) = tokio::io::split(io);
+            let mut buf = [0u8; 512];
+            loop {
+                let (out, wait) = {
+                    let mut m = m.lock().unwrap_or_else(|p| p.into_inner());
+                    m.process(clock());
+                    (m.take_output(), m.next_event())
+                };
+                if !out.is_empty() && wr.write_all(&out).await.is_err() {
+                    return;
+                }
+                let wait = wait.unwrap_or(Duration::from_secs(3600));
+                tokio::select! {
+                    r = rd.read(&mut buf) => {
+                        let Ok(n) = r else { return };
+                        if n == 0 {
+                            return;
+                        }
+                        let mut m = m.lock().unwrap_or_else(|p| p.into_inner());
+                        for &b in &buf[..n] {
+                            m.receive(b, clock());
+                        }
+                    }
+                    _ = tokio::time::sleep(wait.max(Duration::from_micros(100))) => {}
+                }
+            }
+        });
+        Ok(GrblTask { machine, task })
+    }
+}
+
+impl GrblTask {
+    /// Every motion line executed to its end, in order.
+    pub fn trace(&self) -> Vec<Executed> {
+        self.machine
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .trace
+            .clone()
+    }
+}
+
+impl Drop for GrblTask {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
 fn flush(m: &mut Machine, out: &mpsc::Sender<Vec<u8>>) {
     let bytes = m.take_output();
     if !bytes.is_empty() {
