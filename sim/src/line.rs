@@ -105,10 +105,13 @@ pub struct Tapped {
 }
 
 /// A stream that records every byte written to and read from it: the transcripts of the
-/// protocol documents' example sessions.
+/// protocol documents' example sessions. It can also damage one write on its way out.
 pub struct Tap<S> {
     inner: S,
     log: std::sync::Arc<std::sync::Mutex<Vec<Tapped>>>,
+    writes: usize,
+    /// (write number from 1, byte index, bits to flip)
+    flip: Option<(usize, usize, u8)>,
 }
 
 impl<S> Tap<S> {
@@ -119,9 +122,17 @@ impl<S> Tap<S> {
             Tap {
                 inner,
                 log: std::sync::Arc::clone(&log),
+                writes: 0,
+                flip: None,
             },
             log,
         )
+    }
+    /// Flips the bits `mask` of byte `at` of the `nth` write (counting from 1), as line
+    /// noise would; the record shows the damaged bytes.
+    pub fn flipping(mut self, nth: usize, at: usize, mask: u8) -> Self {
+        self.flip = Some((nth, at, mask));
+        self
     }
     fn record(&self, direction: Direction, bytes: &[u8]) {
         if bytes.is_empty() {
@@ -159,9 +170,19 @@ impl<S: AsyncWrite + Unpin> AsyncWrite for Tap<S> {
         cx: &mut std::task::Context<'_>,
         data: &[u8],
     ) -> std::task::Poll<std::io::Result<usize>> {
-        let r = std::pin::Pin::new(&mut self.inner).poll_write(cx, data);
+        let mut damaged = None;
+        if let Some((nth, at, mask)) = self.flip {
+            if self.writes + 1 == nth && at < data.len() {
+                let mut d = data.to_vec();
+                d[at] ^= mask;
+                damaged = Some(d);
+            }
+        }
+        let bytes = damaged.as_deref().unwrap_or(data);
+        let r = std::pin::Pin::new(&mut self.inner).poll_write(cx, bytes);
         if let std::task::Poll::Ready(Ok(n)) = r {
-            self.record(Direction::Sent, &data[..n]);
+            self.writes += 1;
+            self.record(Direction::Sent, &bytes[..n]);
         }
         r
     }
@@ -246,6 +267,6 @@ mod tests {
             "{:?}",
             t.elapsed()
         );
-        assert_eq!(t35(9600), Duration::from_secs_f64(0.035 / 0.96));
+        assert_eq!(t35(9600), Duration::from_secs_f64(35.0 / 9600.0));
     }
 }

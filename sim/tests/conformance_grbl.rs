@@ -2,14 +2,13 @@
 //! a pty: one test per row, each taking a fresh controller to every state and checking
 //! what it says and the state its next status report names.
 
-use machlink_sim::conformance::document_holds;
 use machlink_sim::conformance::grbl::{check, markdown_table, Ask, Column, ASKS, COLUMNS};
+use machlink_sim::conformance::{document_holds, every_column};
 use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig};
 
 /// Every state of `ask`'s row, on a fresh controller each.
 async fn row(ask: Ask) {
-    let mut failures = Vec::new();
-    for column in COLUMNS {
+    every_column(&COLUMNS, ask.text(), |column| async move {
         let faults = if column == Column::AlarmBeforeReset {
             // the alarm a limit switch would raise, on the first G-code line
             vec![GrblFault::AlarmAtLine { line: 1, code: 1 }]
@@ -21,32 +20,15 @@ async fn row(ask: Ask) {
             ..GrblSimConfig::default()
         })
         .unwrap();
-        let port =
-            machlink_protocols::serial::open(&sim.port().display().to_string(), 115_200).unwrap();
-        if let Err(e) = check(port, column, ask).await {
-            failures.push(format!("{column:?} × {}: {e}", ask.text()));
-        }
-    }
-    assert!(failures.is_empty(), "{}", failures.join("\n"));
+        let path = sim.port().display().to_string();
+        let port = machlink_protocols::serial::open(&path, 115_200).unwrap();
+        check(port, column, ask).await
+    })
+    .await;
 }
 
-macro_rules! rows {
-    ($($name:ident => $ask:expr),* $(,)?) => {
-        $(
-            #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-            async fn $name() {
-                row($ask).await;
-            }
-        )*
-
-        #[test]
-        fn every_row_of_the_table_has_its_test() {
-            assert_eq!([$($ask),*].to_vec(), ASKS.to_vec());
-        }
-    };
-}
-
-rows! {
+machlink_sim::conformance_rows! {
+    row, ASKS;
     a_motion_line => Ask::Motion,
     a_line_grbl_refuses => Ask::Rejected,
     a_line_too_long => Ask::TooLong,

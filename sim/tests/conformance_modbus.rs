@@ -3,8 +3,8 @@
 //! every state and checking the reply, the next state and the registers.
 
 use machlink_protocols::modbus::{ModbusLink, ModbusSettings, WordOrder};
-use machlink_sim::conformance::document_holds;
 use machlink_sim::conformance::modbus::{check, markdown_table, Ask, ASKS, STATES};
+use machlink_sim::conformance::{document_holds, every_column};
 use machlink_sim::line;
 use machlink_sim::modbus::{ModbusSim, SimConfig};
 use std::time::Duration;
@@ -30,49 +30,30 @@ fn settings(mut s: ModbusSettings) -> ModbusSettings {
 
 /// Every state of `ask`'s row, on a fresh device each, over both transports.
 async fn row(ask: Ask) {
-    let mut failures = Vec::new();
-    for state in STATES {
+    every_column(&STATES, ask.text(), |state| async move {
         // RTU on an in-memory cable
         let (host, dev) = line::cable(None);
         let _sim = ModbusSim::spawn_rtu_on(device(), dev);
-        let mut link =
-            ModbusLink::from_stream(host, settings(ModbusSettings::rtu("cable", 19_200))).unwrap();
-        if let Err(e) = check(&mut link, state, ask).await {
-            failures.push(format!("{state:?} × {} over RTU: {e}", ask.text()));
-        }
+        let rtu = settings(ModbusSettings::rtu("cable", 19_200));
+        let mut link = ModbusLink::from_stream(host, rtu).unwrap();
+        check(&mut link, state, ask)
+            .await
+            .map_err(|e| format!("over RTU: {e}"))?;
         // TCP on loopback
         let sim = ModbusSim::spawn_tcp(device(), "127.0.0.1:0".parse().unwrap())
             .await
             .unwrap();
-        let mut link = ModbusLink::new(settings(ModbusSettings::tcp(
-            "127.0.0.1",
-            sim.addr().port(),
-        )))
-        .unwrap();
-        if let Err(e) = check(&mut link, state, ask).await {
-            failures.push(format!("{state:?} × {} over TCP: {e}", ask.text()));
-        }
-    }
-    assert!(failures.is_empty(), "{}", failures.join("\n"));
+        let tcp = settings(ModbusSettings::tcp("127.0.0.1", sim.addr().port()));
+        let mut link = ModbusLink::new(tcp).unwrap();
+        check(&mut link, state, ask)
+            .await
+            .map_err(|e| format!("over TCP: {e}"))
+    })
+    .await;
 }
 
-macro_rules! rows {
-    ($($name:ident => $ask:expr),* $(,)?) => {
-        $(
-            #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-            async fn $name() {
-                row($ask).await;
-            }
-        )*
-
-        #[test]
-        fn every_row_of_the_table_has_its_test() {
-            assert_eq!([$($ask),*].to_vec(), ASKS.to_vec());
-        }
-    };
-}
-
-rows! {
+machlink_sim::conformance_rows! {
+    row, ASKS;
     command_1_start => Ask::Start,
     command_2_hold => Ask::Hold,
     command_3_resume => Ask::Resume,

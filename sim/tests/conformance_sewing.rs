@@ -5,17 +5,16 @@
 
 use machlink_protocols::sewing::dst;
 use machlink_protocols::sewing::{records, RecordLimits};
-use machlink_sim::conformance::document_holds;
 use machlink_sim::conformance::sewing::{
     check, markdown_table, Ask, ASKS, COLUMNS, THREAD_BREAK_AT,
 };
+use machlink_sim::conformance::{document_holds, every_column};
 use machlink_sim::line;
 use machlink_sim::sewing::{spawn_on, SewingSimConfig};
 
 /// Every state of `ask`'s row, on a fresh machine each.
 async fn row(ask: Ask) {
-    let mut failures = Vec::new();
-    for column in COLUMNS {
+    every_column(&COLUMNS, ask.text(), |column| async move {
         let (host, dev) = line::cable(None);
         let cfg = SewingSimConfig {
             time_scale: 1.0,
@@ -23,31 +22,15 @@ async fn row(ask: Ask) {
             ..SewingSimConfig::default()
         };
         let machine = spawn_on(dev, cfg, Default::default());
-        if let Err(e) = check(host, column, ask).await {
-            failures.push(format!("{column:?} × {}: {e}", ask.text()));
-        }
+        let r = check(host, column, ask).await;
         machine.abort();
-    }
-    assert!(failures.is_empty(), "{}", failures.join("\n"));
+        r
+    })
+    .await;
 }
 
-macro_rules! rows {
-    ($($name:ident => $ask:expr),* $(,)?) => {
-        $(
-            #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-            async fn $name() {
-                row($ask).await;
-            }
-        )*
-
-        #[test]
-        fn every_row_of_the_table_has_its_test() {
-            assert_eq!([$($ask),*].to_vec(), ASKS.to_vec());
-        }
-    };
-}
-
-rows! {
+machlink_sim::conformance_rows! {
+    row, ASKS;
     info => Ask::Info,
     status => Ask::Status,
     load_begin => Ask::LoadBegin,

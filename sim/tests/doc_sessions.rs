@@ -190,51 +190,6 @@ fn the_modbus_document_shows_what_the_post_writes() {
     document_holds("modbus.md", &text).unwrap();
 }
 
-/// A stream that flips one bit of the `nth` write (counting from 1) on its way out.
-struct Garble<S> {
-    inner: S,
-    nth: usize,
-    writes: usize,
-}
-
-impl<S: tokio::io::AsyncRead + Unpin> tokio::io::AsyncRead for Garble<S> {
-    fn poll_read(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        buf: &mut tokio::io::ReadBuf<'_>,
-    ) -> std::task::Poll<std::io::Result<()>> {
-        std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
-    }
-}
-
-impl<S: tokio::io::AsyncWrite + Unpin> tokio::io::AsyncWrite for Garble<S> {
-    fn poll_write(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-        data: &[u8],
-    ) -> std::task::Poll<std::io::Result<usize>> {
-        self.writes += 1;
-        if self.writes == self.nth && data.len() > 12 {
-            let mut bad = data.to_vec();
-            bad[12] ^= 0x10;
-            return std::pin::Pin::new(&mut self.inner).poll_write(cx, &bad);
-        }
-        std::pin::Pin::new(&mut self.inner).poll_write(cx, data)
-    }
-    fn poll_flush(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<std::io::Result<()>> {
-        std::pin::Pin::new(&mut self.inner).poll_flush(cx)
-    }
-    fn poll_shutdown(
-        mut self: std::pin::Pin<&mut Self>,
-        cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<std::io::Result<()>> {
-        std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
-    }
-}
-
 fn sewing_kind(k: u8) -> String {
     use sewing::wire::req;
     match k {
@@ -361,12 +316,8 @@ async fn the_sewing_document_shows_the_session_the_link_and_machine_have() {
     ];
     let (host, dev) = line::cable(None);
     let (host, log) = Tap::new(host);
-    // the link's fourth write is the first LOAD_CHUNK
-    let host = Garble {
-        inner: host,
-        nth: 4,
-        writes: 0,
-    };
+    // the link's fourth write is the first LOAD_CHUNK: bit 4 of its byte 12 flips
+    let host = host.flipping(4, 12, 0x10);
     let trace = Trace::default();
     let cfg = SewingSimConfig {
         baud: Some(115_200),

@@ -4,40 +4,18 @@
 //! late replies, lost replies, busy exceptions and a dead line still executes every block
 //! exactly once, in order.
 
-use machlink_protocols::modbus::{
-    post_blocks, ModbusLink, ModbusSettings, MotionBlock, ReplyFate, WordOrder,
-};
+use machlink_protocols::modbus::{ModbusLink, ModbusSettings, MotionBlock, ReplyFate, WordOrder};
 use machlink_protocols::{Control, Link, LinkEvent, StreamEnd};
 use machlink_sim::line;
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
-use offset_core::{Move, Point, Toolpath, P3};
 use std::time::Duration;
+
+mod common;
+use common::{assert_exactly_once, job};
 use tokio::sync::{mpsc, watch};
 
 const BAUD: u32 = 9600;
 const TIMEOUT: Duration = Duration::from_millis(400);
-
-/// A zig-zag of short lines with an arc every tenth move.
-fn job(n: usize) -> Vec<MotionBlock> {
-    let mut tp = Toolpath::new("late replies");
-    let mut x = 0.0;
-    for i in 0..n - 1 {
-        let y = if i % 2 == 0 { 0.0 } else { 0.5 };
-        let to = P3::new(x + 0.1, y, -0.5);
-        if i % 10 == 9 {
-            tp.push(Move::Arc {
-                to,
-                center: Point::new(x + 0.05, (y + 0.25) % 0.5),
-                ccw: i % 20 == 9,
-                feed: 600.0,
-            });
-        } else {
-            tp.push(Move::Linear { to, feed: 600.0 });
-        }
-        x += 0.1;
-    }
-    post_blocks(&tp).unwrap()
-}
 
 /// The link as adversarial as it can be about late replies: it sends the next request the
 /// moment it gives up (no backoff), after only the shortest drain RTU allows.
@@ -93,24 +71,6 @@ fn assert_no_stale_reply_taken(sim: &ModbusSim, link: &ModbusLink) -> (usize, us
         }
     }
     (stale, drained)
-}
-
-fn assert_exactly_once(sim: &ModbusSim, blocks: &[MotionBlock], events: &[LinkEvent]) {
-    let trace = sim.trace();
-    assert_eq!(trace.len(), blocks.len(), "executed blocks");
-    for (i, (e, b)) in trace.iter().zip(blocks).enumerate() {
-        assert_eq!(e.seq as usize, i + 1, "block {i} executed out of order");
-        assert_eq!(&e.block, b, "block {i} arrived changed");
-    }
-    let acks: Vec<usize> = events
-        .iter()
-        .filter_map(|e| match e {
-            LinkEvent::Acked { unit } => Some(*unit),
-            _ => None,
-        })
-        .collect();
-    assert!(acks.windows(2).all(|w| w[0] < w[1]), "acks went back");
-    assert_eq!(acks.last(), Some(&(blocks.len() - 1)));
 }
 
 async fn stream(link: &mut ModbusLink, blocks: &[MotionBlock]) -> (StreamEnd, Vec<LinkEvent>) {

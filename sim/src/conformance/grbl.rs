@@ -226,15 +226,14 @@ fn cell_text(c: Cell) -> String {
 
 /// The state table as docs/grbl.md carries it.
 pub fn markdown_table() -> String {
-    let states: Vec<&str> = COLUMNS.iter().map(|c| c.heading()).collect();
-    let rows: Vec<(String, Vec<String>)> = ASKS
-        .iter()
-        .map(|a| {
-            let cells = COLUMNS.iter().map(|c| cell_text(cell(*a, *c))).collect();
-            (a.text().to_string(), cells)
-        })
-        .collect();
-    super::markdown("sent \\ state", &states, &rows)
+    super::markdown(
+        "sent \\ state",
+        &ASKS,
+        &COLUMNS,
+        |a| a.text().to_string(),
+        |c| c.heading().to_string(),
+        |a, c| cell_text(cell(a, c)),
+    )
 }
 
 struct Line<S> {

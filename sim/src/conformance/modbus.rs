@@ -187,19 +187,14 @@ fn state_name(s: ModbusState) -> &'static str {
 
 /// The state table as docs/modbus.md carries it.
 pub fn markdown_table() -> String {
-    let states: Vec<String> = STATES
-        .iter()
-        .map(|s| format!("{} ({})", state_name(*s), *s as u16))
-        .collect();
-    let states: Vec<&str> = states.iter().map(String::as_str).collect();
-    let rows: Vec<(String, Vec<String>)> = ASKS
-        .iter()
-        .map(|a| {
-            let cells = STATES.iter().map(|s| cell_text(cell(*a, *s))).collect();
-            (a.text().to_string(), cells)
-        })
-        .collect();
-    super::markdown("request \\ state", &states, &rows)
+    super::markdown(
+        "request \\ state",
+        &ASKS,
+        &STATES,
+        |a| a.text().to_string(),
+        |s| format!("{} ({})", state_name(s), s as u16),
+        |a, s| cell_text(cell(a, s)),
+    )
 }
 
 /// A block that keeps the machine busy for ten minutes.

@@ -216,15 +216,14 @@ fn cell_text(c: Cell) -> String {
 
 /// The state table as docs/sewing-link.md carries it.
 pub fn markdown_table() -> String {
-    let states: Vec<&str> = COLUMNS.iter().map(|c| c.name()).collect();
-    let rows: Vec<(String, Vec<String>)> = ASKS
-        .iter()
-        .map(|a| {
-            let cells = COLUMNS.iter().map(|c| cell_text(cell(*a, *c))).collect();
-            (a.text().to_string(), cells)
-        })
-        .collect();
-    super::markdown("request \\ state", &states, &rows)
+    super::markdown(
+        "request \\ state",
+        &ASKS,
+        &COLUMNS,
+        |a| a.text().to_string(),
+        |c| c.name().to_string(),
+        |a, c| cell_text(cell(a, c)),
+    )
 }
 
 /// The test pattern: a serpentine of 0.5 mm stitches inside any reasonable sewing area.
