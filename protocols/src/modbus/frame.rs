@@ -298,7 +298,7 @@ impl Response {
             function::READ_HOLDING | function::READ_WRITE => {
                 need(2)?;
                 let bytes = p[1] as usize;
-                if bytes % 2 != 0 || p.len() != 2 + bytes {
+                if !bytes.is_multiple_of(2) || p.len() != 2 + bytes {
                     return Err(FrameError::ByteCount {
                         count: bytes,
                         what: format!("a {}-byte PDU of registers", p.len()),

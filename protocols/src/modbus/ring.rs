@@ -610,7 +610,7 @@ impl Ring {
                 }
                 Err(e) if e.is_retryable() => {
                     p.status = None;
-                    let Some(wait) = backoff.next() else {
+                    let Some(wait) = backoff.failed() else {
                         return Err(ModbusError::GaveUp {
                             target: self.target.clone(),
                             attempts: backoff.failures(),

@@ -274,7 +274,7 @@ impl Backoff {
         self.failures = 0;
     }
     /// A failure: how long to wait before trying again, or `None` once the retries are spent.
-    pub fn next(&mut self) -> Option<Duration> {
+    pub fn failed(&mut self) -> Option<Duration> {
         self.failures += 1;
         if self.failures > self.retries {
             return None;
@@ -298,14 +298,14 @@ mod tests {
     #[test]
     fn backoff_doubles_to_its_ceiling_and_gives_up_after_the_retries() {
         let mut b = Backoff::new(Duration::from_millis(50), Duration::from_millis(300), 4);
-        let waits: Vec<_> = std::iter::from_fn(|| b.next()).collect();
+        let waits: Vec<_> = std::iter::from_fn(|| b.failed()).collect();
         assert_eq!(
             waits,
             [50, 100, 200, 300].map(Duration::from_millis).to_vec()
         );
         assert_eq!(b.failures(), 5);
         b.reset();
-        assert_eq!(b.next(), Some(Duration::from_millis(50)));
+        assert_eq!(b.failed(), Some(Duration::from_millis(50)));
     }
 
     #[tokio::test]

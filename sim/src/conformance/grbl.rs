@@ -155,16 +155,9 @@ pub enum Answer {
     Silence,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Cell {
-    pub answer: Answer,
-    /// The state after it; `None`: the state stays.
-    pub next: Option<Column>,
-}
-
-fn cell_of(answer: Answer, next: Option<Column>) -> Cell {
-    Cell { answer, next }
-}
+/// One cell of this table.
+pub type Cell = super::Cell<Answer, Column>;
+use super::cell_of;
 
 /// The table: what a GRBL 1.1 controller does on `ask` in `column`.
 pub fn cell(ask: Ask, column: Column) -> Cell {

@@ -9,6 +9,19 @@ pub mod grbl;
 pub mod modbus;
 pub mod sewing;
 
+/// One cell of a state table: what the device answers and the state after it (`None`: the
+/// state stays).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Cell<A, C> {
+    pub answer: A,
+    pub next: Option<C>,
+}
+
+/// A cell.
+pub fn cell_of<A, C>(answer: A, next: Option<C>) -> Cell<A, C> {
+    Cell { answer, next }
+}
+
 /// A state table as markdown: one row per request (`ask` names it), one column per state
 /// (`column` names it), `cell` the text of each cell.
 pub fn markdown<A: Copy, C: Copy>(

@@ -149,16 +149,9 @@ pub enum Answer {
     Stored,
 }
 
-/// One cell: the answer and the state after it (`None`: the state stays).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Cell {
-    pub answer: Answer,
-    pub next: Option<Column>,
-}
-
-fn cell_of(answer: Answer, next: Option<Column>) -> Cell {
-    Cell { answer, next }
-}
+/// One cell of this table.
+pub type Cell = super::Cell<Answer, Column>;
+use super::cell_of;
 
 /// The table: what a machine does on `ask` in `column`.
 pub fn cell(ask: Ask, column: Column) -> Cell {
