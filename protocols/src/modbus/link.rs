@@ -11,22 +11,13 @@ use super::map::{exception_name, fault_name, ModbusState, MotionBlock, Status, W
 use super::map::{HEADER_REGISTERS, MAX_WRITE_REGISTERS, STATUS_REGISTERS};
 use super::ring::Ring;
 use super::session::{Backoff, Dial, Session, SessionTiming};
-use super::transport::{Barrier, ByteStream, Framing, ReplyFate, WireCounters};
+pub use super::transport::Parity;
+use super::transport::{Barrier, ByteStream, Endpoint, Framing, ReplyFate, WireCounters};
 use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
-
-/// Parity of an RTU line.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Parity {
-    #[default]
-    None,
-    Even,
-    Odd,
-}
 
 /// How the link reaches the device.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -251,17 +242,17 @@ impl ModbusLink {
     /// A link that opens its transport (`settings.transport`) on first use, and again after
     /// a failure.
     pub fn new(settings: ModbusSettings) -> Result<Self, ModbusError> {
-        let dial = match &settings.transport {
-            Transport::Tcp { host, port } => Dial::Tcp {
+        let dial = Dial::Open(match &settings.transport {
+            Transport::Tcp { host, port } => Endpoint::Tcp {
                 host: host.clone(),
                 port: *port,
             },
-            Transport::Rtu { path, baud, parity } => Dial::Serial {
+            Transport::Rtu { path, baud, parity } => Endpoint::Serial {
                 path: path.clone(),
                 baud: *baud,
                 parity: *parity,
             },
-        };
+        });
         Self::with_dial(settings, dial)
     }
 

@@ -16,4 +16,4 @@ pub use kind::{ModbusRtuKind, ModbusTcpKind, RingSettings};
 pub use link::{ModbusError, ModbusLink, ModbusSettings, Parity, Transport};
 pub use map::{BlockKind, ModbusState, MotionBlock, WordOrder};
 pub use post::{post_blocks, ModbusPost, ModbusPostError};
-pub use transport::{ByteStream, Framing, ReplyFate, WireCounters};
+pub use transport::{ByteStream, Endpoint, Framing, ReplyFate, WireCounters};

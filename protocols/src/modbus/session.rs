@@ -1,20 +1,16 @@
-//! A session with one Modbus device: opens its transport (TCP, a serial port, or a stream handed in), gives every request a timeout, reopens after failures, and paces retries with backoff.
+//! A session with one Modbus device: has its transport opened (or takes a stream handed in), gives every request a timeout, reopens after failures, and paces retries with backoff.
 
 use super::frame::{Request, Response};
-use super::link::{ModbusError, Parity};
-use super::transport::{Barrier, ByteStream, Framing, ReplyFate, Wire, WireCounters, WireError};
+use super::link::ModbusError;
+use super::transport::{
+    Barrier, ByteStream, Endpoint, Framing, ReplyFate, Wire, WireCounters, WireError,
+};
 use std::time::Duration;
 
 /// How the session reaches its device.
 pub enum Dial {
-    /// Modbus TCP to `host:port`.
-    Tcp { host: String, port: u16 },
-    /// Modbus RTU on a serial port (8 data bits, 1 stop bit).
-    Serial {
-        path: String,
-        baud: u32,
-        parity: Parity,
-    },
+    /// Opened (and opened again after a failure) by the transport.
+    Open(Endpoint),
     /// A stream that is already open; it is used as it is and never reopened.
     Given(Option<Box<dyn ByteStream>>, Framing),
 }
@@ -193,20 +189,9 @@ impl Session {
             source,
         };
         let (io, framing): (Box<dyn ByteStream>, Framing) = match &mut self.dial {
-            Dial::Tcp { host, port } => {
-                let stream = tokio::time::timeout(
-                    self.timing.timeout,
-                    tokio::net::TcpStream::connect((host.as_str(), *port)),
-                )
-                .await
-                .map_err(|_| failed(std::io::ErrorKind::TimedOut.into()))?
-                .map_err(failed)?;
-                stream.set_nodelay(true).map_err(failed)?;
-                (Box::new(stream), Framing::Tcp)
-            }
-            Dial::Serial { path, baud, parity } => {
-                let port = open_serial(path, *baud, *parity).map_err(failed)?;
-                (Box::new(port), Framing::Rtu { baud: *baud })
+            Dial::Open(endpoint) => {
+                let io = endpoint.open(self.timing.timeout).await.map_err(failed)?;
+                (io, endpoint.framing())
             }
             Dial::Given(io, framing) => match io.take() {
                 Some(io) => (io, *framing),
@@ -226,28 +211,6 @@ impl Session {
         self.opens += 1;
         Ok(())
     }
-}
-
-/// Opens a serial port for RTU: 8 data bits, 1 stop bit, the given parity, no flow control,
-/// with whatever the port had buffered thrown away.
-pub fn open_serial(
-    path: &str,
-    baud: u32,
-    parity: Parity,
-) -> std::io::Result<tokio_serial::SerialStream> {
-    use tokio_serial::{SerialPort, SerialPortBuilderExt};
-    let port = tokio_serial::new(path, baud)
-        .data_bits(tokio_serial::DataBits::Eight)
-        .stop_bits(tokio_serial::StopBits::One)
-        .flow_control(tokio_serial::FlowControl::None)
-        .parity(match parity {
-            Parity::None => tokio_serial::Parity::None,
-            Parity::Even => tokio_serial::Parity::Even,
-            Parity::Odd => tokio_serial::Parity::Odd,
-        })
-        .open_native_async()?;
-    port.clear(tokio_serial::ClearBuffer::All)?;
-    Ok(port)
 }
 
 /// Waits between failed attempts: `initial`, doubling up to `max`; gives up after more than

@@ -1,4 +1,4 @@
-//! The byte streams a Modbus link runs on: RTU or TCP framing over any stream, one exchange at a time, with late and stale replies told apart from the answer.
+//! The byte streams a Modbus link runs on: opening TCP and serial ports, RTU or TCP framing over any stream, one exchange at a time, late and stale replies told apart from the answer and drained.
 //!
 //! TCP tells replies apart by their transaction id. RTU has none, so after a request timed
 //! out its reply is *owed*: it may still come, and it would look like the answer to the
@@ -35,6 +35,79 @@ impl Framing {
             Framing::Rtu { baud } => Duration::from_secs_f64(35.0 / baud.max(1) as f64),
         }
     }
+}
+
+/// Parity of an RTU line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Parity {
+    #[default]
+    None,
+    Even,
+    Odd,
+}
+
+/// Where a device is, for a transport that opens its own stream.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Endpoint {
+    /// Modbus TCP to `host:port`.
+    Tcp { host: String, port: u16 },
+    /// Modbus RTU on a serial port (8 data bits, 1 stop bit).
+    Serial {
+        path: String,
+        baud: u32,
+        parity: Parity,
+    },
+}
+
+impl Endpoint {
+    pub fn framing(&self) -> Framing {
+        match self {
+            Endpoint::Tcp { .. } => Framing::Tcp,
+            Endpoint::Serial { baud, .. } => Framing::Rtu { baud: *baud },
+        }
+    }
+
+    /// Opens the stream: a TCP connection (within `timeout`, Nagle off) or the serial port.
+    pub async fn open(&self, timeout: Duration) -> io::Result<Box<dyn ByteStream>> {
+        match self {
+            Endpoint::Tcp { host, port } => {
+                let stream = tokio::time::timeout(
+                    timeout,
+                    tokio::net::TcpStream::connect((host.as_str(), *port)),
+                )
+                .await
+                .map_err(|_| io::Error::from(io::ErrorKind::TimedOut))??;
+                stream.set_nodelay(true)?;
+                Ok(Box::new(stream))
+            }
+            Endpoint::Serial { path, baud, parity } => {
+                Ok(Box::new(open_serial(path, *baud, *parity)?))
+            }
+        }
+    }
+}
+
+/// Opens a serial port for RTU: 8 data bits, 1 stop bit, the given parity, no flow control,
+/// with whatever the port had buffered thrown away.
+pub fn open_serial(
+    path: &str,
+    baud: u32,
+    parity: Parity,
+) -> std::io::Result<tokio_serial::SerialStream> {
+    use tokio_serial::{SerialPort, SerialPortBuilderExt};
+    let port = tokio_serial::new(path, baud)
+        .data_bits(tokio_serial::DataBits::Eight)
+        .stop_bits(tokio_serial::StopBits::One)
+        .flow_control(tokio_serial::FlowControl::None)
+        .parity(match parity {
+            Parity::None => tokio_serial::Parity::None,
+            Parity::Even => tokio_serial::Parity::Even,
+            Parity::Odd => tokio_serial::Parity::Odd,
+        })
+        .open_native_async()?;
+    port.clear(tokio_serial::ClearBuffer::All)?;
+    Ok(port)
 }
 
 /// A read the wire may send to close an episode of late replies: `addr` and a register
