@@ -122,24 +122,22 @@ impl Session {
                 Err(ModbusError::Exception { target, what, code })
             }
             Ok(r) => Ok(r),
-            Err(WireError::Timeout(after)) => {
+            // RTU keeps its port: the wire settles the line before the next request.
+            Err(e @ (WireError::Timeout(_) | WireError::Garbled(_))) => {
                 if !keep_after_timeout {
                     self.close();
                 }
-                Err(ModbusError::Timeout {
-                    target,
-                    what,
-                    after,
-                })
-            }
-            Err(WireError::Garbled(e)) => {
-                if !keep_after_timeout {
-                    self.close();
-                }
-                Err(ModbusError::BadReply {
-                    target,
-                    what,
-                    detail: e.to_string(),
+                Err(match e {
+                    WireError::Timeout(after) => ModbusError::Timeout {
+                        target,
+                        what,
+                        after,
+                    },
+                    other => ModbusError::BadReply {
+                        target,
+                        what,
+                        detail: other.to_string(),
+                    },
                 })
             }
             Err(WireError::NoBarrier) => Err(ModbusError::BadReply {
