@@ -312,9 +312,11 @@ pub fn toolpath_3d(spec: &JobSpec, mesh: &Mesh) -> Result<Toolpath, IntakeError>
                 op.name()
             )))
         }
-        None => return Err(IntakeError::Input(format!(
+        None => {
+            return Err(IntakeError::Input(format!(
             "{file} is a mesh: say which operation to plan (--op rough3d, finish3d or waterline)"
-        ))),
+        )))
+        }
     };
     let mut tp = planned.map_err(IntakeError::Plan)?;
     tp.source = file.clone();

@@ -88,18 +88,11 @@ fn run_grbl(a: GrblArgs) -> anyhow::Result<()> {
         faults,
         ..Default::default()
     };
-    let sim = GrblSim::spawn_pty(cfg).context("cannot start the simulated GRBL")?;
-    machlink_sim::pty::symlink_replacing(&sim.port(), &a.pty).with_context(|| {
-        format!(
-            "cannot link {} to the simulator's pty {}",
-            a.pty.display(),
-            sim.port().display()
-        )
-    })?;
+    let sim = GrblSim::spawn_pty_at(cfg, Some(&a.pty))
+        .with_context(|| format!("cannot start the simulated GRBL behind {}", a.pty.display()))?;
     println!("{}", a.pty.display());
     eprintln!(
-        "machlink-sim: GRBL 1.1h on {} (pty {}); stop with Ctrl-C",
-        a.pty.display(),
+        "machlink-sim: GRBL 1.1h on {}; stop with Ctrl-C",
         sim.port().display()
     );
     loop {

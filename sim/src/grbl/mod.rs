@@ -13,13 +13,13 @@ pub mod machine;
 pub use deviation::max_deviation;
 pub use interp::Motion;
 
-use crate::pty::{wait_ready, Pty};
+use crate::pty::{wait_ready, Pty, PtyLink};
 use machine::Machine;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
@@ -109,6 +109,7 @@ pub struct GrblSimHandle {
     shared: Arc<Shared>,
     threads: Vec<JoinHandle<()>>,
     port: PathBuf,
+    link: Option<PtyLink>,
     _pty: Arc<Pty>,
 }
 
@@ -142,9 +143,16 @@ impl GrblSim {
     /// Starts a simulated controller on a new pty. Runs on its own threads; it may be
     /// called inside or outside a tokio runtime.
     pub fn spawn_pty(cfg: GrblSimConfig) -> io::Result<GrblSimHandle> {
+        Self::spawn_pty_at(cfg, None)
+    }
+
+    /// As [`GrblSim::spawn_pty`], with `link` made a symbolic link to the pty (an old link
+    /// of that name is replaced; the link goes when the handle is dropped).
+    pub fn spawn_pty_at(cfg: GrblSimConfig, link: Option<&Path>) -> io::Result<GrblSimHandle> {
         check_config(&cfg)?;
         let pty = Arc::new(Pty::open()?);
         let port = pty.path.clone();
+        let link = PtyLink::optional(&port, link)?;
         let byte_time = cfg.baud.map(|b| Duration::from_secs_f64(10.0 / b as f64));
         let shared = Arc::new(Shared {
             machine: Mutex::new(Machine::new(cfg, Instant::now())),
@@ -152,8 +160,7 @@ impl GrblSim {
             stop: AtomicBool::new(false),
         });
         let (out_tx, out_rx) = mpsc::channel::<Vec<u8>>();
-        let master_r = File::from(pty.master.try_clone()?);
-        let master_w = File::from(pty.master.try_clone()?);
+        let (master_r, master_w) = pty.blocking()?;
         let mut threads = Vec::new();
 
         // the writer: replies back to the client, paced like a UART
@@ -180,8 +187,79 @@ impl GrblSim {
             shared,
             threads,
             port,
+            link,
             _pty: pty,
         })
+    }
+}
+
+/// A simulated controller served on a byte stream by a tokio task instead of threads (no
+/// UART pacing): in a `start_paused` test its motion runs on tokio's simulated clock, so a
+/// session replays the same to the byte every time.
+pub struct GrblTask {
+    machine: Arc<Mutex<Machine>>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+impl GrblSim {
+    /// Serves a simulated controller on `io` from a tokio task (see [`GrblTask`]).
+    pub fn spawn_on<S>(io: S, cfg: GrblSimConfig) -> io::Result<GrblTask>
+    where
+        S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Send + 'static,
+    {
+        check_config(&cfg)?;
+        // The machine counts std time; map tokio's (perhaps paused) clock onto it.
+        let (t0, s0) = (tokio::time::Instant::now(), Instant::now());
+        let clock = move || s0 + (tokio::time::Instant::now() - t0);
+        let machine = Arc::new(Mutex::new(Machine::new(cfg, clock())));
+        let m = Arc::clone(&machine);
+        let task = tokio::spawn(async move {
+            use tokio::io::{AsyncReadExt, AsyncWriteExt};
+            let (mut rd, mut wr) = tokio::io::split(io);
+            let mut buf = [0u8; 512];
+            loop {
+                let (out, wait) = {
+                    let mut m = m.lock().unwrap_or_else(|p| p.into_inner());
+                    m.process(clock());
+                    (m.take_output(), m.next_event())
+                };
+                if !out.is_empty() && wr.write_all(&out).await.is_err() {
+                    return;
+                }
+                let wait = wait.unwrap_or(Duration::from_secs(3600));
+                tokio::select! {
+                    r = rd.read(&mut buf) => {
+                        let Ok(n) = r else { return };
+                        if n == 0 {
+                            return;
+                        }
+                        let mut m = m.lock().unwrap_or_else(|p| p.into_inner());
+                        for &b in &buf[..n] {
+                            m.receive(b, clock());
+                        }
+                    }
+                    _ = tokio::time::sleep(wait.max(Duration::from_micros(100))) => {}
+                }
+            }
+        });
+        Ok(GrblTask { machine, task })
+    }
+}
+
+impl GrblTask {
+    /// Every motion line executed to its end, in order.
+    pub fn trace(&self) -> Vec<Executed> {
+        self.machine
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .trace
+            .clone()
+    }
+}
+
+impl Drop for GrblTask {
+    fn drop(&mut self) {
+        self.task.abort();
     }
 }
 
@@ -326,9 +404,12 @@ fn writer_loop(
 }
 
 impl GrblSimHandle {
-    /// The pty path a client opens (e.g. with `GrblLink::open`).
+    /// The path a client opens (e.g. with `GrblLink::open`): the link if one was asked
+    /// for, else the pty.
     pub fn port(&self) -> PathBuf {
-        self.port.clone()
+        self.link
+            .as_ref()
+            .map_or_else(|| self.port.clone(), |l| l.path().to_path_buf())
     }
     /// Every motion line executed to its end, in order.
     pub fn trace(&self) -> Vec<Executed> {

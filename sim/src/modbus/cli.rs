@@ -38,10 +38,15 @@ pub struct ModbusArgs {
     /// Pace every exchange as a serial line at this baud (10 bits per byte).
     #[arg(long)]
     pub line_baud: Option<u32>,
+    /// Answer FC23 (read/write in one request) with Illegal Function, as devices that only
+    /// know FC3, FC6 and FC16 do.
+    #[arg(long)]
+    pub no_read_write: bool,
     /// Carry out request N but send no reply (repeatable; requests count from 1).
     #[arg(long = "drop-reply", value_name = "N")]
     pub drop_replies: Vec<u64>,
-    /// Carry out request N and reply --late-ms late (repeatable).
+    /// Carry out request N and answer it late: its reply ends --late-ms after the request
+    /// began (repeatable).
     #[arg(long = "late-reply", value_name = "N")]
     pub late_replies: Vec<u64>,
     /// How late a late reply is, ms.
@@ -91,6 +96,7 @@ impl ModbusArgs {
             rapid_feed: self.rapid_feed,
             acceleration: self.acceleration,
             line_baud: self.line_baud,
+            read_write: !self.no_read_write,
             faults: Faults {
                 drop_replies: self.drop_replies.clone(),
                 late_replies: self.late_replies.clone(),
