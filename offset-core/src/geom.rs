@@ -597,6 +597,26 @@ impl Shape {
             .iter()
             .fold(Bounds::EMPTY, |b, p| b.union(&p.bounds()))
     }
+    /// The first path that reaches beyond ±`limit` in x or y (arcs by their extent) or
+    /// holds a number that is not finite, with a point where it does.
+    pub fn first_beyond(&self, limit: f64) -> Option<(usize, Point)> {
+        for (i, p) in self.paths.iter().enumerate() {
+            if let Some(v) = p
+                .vertices
+                .iter()
+                .find(|v| !(v.x.abs() <= limit && v.y.abs() <= limit && v.bulge.is_finite()))
+            {
+                return Some((i, v.pos()));
+            }
+            let b = p.bounds();
+            for q in [b.min, b.max] {
+                if !(q.x.abs() <= limit && q.y.abs() <= limit) {
+                    return Some((i, q));
+                }
+            }
+        }
+        None
+    }
     pub fn open_paths(&self) -> impl Iterator<Item = &Polyline> {
         self.paths.iter().filter(|p| !p.closed)
     }

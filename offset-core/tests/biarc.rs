@@ -67,7 +67,11 @@ fn a_sampled_circle_fits_back_to_one_circle_when_the_sampling_allows() {
             let input = Polyline::from_points(&pts, true);
             let opts = BiarcOptions::with_tolerance(tol);
             let fitted = fit_points(&pts, true, &opts);
-            let (dev, at) = sampled_deviation(std::slice::from_ref(&input), std::slice::from_ref(&fitted), 0.01);
+            let (dev, at) = sampled_deviation(
+                std::slice::from_ref(&input),
+                std::slice::from_ref(&fitted),
+                0.01,
+            );
             assert!(dev <= tol, "{what}: the fit strays {dev} mm at {at:?}");
             let s = sagitta(300.0, n);
             eprintln!(
@@ -123,7 +127,11 @@ fn max_sagitta(pts: &[Point]) -> f64 {
 fn check_fit(pts: &[Point], closed: bool, tol: f64) -> Result<(), TestCaseError> {
     let fitted = fit_points(pts, closed, &BiarcOptions::with_tolerance(tol));
     let input = Polyline::from_points(pts, closed);
-    let (dev, at) = sampled_deviation(std::slice::from_ref(&input), std::slice::from_ref(&fitted), 0.01);
+    let (dev, at) = sampled_deviation(
+        std::slice::from_ref(&input),
+        std::slice::from_ref(&fitted),
+        0.01,
+    );
     prop_assert!(
         dev <= tol * (1.0 + 1e-9),
         "the fit strays {dev} mm from the input at {at:?} (tolerance {tol})"
@@ -232,7 +240,11 @@ fn a_coarse_polygon_with_gentle_turns_is_not_rounded_off() {
     let r = 10.0 / (2.0 * (PI / n as f64).sin());
     let pts = circle_points(r, n);
     let f = fit_points(&pts, true, &BiarcOptions::with_tolerance(0.01));
-    let (dev, _) = sampled_deviation(&[Polyline::from_points(&pts, true)], std::slice::from_ref(&f), 0.01);
+    let (dev, _) = sampled_deviation(
+        &[Polyline::from_points(&pts, true)],
+        std::slice::from_ref(&f),
+        0.01,
+    );
     assert!(dev <= 0.01, "{dev}");
     assert_eq!(f.segment_count(), n, "the polygon comes back as it was");
 }
@@ -250,7 +262,11 @@ fn a_rounded_rectangle_keeps_its_sides_straight_and_its_corners_round() {
     }
     let tol = 0.001;
     let f = fit_points(&pts, true, &BiarcOptions::with_tolerance(tol));
-    let (dev, _) = sampled_deviation(&[Polyline::from_points(&pts, true)], std::slice::from_ref(&f), 0.01);
+    let (dev, _) = sampled_deviation(
+        &[Polyline::from_points(&pts, true)],
+        std::slice::from_ref(&f),
+        0.01,
+    );
     assert!(dev <= tol, "{dev}");
     let lines = f
         .segments()

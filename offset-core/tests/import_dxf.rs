@@ -6,6 +6,7 @@ use offset_core::io::{read_shape, svg};
 use proptest::prelude::*;
 use std::path::PathBuf;
 
+/// A file of `shared/data/dxf`; a test that needs one fails, naming it, when it is absent.
 fn data(name: &str) -> Option<Vec<u8>> {
     let p = PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -14,10 +15,10 @@ fn data(name: &str) -> Option<Vec<u8>> {
     .join(name);
     match std::fs::read(&p) {
         Ok(b) => Some(b),
-        Err(_) => {
-            eprintln!("skipping: {} is absent", p.display());
-            None
-        }
+        Err(e) => panic!(
+            "{} is needed by this test and cannot be read: {e}",
+            p.display()
+        ),
     }
 }
 
@@ -261,12 +262,13 @@ fn a_curve_too_big_for_the_tolerance_is_refused_by_name() {
 
 #[test]
 fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
-    // each 3 km ellipse takes about 130 000 points within 0.001 mm; sixteen of them pass
-    // the drawing's budget of two million
-    let e: String = (0..16)
+    // each 2 km ellipse takes about 120 000 points within 0.0005 mm (half the tolerance
+    // of 0.001 mm: the other half is the arc fit's); twenty of them pass the drawing's
+    // budget of two million
+    let e: String = (0..20)
         .map(|i| {
             format!(
-                "0\nELLIPSE\n10\n{}\n20\n0\n11\n3e6\n21\n0\n40\n0.5\n",
+                "0\nELLIPSE\n10\n{}\n20\n0\n11\n2e6\n21\n0\n40\n0.5\n",
                 i as f64 * 1e7
             )
         })
@@ -290,7 +292,7 @@ fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
         },
     )
     .unwrap();
-    assert_eq!(d.shape.paths.len(), 16);
+    assert_eq!(d.shape.paths.len(), 20);
     assert!(d.shape.paths.iter().all(|p| p.closed));
 }
 
@@ -307,9 +309,28 @@ fn a_polyline_of_a_hundred_thousand_vertices_is_read_whole() {
             500.0 * a.sin()
         ));
     }
+    let d = read_with(
+        &one_entity(&e),
+        "ring.dxf",
+        &DxfOptions {
+            fit: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    assert!(d.shape.paths[0].closed && d.shape.paths[0].len() == n);
+    // fitted (the default), the ring comes back as a few arcs of its radius
     let s = read_shape(&one_entity(&e), "ring.dxf").unwrap();
     assert_eq!(s.paths.len(), 1);
-    assert!(s.paths[0].closed && s.paths[0].len() == n);
+    assert!(
+        s.paths[0].closed && s.paths[0].len() <= 4,
+        "{:?}",
+        s.paths[0]
+    );
+    assert!(s.paths[0]
+        .segments()
+        .all(|g| matches!(g, Segment::Arc { radius, .. } if (radius - 500.0).abs() < 1e-3)));
 }
 
 #[test]
