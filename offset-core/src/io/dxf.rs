@@ -700,7 +700,7 @@ fn place(pl: Polyline, xf: &Xf, tol: f64, fit: bool) -> Result<Polyline, String>
         if let Segment::Arc { radius, .. } = s {
             let step = 2.0 * (1.0 - (local / radius).min(1.0)).acos();
             let k = (s.sweep().abs() / step.max(1e-9)).ceil();
-            if !(k <= flatten::MAX_POINTS as f64) {
+            if k.is_nan() || k > flatten::MAX_POINTS as f64 {
                 return Err(format!(
                     "would need more than {} points to stay within {tol} mm of an arc stretched by its block's scales",
                     flatten::MAX_POINTS
