@@ -201,6 +201,7 @@ fn cutting(params: &PlanParams) -> offset_core::ops::Cutting {
         climb: !params.conventional,
         spindle_rpm: params.spindle,
         tolerance: params.tolerance,
+        ..Default::default() // entries (helix, ramp angle, spiral): offset-core's defaults
     }
 }
 
