@@ -242,38 +242,48 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                     });
                 }
             } else {
-                // down through the air to the floor of the last pass
-                let here = tp_pos(&tp).unwrap_or(P3::at_z(entry, p.cut.safe_z));
-                if here.z > z_top + 1e-12 {
-                    tp.push(Move::Linear {
-                        to: P3::at_z(here.xy(), z_top),
-                        feed: plunge,
-                    });
-                }
-                let mut at_depth = false;
-                if let Some((a, center, ccw)) = lead_in {
-                    let arc = crate::toolpath::arc_segment(a, start, center, ccw);
-                    // down the lead-in itself when it is long enough for the ramp angle
-                    at_depth = arc.length() * slope >= z_top - z;
+                // the height the ramp along the loop starts from
+                let z_from = if let Some((a, center, ccw)) = lead_in {
+                    // from the stock top at the lead-in's start (air at every pass), down
+                    // the lead-in as far as the ramp angle lets it
+                    if tp_pos(&tp).is_some_and(|q| q.z > 1e-12) {
+                        tp.push(Move::Linear {
+                            to: P3::at_z(a, 0.0),
+                            feed: plunge,
+                        });
+                    }
+                    let len = crate::toolpath::arc_segment(a, start, center, ccw).length();
+                    let za = (-(len * slope)).max(z);
                     tp.push(Move::Arc {
-                        to: P3::at_z(start, if at_depth { z } else { z_top }),
+                        to: P3::at_z(start, za),
                         center,
                         ccw,
                         feed,
                     });
-                }
-                if !at_depth {
-                    if tabs.is_empty() && lead_in.is_none() && lead_out.is_none() {
-                        let (moves, rest) = entry::ramp_around(&cur, z_top, z, slope, feed);
+                    za
+                } else {
+                    // down through the air to the floor of the last pass
+                    let here = tp_pos(&tp).unwrap_or(P3::at_z(entry, p.cut.safe_z));
+                    if here.z > z_top + 1e-12 {
+                        tp.push(Move::Linear {
+                            to: P3::at_z(here.xy(), z_top),
+                            feed: plunge,
+                        });
+                    }
+                    z_top
+                };
+                if z_from > z + 1e-12 {
+                    if tabs.is_empty() && in_place && cur.length() >= d {
+                        let (moves, rest) = entry::ramp_around(&cur, z_from, z, slope, feed);
                         tp.moves.extend(moves);
                         cur = rest;
                     } else if room >= d {
                         tp.moves
-                            .extend(entry::zigzag(&pl, room, z_top, z, slope, feed));
+                            .extend(entry::zigzag(&pl, room, z_from, z, slope, feed));
                     } else {
-                        plunges.note(P3::at_z(start, z));
+                        plunges.note(P3::at_z(cur.vertices[0].pos(), z));
                         tp.push(Move::Linear {
-                            to: P3::at_z(start, z),
+                            to: P3::at_z(cur.vertices[0].pos(), z),
                             feed: plunge,
                         });
                     }
@@ -510,11 +520,14 @@ fn cut_with_tabs(
         at += len;
     }
     if zc > z + 1e-12 {
-        let end = pl.vertices[0].pos();
-        tp.push(Move::Linear {
-            to: P3::at_z(end, z),
-            feed: p.cut.plunge_feed,
-        });
+        match slope {
+            // on down along the loop's start, which this pass has cut to the depth already
+            Some(k) => tp.moves.extend(entry::ramp_around(pl, zc, z, k, feed).0),
+            None => tp.push(Move::Linear {
+                to: P3::at_z(pl.vertices[0].pos(), z),
+                feed: p.cut.plunge_feed,
+            }),
+        }
     }
 }
 
