@@ -71,7 +71,8 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
 }
 
 /// The paths under `g` as polylines in mm; `flattened` counts the points curves were
-/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path.
+/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path. Groups
+/// are walked with a work list, so no depth of nesting can overflow the stack.
 fn collect(
     g: &usvg::Group,
     height: f64,
@@ -80,19 +81,24 @@ fn collect(
     out: &mut Vec<Polyline>,
     warnings: &mut Vec<String>,
 ) -> Result<(), String> {
-    for node in g.children() {
-        match node {
-            usvg::Node::Group(g) => collect(g, height, tol, flattened, out, warnings)?,
-            usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
-                if p.id().is_empty() {
-                    format!("a path {what}")
-                } else {
-                    format!("path \"{}\" {what}", p.id())
-                }
-            })?,
-            usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
-            #[allow(unreachable_patterns)]
-            _ => warnings.push(format!("text {} skipped", node.id())),
+    let mut todo: Vec<&usvg::Group> = vec![g];
+    while let Some(g) = todo.pop() {
+        // children in document order: groups are taken up after their siblings' paths,
+        // which changes no geometry
+        for node in g.children() {
+            match node {
+                usvg::Node::Group(g) => todo.push(g),
+                usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
+                    if p.id().is_empty() {
+                        format!("a path {what}")
+                    } else {
+                        format!("path \"{}\" {what}", p.id())
+                    }
+                })?,
+                usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
+                #[allow(unreachable_patterns)]
+                _ => warnings.push(format!("text {} skipped", node.id())),
+            }
         }
     }
     Ok(())

@@ -39,6 +39,7 @@ use crate::offset::{offset_region, OffsetError, OffsetOptions};
 use crate::ops::profile::cut;
 use crate::toolpath::{Move, Tool, Toolpath, P3};
 use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
 use std::str::FromStr;
 
 /// How far apart neighbouring passes are.
@@ -350,6 +351,27 @@ pub fn pocket_with(
         return Err(OpError::Empty(
             "a pocket needs closed outlines; the shape has none".into(),
         ));
+    }
+    // the passes a region takes, at most: no point lies deeper inside it than half its box's
+    // smaller side, nor than the radius of a disc of its area
+    let passes: f64 = regions
+        .iter()
+        .map(|g| {
+            let b = g.bounds();
+            let inradius = (0.5 * b.width().min(b.height())).min((g.area().abs() / PI).sqrt());
+            ((inradius - r) / s).max(0.0) + 1.0
+        })
+        .sum();
+    if passes > MAX_PASSES as f64 {
+        let b = shape.bounds();
+        return Err(OpError::BadParam(format!(
+            "pocketing the shape ({:.0} × {:.0} mm) with a {} mm tool at a step-over of {} mm would take up to {:.0} passes, more than {MAX_PASSES}; use a larger tool or step-over, or check the drawing's units",
+            b.width(),
+            b.height(),
+            p.cut.tool.diameter,
+            s,
+            passes
+        )));
     }
     let mut trees = Vec::new();
     let mut budget = MAX_PASSES;

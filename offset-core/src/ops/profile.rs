@@ -97,6 +97,7 @@ impl ProfileParams {
 /// depth before the next loop starts.
 pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     p.check()?;
+    super::check_range(shape)?;
     let opts = OffsetOptions {
         tolerance: p.cut.tolerance,
         ..Default::default()
