@@ -13,6 +13,7 @@ pub mod io;
 pub mod offset;
 pub mod ops;
 pub mod preview;
+pub mod stats;
 pub mod stitch;
 pub mod toolpath;
 
