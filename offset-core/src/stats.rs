@@ -196,10 +196,9 @@ pub fn stats(tp: &Toolpath, k: &Kinematics) -> PlanStats {
     s
 }
 
+/// `v` when it is a positive number (infinity included), else `or`.
 fn positive(v: f64, or: f64) -> f64 {
-    if v.is_finite() && v > 0.0 {
-        v
-    } else if v == f64::INFINITY {
+    if v > 0.0 {
         v
     } else {
         or
