@@ -286,61 +286,113 @@ pub fn fit_shape(shape: &Shape, opts: &BiarcOptions) -> (Shape, FitReport) {
     (Shape::new(paths), rep)
 }
 
-/// Fits the tool path's runs of straight cutting moves (two or more `Linear` moves in a
-/// row at one Z and one feed) with lines and arcs within `opts.tolerance` of the moves, never
-/// across a corner sharper than `opts.corner_angle`. Every other move is kept as it is. The
-/// report counts moves in and out.
+/// Fits the tool path's runs of level cutting moves (in a row at one Z and one feed, two or
+/// more of them straight lines) with lines and arcs within `opts.tolerance` of the moves,
+/// never across a corner sharper than `opts.corner_angle`: the straight lines and short
+/// arcs an offset of points gives (a pass of a polygon is its sides and the round joins
+/// between them) come back as a few arcs. Arcs in such a run are followed within half the
+/// tolerance by points, which are fitted within the other half; a run that would not come
+/// out shorter, runs with fewer than two lines, and every other move are kept as they are.
+/// The report counts moves in and out.
 pub fn fit_toolpath(tp: &Toolpath, opts: &BiarcOptions) -> (Toolpath, FitReport) {
+    let tol = opts.tol();
     let mut out = Toolpath {
         moves: Vec::with_capacity(tp.moves.len()),
         ..tp.clone()
     };
     out.moves.clear();
-    let mut run: Vec<Point> = Vec::new();
-    let mut run_z = 0.0;
-    let mut run_feed = 0.0;
-    let flush = |run: &mut Vec<Point>, z: f64, feed: f64, moves: &mut Vec<Move>| {
-        if run.len() >= 2 {
-            if run.len() == 2 {
-                moves.push(Move::Linear {
-                    to: P3::at_z(run[1], z),
-                    feed,
-                });
-            } else {
-                let f = fit_points(run, false, opts);
-                for s in f.segments() {
-                    moves.push(crate::ops::profile::cut(s, z, feed));
+    // the run: where it starts, and its moves
+    let mut run: Vec<Move> = Vec::new();
+    let mut run_start = P3::default();
+    let flush = |run: &mut Vec<Move>, start: P3, moves: &mut Vec<Move>| {
+        let lines = run
+            .iter()
+            .filter(|m| matches!(m, Move::Linear { .. }))
+            .count();
+        if lines < 2 {
+            moves.append(run);
+            return;
+        }
+        let (z, feed) = match run[0] {
+            Move::Linear { to, feed } | Move::Arc { to, feed, .. } => (to.z, feed),
+            _ => (start.z, 0.0),
+        };
+        let has_arcs = lines < run.len();
+        let fit_tol = if has_arcs { tol / 2.0 } else { tol };
+        let mut pts = vec![start.xy()];
+        let mut at = start.xy();
+        for m in run.iter() {
+            match m {
+                Move::Arc {
+                    to, center, ccw, ..
+                } => {
+                    let seg = crate::toolpath::arc_segment(at, to.xy(), *center, *ccw);
+                    let r = at.dist(*center);
+                    let step = 2.0 * (1.0 - (tol / 2.0 / r).min(1.0)).acos();
+                    let k =
+                        ((seg.sweep().abs() / step.max(1e-6)).ceil() as usize).clamp(1, 100_000);
+                    for i in 1..k {
+                        pts.push(seg.point_at(i as f64 / k as f64));
+                    }
+                    pts.push(to.xy());
+                    at = to.xy();
                 }
+                Move::Linear { to, .. } => {
+                    pts.push(to.xy());
+                    at = to.xy();
+                }
+                _ => {}
             }
         }
-        run.clear();
+        let f = fit_points(
+            &pts,
+            false,
+            &BiarcOptions {
+                tolerance: fit_tol,
+                ..*opts
+            },
+        );
+        if f.segment_count() < run.len() {
+            for sg in f.segments() {
+                moves.push(crate::ops::profile::cut(sg, z, feed));
+            }
+            run.clear();
+        } else {
+            moves.append(run);
+        }
     };
     let mut pos: Option<P3> = None;
     for m in &tp.moves {
-        match m {
-            Move::Linear { to, feed }
-                if pos.is_some_and(|p| p.z == to.z && p.xy().dist(to.xy()) > 0.0) =>
-            {
-                let from = pos.unwrap_or_default();
-                if run.is_empty() || run_z != to.z || run_feed != *feed {
-                    flush(&mut run, run_z, run_feed, &mut out.moves);
-                    run.push(from.xy());
-                    run_z = to.z;
-                    run_feed = *feed;
+        let level = match m {
+            Move::Linear { to, feed } | Move::Arc { to, feed, .. } => pos
+                .filter(|p| p.z == to.z && p.xy().dist(to.xy()) > 0.0)
+                .map(|p| (p, to.z, *feed)),
+            _ => None,
+        };
+        match level {
+            Some((from, z, feed)) => {
+                let same = run.first().is_some_and(|f| match f {
+                    Move::Linear { to, feed: g } | Move::Arc { to, feed: g, .. } => {
+                        to.z == z && *g == feed
+                    }
+                    _ => false,
+                });
+                if !same {
+                    flush(&mut run, run_start, &mut out.moves);
+                    run_start = from;
                 }
-                run.push(to.xy());
-                pos = Some(*to);
+                run.push(m.clone());
             }
-            _ => {
-                flush(&mut run, run_z, run_feed, &mut out.moves);
-                if let Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } = m {
-                    pos = Some(*to);
-                }
+            None => {
+                flush(&mut run, run_start, &mut out.moves);
                 out.moves.push(m.clone());
             }
         }
+        if let Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } = m {
+            pos = Some(*to);
+        }
     }
-    flush(&mut run, run_z, run_feed, &mut out.moves);
+    flush(&mut run, run_start, &mut out.moves);
     let rep = FitReport {
         segments_in: tp.moves.len(),
         segments_out: out.moves.len(),
