@@ -334,3 +334,52 @@ fn a_pocket_too_small_to_ramp_plunges_and_says_so() {
     assert_eq!(d.plunges, 2, "{d:?}");
     check_entries("small hole", &tp, &p);
 }
+
+/// Issue 13's gear, r = 60 + 4 sin 24θ + 3 sin 5θ, at `n` points.
+fn gear(n: usize) -> Polyline {
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            let r = 60.0 + 4.0 * (24.0 * a).sin() + 3.0 * (5.0 * a).sin();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+#[test]
+fn the_issue_13_gear_of_100000_vertices_pockets() {
+    // as points (the hard case: the pocket's passes are offsets of offsets of a polygon
+    // whose 2 mm shrink once carried a back-step the kernel refused), 3 mm tool, 40 %
+    let shape = Shape::new(vec![gear(100_000)]);
+    let p = PocketParams {
+        stepover: Stepover::Percent(40.0),
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(3.0),
+            depth: 1.0,
+            stepdown: 1.0,
+            ..Default::default()
+        },
+    };
+    let tp = pocket(&shape, &p).unwrap();
+    let b = tp.bounds().unwrap();
+    assert!((b.min.z + 1.0).abs() < 1e-12);
+    // the passes reach from the wall (the gear dips to r = 53.1) to the middle
+    assert!(b.max.x > 60.0 && b.min.x < -50.0, "{b:?}");
+    assert!(tp.warnings.is_empty(), "{:?}", tp.warnings);
+    check_entries("100 000-vertex gear", &tp, &p);
+    // every cut keeps the tool radius off the wall
+    let wall = &shape.paths[0];
+    let mut far = Vec::new();
+    tp.walk(P3::default(), |_, m, to| {
+        if matches!(m, Move::Linear { .. } | Move::Arc { .. }) && to.z < 0.0 {
+            far.push(to.xy());
+        }
+    });
+    for q in far.iter().step_by(997) {
+        assert!(
+            wall.contains(*q) && wall.distance_to(*q) >= 1.5 - 0.01,
+            "{q:?}"
+        );
+    }
+}

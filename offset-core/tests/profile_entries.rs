@@ -43,6 +43,16 @@ fn check(name: &str, tp: &Toolpath, p: &ProfileParams, outline: &Polyline) {
     assert_eq!(d.plunges, 0, "{name}: a plunge at {:?}", d.first_plunge);
     assert!(d.ramps > 0, "{name}: no ramp");
     assert!(tp.warnings.is_empty(), "{name}: {:?}", tp.warnings);
+    // every arc starts where the tool is: as far from its centre as its end
+    tp.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, .. } = m {
+            let (r0, r1) = (from.xy().dist(*center), to.xy().dist(*center));
+            assert!(
+                (r0 - r1).abs() < 1e-6,
+                "{name}: an arc from {from:?} to {to:?} about {center:?}"
+            );
+        }
+    });
     let r = p.cut.tool.radius();
     let mut one = Toolpath::new("");
     tp.walk(P3::default(), |from, m, to| {
@@ -198,4 +208,37 @@ fn a_hole_too_small_to_ramp_in_is_plunged_with_a_warning() {
         tp.warnings[0]
     );
     assert_eq!(descents(&tp).plunges, 3);
+}
+
+#[test]
+fn tabs_with_lead_ins_and_outs_leave_every_move_joined() {
+    // the shape of the GRBL end-to-end test: the ramp after the last tab goes on along the
+    // loop's start and must come back before the lead-out
+    let shape = Shape::new(vec![
+        Polyline::rect(Point::new(0.0, 0.0), Point::new(40.0, 30.0)),
+        Polyline::circle(Point::new(20.0, 15.0), 5.0),
+    ]);
+    for side in [Side::Outside, Side::Inside] {
+        let mut p = params(side);
+        p.cut.depth = 2.0;
+        p.lead_in = 2.0;
+        p.lead_out = 2.0;
+        p.tabs = 3;
+        p.tab_width = 2.0;
+        p.tab_height = 0.8;
+        let tp = profile(&shape, &p).unwrap();
+        // the hole's loop (22 mm round, three tabs) has 1.8 mm before its first tab: no
+        // room for a ramp, so it is plunged, and said so
+        let d = descents(&tp);
+        assert!(d.plunges == 0 || !tp.warnings.is_empty(), "{side:?}: {d:?}");
+        tp.walk(P3::default(), |from, m, to| {
+            if let Move::Arc { center, .. } = m {
+                let (r0, r1) = (from.xy().dist(*center), to.xy().dist(*center));
+                assert!(
+                    (r0 - r1).abs() < 1e-6,
+                    "{side:?}: an arc from {from:?} to {to:?}"
+                );
+            }
+        });
+    }
 }

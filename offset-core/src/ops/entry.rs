@@ -191,7 +191,7 @@ pub(crate) fn ramp_around(
 }
 
 /// The segments of the first `len` mm of `path`.
-fn prefix(path: &Polyline, len: f64) -> Vec<Segment> {
+pub(crate) fn prefix(path: &Polyline, len: f64) -> Vec<Segment> {
     let mut out = Vec::new();
     let mut at = 0.0;
     for s in path.segments() {
@@ -208,6 +208,22 @@ fn prefix(path: &Polyline, len: f64) -> Vec<Segment> {
         at += l;
     }
     out
+}
+
+/// Back along the first `len` mm of `path` (from there to its start) at height `z`: the
+/// way home after a ramp that went on along the pass's start.
+pub(crate) fn back_along(path: &Polyline, len: f64, z: f64, feed: f64) -> Vec<Move> {
+    let total = path.length();
+    let mut moves = Vec::new();
+    if total <= 0.0 {
+        return moves;
+    }
+    // a ramp longer than the loop went round it: only the last lap's part is to go back
+    let len = len % total;
+    for s in prefix(path, len).into_iter().rev() {
+        moves.push(descend(reversed(s), z, feed));
+    }
+    moves
 }
 
 /// A ramp back and forth along the first `room` mm of `path`, from its start at `z_top`

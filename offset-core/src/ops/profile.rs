@@ -522,8 +522,13 @@ fn cut_with_tabs(
     }
     if zc > z + 1e-12 {
         match slope {
-            // on down along the loop's start, which this pass has cut to the depth already
-            Some(k) => tp.moves.extend(entry::ramp_around(pl, zc, z, k, feed).0),
+            // on down along the loop's start, which this pass has cut to the depth already,
+            // and back to the start at the depth
+            Some(k) => {
+                tp.moves.extend(entry::ramp_around(pl, zc, z, k, feed).0);
+                tp.moves
+                    .extend(entry::back_along(pl, (zc - z) / k, z, feed));
+            }
             None => tp.push(Move::Linear {
                 to: P3::at_z(pl.vertices[0].pos(), z),
                 feed: p.cut.plunge_feed,
