@@ -10,7 +10,7 @@ mod pocket_support;
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, Entry, OpError, PocketParams, Stepover};
 use offset_core::toolpath::{Move, Tool, Toolpath, P3};
-use pocket_support::{check_coverage, clipper_offset, descending_arcs, descents};
+use pocket_support::{check_coverage, clipper_offset, descending_arcs, descents, disjoint_arc};
 
 fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polyline {
     Polyline::rect(Point::new(x0, y0), Point::new(x1, y1))
@@ -109,6 +109,7 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
 /// Entries other than plunges never go straight down into the material and never descend
 /// steeper than the ramp angle; plunges are what was asked for, or warned about.
 fn check_entries(name: &str, tp: &Toolpath, p: &PocketParams) {
+    assert_eq!(disjoint_arc(tp), None, "{name}: an arc that starts off its circle");
     let d = descents(tp);
     let slope = p.cut.ramp_angle.to_radians().tan();
     if p.cut.entry == Entry::Plunge {

@@ -185,6 +185,8 @@ fn kept(tp: &Toolpath) -> Vec<Move> {
 fn check_fitted(tp: &Toolpath, tol: f64) -> Result<(), TestCaseError> {
     let (fitted, rep) = fit_toolpath(tp, &BiarcOptions::with_tolerance(tol));
     prop_assert!(rep.segments_out <= rep.segments_in);
+    prop_assert_eq!(pocket_support::disjoint_arc(tp), None);
+    prop_assert_eq!(pocket_support::disjoint_arc(&fitted), None);
     prop_assert_eq!(
         kept(&fitted),
         kept(tp),

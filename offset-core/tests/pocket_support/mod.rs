@@ -257,3 +257,18 @@ pub fn descending_arcs(tp: &Toolpath) -> Vec<(Point, f64)> {
     });
     out
 }
+
+/// The first arc that does not start where the tool is (as far from its centre as its end
+/// lies), if any: a move planned from the wrong place.
+pub fn disjoint_arc(tp: &Toolpath) -> Option<(P3, P3, Point)> {
+    let mut bad = None;
+    tp.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, .. } = m {
+            let (r0, r1) = (from.xy().dist(*center), to.xy().dist(*center));
+            if (r0 - r1).abs() > 1e-6 * (1.0 + r0) && bad.is_none() {
+                bad = Some((from, to, *center));
+            }
+        }
+    });
+    bad
+}
