@@ -13,8 +13,9 @@
 //! circle sampled at any density lie on one circle, half a chord's sagitta s inside the
 //! samples and within s/2 of the polyline everywhere, so whenever s/2 is within the
 //! tolerance the circle comes back whole. Run ends (path ends, corners, and both ends of a
-//! chord four times longer than its neighbours: a straight side between dense curves) are
-//! knots and stay where they are. Each knot gets the tangent of the circle through it and
+//! chord four times longer than its neighbours that would sag more than the tolerance on
+//! the circles they bend along: a straight side between dense curves) are knots and stay
+//! where they are. Each knot gets the tangent of the circle through it and
 //! its neighbours. A greedy search (doubling, then bisecting) covers a run with as few
 //! pieces as fit: a line where the polyline runs straight, else the equal-tangent-length
 //! biarc between two knots and their tangents, else a line; where not even one chord's
@@ -114,9 +115,31 @@ pub fn fit_points(points: &[Point], closed: bool, opts: &BiarcOptions) -> Polyli
     let n = pts.len();
     let chord = |i: usize| pts[i % n].dist(pts[(i + 1) % n]);
     // a chord many times longer than both its neighbours is a straight side
+    // the sagitta chord k would have on the circle through it and the point before (or
+    // after) it: how far from a smooth curve bending as its neighbours bend it is
+    let sag = |k: usize, before: bool| {
+        let (a, b, c) = if before {
+            (pts[(k + n - 1) % n], pts[k % n], pts[(k + 1) % n])
+        } else {
+            (pts[k % n], pts[(k + 1) % n], pts[(k + 2) % n])
+        };
+        let area2 = (b - a).cross(c - a).abs();
+        if area2 == 0.0 {
+            return 0.0;
+        }
+        let r = a.dist(b) * b.dist(c) * c.dist(a) / (2.0 * area2);
+        let l = chord(k);
+        l * l / (8.0 * r)
+    };
+    // a chord many times longer than both its neighbours that sags more than the tolerance
+    // on the circles they bend along is a straight side (a rounded rectangle's); the sides
+    // of an offset polygon, between its short round joins, bend with them and are not
     let long = |k: usize| {
         let l = chord(k);
-        l > LONG_CHORD * chord(k + n - 1) && l > LONG_CHORD * chord(k + 1)
+        l > LONG_CHORD * chord(k + n - 1)
+            && l > LONG_CHORD * chord(k + 1)
+            && sag(k, true) > tol
+            && sag(k, false) > tol
     };
     // where runs break: corners (a turn sharper than the corner angle) and both ends of a
     // straight side between dense curves, which stays a line
@@ -166,8 +189,8 @@ pub fn fit_points(points: &[Point], closed: bool, opts: &BiarcOptions) -> Polyli
     }
 }
 
-/// A chord this many times longer than both its neighbours is a straight side: runs break
-/// at its ends.
+/// A chord this many times longer than both its neighbours (and far from bending with
+/// them) is a straight side: runs break at its ends.
 const LONG_CHORD: f64 = 4.0;
 
 /// The largest sagitta of the points' chords against the circle through each point and

@@ -109,7 +109,11 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
 /// Entries other than plunges never go straight down into the material and never descend
 /// steeper than the ramp angle; plunges are what was asked for, or warned about.
 fn check_entries(name: &str, tp: &Toolpath, p: &PocketParams) {
-    assert_eq!(disjoint_arc(tp), None, "{name}: an arc that starts off its circle");
+    assert_eq!(
+        disjoint_arc(tp),
+        None,
+        "{name}: an arc that starts off its circle"
+    );
     let d = descents(tp);
     let slope = p.cut.ramp_angle.to_radians().tan();
     if p.cut.entry == Entry::Plunge {

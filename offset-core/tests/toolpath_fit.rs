@@ -278,3 +278,44 @@ fn the_fitting_pass_shortens_pocket_programs_of_dense_outlines() {
     assert!(rep.segments_out * 5 < rep.segments_in, "{rep:?}");
     let _ = pocket_support::descents(&fitted);
 }
+
+#[test]
+fn the_fitting_pass_turns_the_profile_of_a_circle_given_as_points_into_arcs() {
+    // issue 13's first example, without the import's fitting: 7 200 points, a 100 mm tool,
+    // 0.01 mm. The offset is 7 200 sides with as many short round joins between them (no
+    // two lines in a row), all within the sides' sagitta (3e-5 mm) of the circle of 350.
+    let shape = Shape::new(vec![Polyline::from_points(
+        &circle_points(300.0, 7200),
+        true,
+    )]);
+    let tol = 0.01;
+    let p = ProfileParams {
+        side: Side::Outside,
+        cut: Cutting {
+            tool: Tool::flat(100.0),
+            tolerance: tol,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let planned = profile(&shape, &p).unwrap();
+    assert!(cuts_below_top(&planned).len() > 14_000);
+    let (tp, _) = fit_toolpath(&planned, &BiarcOptions::with_tolerance(tol));
+    // the lap at depth: a few arcs. (The ramp down to it follows the loop as it was
+    // planned, side by side, and is kept: the pass leaves descending moves alone, and read
+    // as `plan` reads it the circle is arcs before it is offset.)
+    let cuts: Vec<_> = cuts_below_top(&tp)
+        .into_iter()
+        .filter(|(from, _, to)| from.z == to.z)
+        .collect();
+    assert!(cuts.len() <= 8, "{} cutting moves at depth", cuts.len());
+    let mut one = Toolpath::new("");
+    for (from, m, _) in &cuts {
+        assert!(matches!(m, Move::Arc { .. }), "{m:?}");
+        one.moves = vec![m.clone()];
+        for q in one.sample(*from, 1.0) {
+            let r = q.xy().len();
+            assert!((r - 350.0).abs() <= tol, "a cut at radius {r}");
+        }
+    }
+}
