@@ -18,8 +18,8 @@
 //! where they are. Each knot gets the tangent of the circle through it and
 //! its neighbours. A greedy search (doubling, then bisecting) covers a run with as few
 //! pieces as fit: a line where the polyline runs straight, else the equal-tangent-length
-//! biarc between two knots and their tangents, else a line; where not even one chord's
-//! worth fits, the polyline itself.
+//! biarc between two knots and their tangents, else a line that turns at most 0.6° against
+//! those tangents; where not even one chord's worth fits, the polyline itself.
 //!
 //! A piece is checked exactly, not by sampling: the polyline between its knots is split
 //! where it crosses the normal through the biarc's joint, and on each arc the distance of
@@ -86,6 +86,11 @@ impl std::ops::AddAssign for FitReport {
 /// The knot parameter along a chord: where a sampled circle's chord meets the circle
 /// midway between the samples and the chords.
 const KNOT_T: f64 = 0.146_446_609_406_726_24;
+
+/// The sharpest turn (sine of the angle) a line put where no biarc fits may make against
+/// the tangents at its ends: the fit stays tangent-continuous to within 0.6° where the
+/// input is smooth.
+const LINE_KINK: f64 = 0.01;
 
 /// The share of the tolerance kept for merging pieces; the pieces fit within the rest.
 const MERGE_SHARE: f64 = 0.01;
@@ -571,8 +576,13 @@ impl<'a> Knots<'a> {
             sagitta: 0.0,
         };
         let dir = (p1 - p0).unit();
-        let straight = self.tan[i].cross(dir).abs() <= 1e-6 && self.tan[j].cross(dir).abs() <= 1e-6;
-        let line_fits = || self.path(i, j).all(|p| line.dist(p) <= tol);
+        let kink = self.tan[i]
+            .cross(dir)
+            .abs()
+            .max(self.tan[j].cross(dir).abs());
+        let straight = kink <= 1e-6;
+        // where no biarc fits, a line may, if it leaves the tangents by little
+        let line_fits = || kink <= LINE_KINK && self.path(i, j).all(|p| line.dist(p) <= tol);
         if straight && line_fits() {
             return Some(vec![Vertex::line(p0)]);
         }

@@ -149,7 +149,9 @@ fn check_fit(pts: &[Point], closed: bool, tol: f64) -> Result<(), TestCaseError>
             let (a, b) = (segs[i], segs[(i + 1) % segs.len()]);
             let (ta, tb) = (a.tangent_at(1.0), b.tangent_at(0.0));
             let ang = ta.cross(tb).atan2(ta.dot(tb)).abs();
-            prop_assert!(ang < 2e-3, "joint {i} turns {ang} rad");
+            // biarcs meet tangentially; a line where no biarc fitted turns by at most
+            // 0.01 rad (0.6°) against them
+            prop_assert!(ang < 1.0e-2 + 1e-9, "joint {i} turns {ang} rad");
         }
     }
     Ok(())
