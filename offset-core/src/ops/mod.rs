@@ -155,3 +155,37 @@ pub fn pass_depths(depth: f64, stepdown: f64) -> Vec<f64> {
     let n = (depth / stepdown).ceil().max(1.0) as usize;
     (1..=n).map(|i| -(depth * i as f64 / n as f64)).collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn entry_options_default_when_absent_and_round_trip() {
+        // parameters written before entries existed still read, with the defaults
+        let old = r#"{"tool":{"number":1,"diameter":6.0,"kind":"flat_end"},"depth":2.0,"stepdown":1.0,"feed":800.0,"plunge_feed":300.0,"safe_z":5.0,"climb":true,"spindle_rpm":0.0,"tolerance":0.001,"stepover":{"percent":40.0}}"#;
+        let p: PocketParams = serde_json::from_str(old).unwrap();
+        assert_eq!(p.cut.entry, Entry::Helix);
+        assert_eq!(p.cut.ramp_angle, DEFAULT_RAMP_ANGLE);
+        assert_eq!((p.cut.helix_diameter, p.cut.spiral), (0.0, false));
+        let mut q = ProfileParams::default();
+        q.cut.entry = Entry::Ramp;
+        q.cut.ramp_angle = 2.0;
+        q.cut.spiral = true;
+        let text = serde_json::to_string(&q).unwrap();
+        assert!(text.contains(r#""entry":"ramp""#), "{text}");
+        assert_eq!(serde_json::from_str::<ProfileParams>(&text).unwrap(), q);
+    }
+
+    #[test]
+    fn entry_parameters_out_of_range_are_named() {
+        let bad = |f: fn(&mut Cutting)| {
+            let mut c = Cutting::default();
+            f(&mut c);
+            c.check().unwrap_err().to_string()
+        };
+        assert!(bad(|c| c.ramp_angle = 0.0).contains("ramp angle"));
+        assert!(bad(|c| c.ramp_angle = 91.0).contains("ramp angle"));
+        assert!(bad(|c| c.helix_diameter = -1.0).contains("helix diameter"));
+    }
+}
