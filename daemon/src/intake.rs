@@ -228,7 +228,7 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
     if let Some(t) = spec.tolerance {
         check_tolerance(t)?;
     }
-    let (toolpath, shape, mesh, warnings) = match spec.input.kind() {
+    let (toolpath, shape, mesh, mut warnings) = match spec.input.kind() {
         InputKind::Gcode => return plan_gcode(spec, target),
         InputKind::Shape => {
             let (shape, warnings) = read_shape(spec)?;
@@ -241,6 +241,7 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
             (toolpath, None, Some(mesh), Vec::new())
         }
     };
+    warnings.extend(toolpath.warnings.iter().cloned());
     let post = pick_post(spec, target)?;
     if let Target::Machine(m) = target {
         check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
@@ -320,7 +321,7 @@ pub fn toolpath_3d(spec: &JobSpec, mesh: &Mesh) -> Result<Toolpath, IntakeError>
     };
     let mut tp = planned.map_err(IntakeError::Plan)?;
     tp.source = file.clone();
-    Ok(tp)
+    Ok(fitted(tp, spec.tolerance.unwrap_or(0.01)))
 }
 
 fn check_tolerance(t: f64) -> Result<(), IntakeError> {
@@ -387,7 +388,17 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
     };
     let mut tp = planned.map_err(IntakeError::Plan)?;
     tp.source = spec.input.file_name.clone();
-    Ok(tp)
+    Ok(fitted(tp, spec.tolerance.unwrap_or(DEFAULT_TOLERANCE)))
+}
+
+/// The tool path with its runs of short lines fitted into lines and arcs within `tolerance`
+/// (never across a sharp corner), so every post that has arcs gets them.
+fn fitted(tp: Toolpath, tolerance: f64) -> Toolpath {
+    offset_core::biarc::fit_toolpath(
+        &tp,
+        &offset_core::biarc::BiarcOptions::with_tolerance(tolerance),
+    )
+    .0
 }
 
 /// The post of a job: the one it names (which the machine must run), else the machine's

@@ -4,7 +4,7 @@
 
 use machlink::intake::{Input, JobSpec, Operation};
 use offset_core::mesh::{Cutter, CutterShape, Finish3dParams, Rough3dParams, WaterlineParams};
-use offset_core::ops::{Cutting, PocketParams, ProfileParams, Side, Stepover};
+use offset_core::ops::{Cutting, Entry, PocketParams, ProfileParams, Side, Stepover};
 use offset_core::stitch::StitchParams;
 use offset_core::Tool;
 use std::path::Path;
@@ -24,6 +24,14 @@ pub enum Op {
     Finish3d,
     /// 3D: waterline contours with a ball cutter.
     Waterline,
+}
+
+/// How the tool enters material.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum EntryArg {
+    Plunge,
+    Ramp,
+    Helix,
 }
 
 /// The end of a 3D cutter.
@@ -75,6 +83,20 @@ pub struct JobArgs {
     /// Cut conventional instead of climb (for an M3 spindle).
     #[arg(long)]
     pub conventional: bool,
+    /// How the tool goes down into material: a helix where one fits, else a ramp along
+    /// the pass, else straight down with a warning [helix].
+    #[arg(long, value_enum)]
+    pub entry: Option<EntryArg>,
+    /// The steepest a ramp or helix descends, degrees from the horizontal [3].
+    #[arg(long)]
+    pub ramp_angle: Option<f64>,
+    /// Diameter of a helix entry, mm (0: the tool diameter, shrunk to half where there
+    /// is no room) [0].
+    #[arg(long)]
+    pub helix_diameter: Option<f64>,
+    /// Profile: go down the depth passes of a closed loop in one unbroken helix.
+    #[arg(long)]
+    pub spiral: bool,
     /// Geometric tolerance of every approximation (reading curves, offsets), mm [0.001].
     #[arg(long)]
     pub tolerance: Option<f64>,
@@ -314,6 +336,15 @@ impl JobArgs {
             climb: !self.conventional && d.climb,
             spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
             tolerance: self.tolerance.unwrap_or(d.tolerance),
+            entry: match self.entry {
+                None => d.entry,
+                Some(EntryArg::Plunge) => Entry::Plunge,
+                Some(EntryArg::Ramp) => Entry::Ramp,
+                Some(EntryArg::Helix) => Entry::Helix,
+            },
+            ramp_angle: self.ramp_angle.unwrap_or(d.ramp_angle),
+            helix_diameter: self.helix_diameter.unwrap_or(d.helix_diameter),
+            spiral: self.spiral || d.spiral,
         }
     }
 }

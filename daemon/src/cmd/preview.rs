@@ -9,8 +9,9 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct PreviewArgs {
-    /// What to draw: a shape file (.json, .dxf, .svg) or a G-code program (.nc, .gcode,
-    /// .ngc, .tap). With --op, the plan for the shape is drawn over it.
+    /// What to draw: a shape file (.json, .dxf, .svg), a G-code program (.nc, .gcode,
+    /// .ngc, .tap), an embroidery file (.dst, .jef), or a mesh (.stl) or point grid (.csv).
+    /// With --op, the plan is drawn over the part.
     pub file: PathBuf,
     /// Where to write the drawing: .svg, or .png (rendered).
     #[arg(short, long)]
@@ -18,6 +19,15 @@ pub struct PreviewArgs {
     /// Width of the drawing in pixels.
     #[arg(long, default_value_t = 1000)]
     pub width: u32,
+    /// Leave out the scale bar.
+    #[arg(long)]
+    pub no_scale_bar: bool,
+    /// Leave out the legend.
+    #[arg(long)]
+    pub no_legend: bool,
+    /// Leave out the band the tool sweeps under its cuts.
+    #[arg(long)]
+    pub no_swept: bool,
     /// Draw a G-code program in an isometric view (the default for programs that cut while
     /// Z changes, as 3D finishing does; meshes are always drawn so).
     #[arg(long)]
@@ -35,6 +45,12 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             .unwrap_or_default()
     };
     let input = Input::from_path(&a.file)?;
+    let opts = preview::PreviewOptions {
+        width_px: a.width as f64,
+        scale_bar: !a.no_scale_bar,
+        legend: !a.no_legend,
+        swept: !a.no_swept,
+    };
     let kind = input.kind();
     let svg = if matches!(kind, InputKind::Mesh | InputKind::Points) {
         // a mesh, shaded in an isometric view, with the 3D plan over it
@@ -45,6 +61,15 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             None => None,
         };
         offset_core::preview3d::svg(Some(&mesh), tp.as_ref(), a.width as f64)
+    } else if let Some(format) = stitch_format(&input.file_name) {
+        // an embroidery file: its stitches and jumps
+        let bytes = input.bytes()?;
+        let records = match format {
+            "dst" => machlink_protocols::sewing::dst::read_dst(&bytes, &input.file_name)?,
+            _ => machlink_protocols::sewing::jef::read(&bytes, &input.file_name)?,
+        };
+        let tp = machlink_protocols::sewing::to_toolpath(&records);
+        preview::svg_with(None, Some(&tp), &opts)
     } else if intake::is_gcode_file(&input.file_name) {
         let text = String::from_utf8(input.bytes()?)
             .with_context(|| format!("{} is not a text file", a.file.display()))?;
@@ -53,7 +78,7 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
         if is_3d(&tp) || a.iso {
             offset_core::preview3d::svg(None, Some(&tp), a.width as f64)
         } else {
-            preview::svg(None, Some(&tp), a.width as f64)
+            preview::svg_with(None, Some(&tp), &opts)
         }
     } else {
         let spec = JobSpec {
@@ -65,9 +90,9 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
         match spec.operation {
             Some(_) => {
                 let tp = intake::toolpath(&spec, &shape)?;
-                preview::svg(Some(&shape), Some(&tp), a.width as f64)
+                preview::svg_with(Some(&shape), Some(&tp), &opts)
             }
-            None => preview::svg(Some(&shape), None, a.width as f64),
+            None => preview::svg_with(Some(&shape), None, &opts),
         }
     };
     match ext(&a.output).as_str() {
@@ -85,6 +110,19 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
     }
     eprintln!("wrote {}", a.output.display());
     Ok(())
+}
+
+/// The embroidery format of a file name (dst or jef), if it is one.
+fn stitch_format(name: &str) -> Option<&'static str> {
+    let ext = std::path::Path::new(name)
+        .extension()
+        .and_then(|e| e.to_str())?
+        .to_ascii_lowercase();
+    match ext.as_str() {
+        "dst" => Some("dst"),
+        "jef" => Some("jef"),
+        _ => None,
+    }
 }
 
 /// Whether a program cuts in 3D: over a fifth of its cutting moves change Z while they
