@@ -7,6 +7,7 @@
 //! journal progress and resume exactly where it stopped. Each machine kind (`kind`) ties its
 //! settings, posts and link together in one module; [`standard_kinds`] registers them all.
 
+pub mod canopen;
 pub mod gcode;
 pub mod gcode_read;
 pub mod grbl;
