@@ -256,9 +256,18 @@ mod tests {
             FaultReactionActive,
             Fault,
         ] {
-            assert_eq!(PowerState::from_statusword(s.statusword() | 0x0200), Some(s));
+            assert_eq!(
+                PowerState::from_statusword(s.statusword() | 0x0200),
+                Some(s)
+            );
         }
-        for start in [Fault, SwitchOnDisabled, ReadyToSwitchOn, SwitchedOn, QuickStopActive] {
+        for start in [
+            Fault,
+            SwitchOnDisabled,
+            ReadyToSwitchOn,
+            SwitchedOn,
+            QuickStopActive,
+        ] {
             let mut s = start;
             let mut prev = 0;
             for _ in 0..5 {

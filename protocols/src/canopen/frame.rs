@@ -205,7 +205,10 @@ mod tests {
                 let bits = f.bits_on_wire();
                 let base = 47 + 8 * n as u32;
                 let worst = base + (34 + 8 * n as u32 - 1) / 4;
-                assert!(bits >= base && bits <= worst, "{n} bytes of {pattern:#x}: {bits}");
+                assert!(
+                    bits >= base && bits <= worst,
+                    "{n} bytes of {pattern:#x}: {bits}"
+                );
             }
         }
         // all-zero standard frame with no data: identifier 0 gives the longest run

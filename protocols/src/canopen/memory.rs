@@ -66,7 +66,8 @@ impl MemoryPort {
         let mut hub = self.hub.lock().unwrap();
         hub.stats.frames += 1;
         hub.stats.bits += frame.bits_on_wire() as u64;
-        hub.ports.retain(|(id, tx)| *id == self.id || tx.send(*frame).is_ok());
+        hub.ports
+            .retain(|(id, tx)| *id == self.id || tx.send(*frame).is_ok());
     }
 
     /// The next frame if one is waiting.

@@ -23,6 +23,7 @@ pub mod trajectory;
 
 pub use bus::{BusError, BusSpec, CanBus};
 pub use frame::CanFrame;
-
+pub use kind::{CanopenKind, CanopenSettings, DriveSettings, MovesPost};
+pub use master::{Axis, CanopenLink, CanopenOptions, Pace};
 
 pub use memory::{BusStats, MemoryBus, MemoryPort};

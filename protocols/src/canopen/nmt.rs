@@ -261,7 +261,10 @@ mod tests {
     fn nmt_heartbeat_and_emcy_frames_read_back() {
         let f = NmtCommand::ResetCommunication.frame(3);
         assert_eq!(f.to_string(), "000#8203");
-        assert_eq!(NmtCommand::parse(&f), Some((NmtCommand::ResetCommunication, 3)));
+        assert_eq!(
+            NmtCommand::parse(&f),
+            Some((NmtCommand::ResetCommunication, 3))
+        );
         let h = heartbeat_frame(2, NmtState::PreOperational);
         assert_eq!(h.to_string(), "702#7F");
         assert_eq!(parse_heartbeat(&h), Some((2, NmtState::PreOperational)));

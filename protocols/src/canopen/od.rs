@@ -22,7 +22,13 @@ impl Entry {
 
 impl fmt::Display for Entry {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        write!(f, "0x{:04X}:{:02X} ({})", self.index, self.sub, name(self.index))
+        write!(
+            f,
+            "0x{:04X}:{:02X} ({})",
+            self.index,
+            self.sub,
+            name(self.index)
+        )
     }
 }
 

@@ -68,7 +68,11 @@ impl Pdo {
 
     /// Bytes of data the PDO carries.
     pub fn len(&self) -> usize {
-        self.mapped.iter().map(|m| m.bits as usize).sum::<usize>().div_ceil(8)
+        self.mapped
+            .iter()
+            .map(|m| m.bits as usize)
+            .sum::<usize>()
+            .div_ceil(8)
     }
     pub fn is_empty(&self) -> bool {
         self.mapped.is_empty()
@@ -78,7 +82,10 @@ impl Pdo {
     pub fn writes(&self) -> Vec<(Entry, Vec<u8>)> {
         let cob = Entry::new(self.comm_index, 1);
         let mut w = vec![
-            (cob, (COB_INVALID | self.cob_id as u32).to_le_bytes().to_vec()),
+            (
+                cob,
+                (COB_INVALID | self.cob_id as u32).to_le_bytes().to_vec(),
+            ),
             (Entry::new(self.map_index, 0), vec![0]),
         ];
         for (i, m) in self.mapped.iter().enumerate() {
@@ -176,7 +183,10 @@ mod tests {
         assert!(p.unpack(&[0; 4]).is_none());
         assert_eq!(Mapped::new(od::IP_SETPOINT, 32).word(), 0x60C1_0120);
         let w = Pdo::rpdo(1, 3, vec![Mapped::new(od::IP_SETPOINT, 32)]).writes();
-        assert_eq!(w.first().unwrap().1, (0x8000_0203u32).to_le_bytes().to_vec());
+        assert_eq!(
+            w.first().unwrap().1,
+            (0x8000_0203u32).to_le_bytes().to_vec()
+        );
         assert_eq!(w.last().unwrap().1, (0x0203u32).to_le_bytes().to_vec());
     }
 }

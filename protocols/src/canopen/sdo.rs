@@ -52,7 +52,9 @@ impl AbortCode {
             0x0601_0002 => "attempt to write a read-only object",
             0x0602_0000 => "object does not exist in the object dictionary",
             0x0604_0041 => "object cannot be mapped to the PDO",
-            0x0604_0042 => "the number and length of the objects to be mapped would exceed PDO length",
+            0x0604_0042 => {
+                "the number and length of the objects to be mapped would exceed PDO length"
+            }
             0x0604_0043 => "general parameter incompatibility",
             0x0604_0047 => "general internal incompatibility in the device",
             0x0606_0000 => "access failed due to a hardware error",
@@ -68,7 +70,9 @@ impl AbortCode {
             0x0800_0000 => "general error",
             0x0800_0020 => "data cannot be transferred or stored to the application",
             0x0800_0021 => "data cannot be transferred or stored because of local control",
-            0x0800_0022 => "data cannot be transferred or stored because of the present device state",
+            0x0800_0022 => {
+                "data cannot be transferred or stored because of the present device state"
+            }
             0x0800_0023 => "object dictionary not present or its dynamic generation failed",
             0x0800_0024 => "no data available",
             _ => "unknown abort code",
@@ -335,7 +339,16 @@ impl SdoClient {
                             size,
                             toggle: t,
                         };
-                        Ok(SdoStep::Send([0x60 | ((t as u8) << 4), 0, 0, 0, 0, 0, 0, 0]))
+                        Ok(SdoStep::Send([
+                            0x60 | ((t as u8) << 4),
+                            0,
+                            0,
+                            0,
+                            0,
+                            0,
+                            0,
+                            0,
+                        ]))
                     }
                 }
             }
@@ -532,7 +545,10 @@ mod tests {
     struct Dict(BTreeMap<(u16, u8), Vec<u8>>);
     impl ObjectAccess for Dict {
         fn read(&mut self, index: u16, sub: u8) -> Result<Vec<u8>, AbortCode> {
-            self.0.get(&(index, sub)).cloned().ok_or(AbortCode::NO_OBJECT)
+            self.0
+                .get(&(index, sub))
+                .cloned()
+                .ok_or(AbortCode::NO_OBJECT)
         }
         fn write(&mut self, index: u16, sub: u8, data: &[u8]) -> Result<(), AbortCode> {
             if index == 0x1000 {
@@ -582,7 +598,11 @@ mod tests {
         );
         let first = c.download(0x1000, 0, &[1, 2, 3, 4]);
         let e = run(&mut c, first, &mut dict).unwrap_err();
-        assert!(e.to_string().contains("attempt to write a read-only object"), "{e}");
+        assert!(
+            e.to_string()
+                .contains("attempt to write a read-only object"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -593,11 +613,16 @@ mod tests {
         let r = s.on_request(&header(0x40, 0x1008, 0), &mut dict).unwrap();
         assert_eq!(r[0], 0x41);
         // first segment request with toggle 1 instead of 0
-        let r = s.on_request(&[0x70, 0, 0, 0, 0, 0, 0, 0], &mut dict).unwrap();
+        let r = s
+            .on_request(&[0x70, 0, 0, 0, 0, 0, 0, 0], &mut dict)
+            .unwrap();
         assert_eq!(r, abort_frame(0x1008, 0, AbortCode::TOGGLE));
         let mut c = SdoClient::new();
         c.upload(0x1008, 0);
-        assert!(matches!(c.on_response(&[0x41, 0x08, 0x10, 0, 14, 0, 0, 0]), Ok(SdoStep::Send(_))));
+        assert!(matches!(
+            c.on_response(&[0x41, 0x08, 0x10, 0, 14, 0, 0, 0]),
+            Ok(SdoStep::Send(_))
+        ));
         assert!(c.on_response(&[0x10, 1, 2, 3, 4, 5, 6, 7]).is_err());
     }
 }

@@ -156,9 +156,7 @@ pub fn parse_line(line: &[u8]) -> SlcanLine {
         [b'O'] => SlcanLine::Open,
         [b'L'] => SlcanLine::ListenOnly,
         [b'C'] => SlcanLine::Close,
-        [b'S', d] if (b'0'..=b'8').contains(d) => {
-            SlcanLine::Bitrate(BITRATES[(d - b'0') as usize])
-        }
+        [b'S', d] if (b'0'..=b'8').contains(d) => SlcanLine::Bitrate(BITRATES[(d - b'0') as usize]),
         _ => SlcanLine::Other(String::from_utf8_lossy(line).into_owned()),
     }
 }
@@ -238,7 +236,10 @@ impl<S: AsyncRead + AsyncWrite + Send + 'static> SlcanBus<S> {
         let _ = bus.reply(Duration::from_millis(200)).await;
         for cmd in [SlcanLine::Bitrate(bitrate), SlcanLine::Open] {
             let what = match &cmd {
-                SlcanLine::Bitrate(b) => format!("the bit rate {b} bit/s (S{})", bitrate_code(*b).unwrap_or(6)),
+                SlcanLine::Bitrate(b) => format!(
+                    "the bit rate {b} bit/s (S{})",
+                    bitrate_code(*b).unwrap_or(6)
+                ),
                 _ => "opening the channel (O)".to_string(),
             };
             bus.command(cmd).await?;
@@ -333,8 +334,7 @@ impl<S: AsyncRead + AsyncWrite + Send + 'static> CanBus for SlcanBus<S> {
                 if refused {
                     return Err(BusError::Adapter {
                         port: self.port.clone(),
-                        what: "refused a frame (BEL): its queue is full or the bus is off"
-                            .into(),
+                        what: "refused a frame (BEL): its queue is full or the bus is off".into(),
                     });
                 }
             }
@@ -399,7 +399,10 @@ mod tests {
         let mut d = LineDecoder::new();
         let mut out = Vec::new();
         d.push(&bytes, &mut out);
-        assert_eq!(out, vec![SlcanLine::Frame(CanFrame::new(0x080, &[]).unwrap())]);
+        assert_eq!(
+            out,
+            vec![SlcanLine::Frame(CanFrame::new(0x080, &[]).unwrap())]
+        );
         assert_eq!(d.dropped, 1);
     }
 }

@@ -49,7 +49,9 @@ impl CanBus for SocketCanBus {
     fn send<'a>(&'a mut self, frame: &'a CanFrame) -> BoxFuture<'a, Result<(), BusError>> {
         Box::pin(async move {
             let f = to_socketcan(frame).ok_or_else(|| {
-                BusError::Io(std::io::Error::other(format!("frame {frame} does not convert")))
+                BusError::Io(std::io::Error::other(format!(
+                    "frame {frame} does not convert"
+                )))
             })?;
             self.socket.write_frame(f).await?;
             Ok(())

@@ -39,7 +39,11 @@ pub struct Limits {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PlanError {
     #[error("move {unit} ({what}) has feed {feed} mm/min; it must be above 0")]
-    Feed { unit: usize, what: String, feed: f64 },
+    Feed {
+        unit: usize,
+        what: String,
+        feed: f64,
+    },
     #[error("move {unit} ({what}) is not a machining move a CANopen machine runs")]
     Unsupported { unit: usize, what: String },
     #[error("move {unit} ({what}) goes to a coordinate that is not a finite number")]
@@ -69,7 +73,8 @@ enum Geometry {
 impl Geometry {
     /// Distance from `p` to the segment (exact for lines; for arcs at the point of the
     /// same angle, and at the ends).
-    pub(crate) fn distance(&self, p: P3) -> f64 {
+    #[cfg(test)]
+    fn distance(&self, p: P3) -> f64 {
         match *self {
             Geometry::Line { a, b } => {
                 let d = [b.x - a.x, b.y - a.y, b.z - a.z];
@@ -205,7 +210,10 @@ impl Path {
         if driven.is_empty() {
             return Err(PlanError::NoAxes);
         }
-        let amin = driven.iter().map(|(_, l)| l.acceleration).fold(f64::INFINITY, f64::min);
+        let amin = driven
+            .iter()
+            .map(|(_, l)| l.acceleration)
+            .fold(f64::INFINITY, f64::min);
         let amin_xy = driven
             .iter()
             .filter(|(i, _)| *i < 2)
@@ -334,14 +342,24 @@ impl Path {
                 let len = match geom {
                     Geometry::Line { a, b } => a.dist(b),
                     Geometry::Helix {
-                        r0, r1, sweep, z0, z1, ..
+                        r0,
+                        r1,
+                        sweep,
+                        z0,
+                        z1,
+                        ..
                     } => (0.5 * (r0 + r1) * sweep.abs()).hypot(z1 - z0),
                 };
                 if len > 1e-9 {
                     let cap = match geom {
                         Geometry::Line { .. } => feed.min(vcap_dir(geom.tangent(0.0, len))),
                         Geometry::Helix {
-                            r0, r1, sweep, z0, z1, ..
+                            r0,
+                            r1,
+                            sweep,
+                            z0,
+                            z1,
+                            ..
                         } => {
                             let r = r0.min(r1);
                             let horiz = 0.5 * (r0 + r1) * sweep.abs() / len;
@@ -408,7 +426,10 @@ impl Path {
         if s >= self.total {
             return self.end;
         }
-        let i = self.segs.partition_point(|g| g.s0 + g.len < s).min(self.segs.len() - 1);
+        let i = self
+            .segs
+            .partition_point(|g| g.s0 + g.len < s)
+            .min(self.segs.len() - 1);
         self.point_in(i, s)
     }
 
@@ -464,10 +485,19 @@ const AT_STOP: f64 = 1e-5;
 
 impl Planner {
     /// A planner for `moves` starting at `start`, one set-point every `period` seconds.
-    pub fn new(moves: &[Move], start: P3, limits: &Limits, period: f64) -> Result<Planner, PlanError> {
+    pub fn new(
+        moves: &[Move],
+        start: P3,
+        limits: &Limits,
+        period: f64,
+    ) -> Result<Planner, PlanError> {
         let path = Path::new(moves, start, limits, period)?;
         let driven = limits.axes.iter().flatten();
-        let accel = 0.5 * driven.clone().map(|l| l.acceleration).fold(f64::INFINITY, f64::min);
+        let accel = 0.5
+            * driven
+                .clone()
+                .map(|l| l.acceleration)
+                .fold(f64::INFINITY, f64::min);
         let jerk = 0.5 * driven.map(|l| l.jerk).fold(f64::INFINITY, f64::min);
         let mut p = Planner {
             path,
@@ -529,7 +559,9 @@ impl Planner {
         self.path
             .unit_ends
             .iter()
-            .take_while(|&&e| e < s - 1e-9 || (e <= s + 1e-9 && !(dwelling && (e - s).abs() <= 1e-9)))
+            .take_while(|&&e| {
+                e < s - 1e-9 || (e <= s + 1e-9 && !(dwelling && (e - s).abs() <= 1e-9))
+            })
             .count()
     }
 
@@ -579,14 +611,21 @@ impl Planner {
             // the segments and corners crossed in this step
             while i < segs.len() && segs[i].s0 + segs[i].len < cur.s {
                 i += 1;
-                if i < segs.len() && segs[i].s0 > prev.s && prev.v.max(cur.v) > self.path.corner[i] * (1.0 + 1e-9) + 1e-12 {
+                if i < segs.len()
+                    && segs[i].s0 > prev.s
+                    && prev.v.max(cur.v) > self.path.corner[i] * (1.0 + 1e-9) + 1e-12
+                {
                     return false;
                 }
             }
             if i < segs.len() && cur.v > segs[i].cap * (1.0 + 1e-9) + 1e-12 {
                 return false;
             }
-            if i < segs.len() && segs[i].s0 > prev.s && segs[i].s0 <= cur.s && prev.v.max(cur.v) > self.path.corner[i] * (1.0 + 1e-9) + 1e-12 {
+            if i < segs.len()
+                && segs[i].s0 > prev.s
+                && segs[i].s0 <= cur.s
+                && prev.v.max(cur.v) > self.path.corner[i] * (1.0 + 1e-9) + 1e-12
+            {
                 return false;
             }
             if cur.v == 0.0 {
@@ -641,7 +680,11 @@ impl Planner {
             self.passed()
         };
         Some(Cycle {
-            position: if self.done { self.path.end } else { self.point() },
+            position: if self.done {
+                self.path.end
+            } else {
+                self.point()
+            },
             speed: self.m.v,
             passed,
         })
@@ -699,7 +742,14 @@ mod tests {
             jerk: 20000.0,
         };
         Limits {
-            axes: [Some(l), Some(l), Some(AxisLimits { velocity: 20.0, ..l })],
+            axes: [
+                Some(l),
+                Some(l),
+                Some(AxisLimits {
+                    velocity: 20.0,
+                    ..l
+                }),
+            ],
         }
     }
 
@@ -718,15 +768,25 @@ mod tests {
 
     fn check_limits(cycles: &[Cycle], l: &Limits, t: f64) {
         let pos: Vec<[f64; 3]> = std::iter::once([0.0; 3])
-            .chain(cycles.iter().map(|c| [c.position.x, c.position.y, c.position.z]))
+            .chain(
+                cycles
+                    .iter()
+                    .map(|c| [c.position.x, c.position.y, c.position.z]),
+            )
             .collect();
         for ax in 0..3 {
             let lim = l.axes[ax].unwrap();
             for (k, w) in pos.windows(3).enumerate() {
                 let v = (w[2][ax] - w[1][ax]).abs() / t;
                 let a = (w[2][ax] - 2.0 * w[1][ax] + w[0][ax]).abs() / (t * t);
-                assert!(v <= lim.velocity * 1.001 + 1e-6, "axis {ax} cycle {k}: v {v}");
-                assert!(a <= lim.acceleration * 1.001 + 1e-3, "axis {ax} cycle {k}: a {a}");
+                assert!(
+                    v <= lim.velocity * 1.001 + 1e-6,
+                    "axis {ax} cycle {k}: v {v}"
+                );
+                assert!(
+                    a <= lim.acceleration * 1.001 + 1e-3,
+                    "axis {ax} cycle {k}: a {a}"
+                );
             }
         }
     }
@@ -748,13 +808,32 @@ mod tests {
     #[test]
     fn corners_slow_down_arcs_stay_round_and_no_axis_exceeds_its_limits() {
         let moves = vec![
-            Move::Rapid { to: P3::new(10.0, 0.0, 2.0) },
-            Move::Linear { to: P3::new(10.0, 0.0, -1.0), feed: 600.0 },
-            Move::Linear { to: P3::new(40.0, 0.0, -1.0), feed: 4000.0 },
-            Move::Arc { to: P3::new(40.0, 20.0, -1.0), center: Point::new(40.0, 10.0), ccw: true, feed: 4000.0 },
-            Move::Linear { to: P3::new(10.0, 20.0, -1.0), feed: 4000.0 },
+            Move::Rapid {
+                to: P3::new(10.0, 0.0, 2.0),
+            },
+            Move::Linear {
+                to: P3::new(10.0, 0.0, -1.0),
+                feed: 600.0,
+            },
+            Move::Linear {
+                to: P3::new(40.0, 0.0, -1.0),
+                feed: 4000.0,
+            },
+            Move::Arc {
+                to: P3::new(40.0, 20.0, -1.0),
+                center: Point::new(40.0, 10.0),
+                ccw: true,
+                feed: 4000.0,
+            },
+            Move::Linear {
+                to: P3::new(10.0, 20.0, -1.0),
+                feed: 4000.0,
+            },
             Move::Dwell { seconds: 0.1 },
-            Move::Linear { to: P3::new(10.0, 0.0, -1.0), feed: 4000.0 },
+            Move::Linear {
+                to: P3::new(10.0, 0.0, -1.0),
+                feed: 4000.0,
+            },
         ];
         let (c, p) = run(&moves, None);
         check_limits(&c, &limits(), 0.002);
@@ -763,23 +842,40 @@ mod tests {
             assert!(d < 1e-6, "{cy:?} is {d} mm off the path");
         }
         // the sharp corner at (40,0)→ up is not passed at full speed
-        let at_corner = c.iter().filter(|cy| (cy.position.x - 10.0).abs() < 0.05 && cy.position.y.abs() < 0.05 && cy.position.z < -0.99).map(|cy| cy.speed).fold(f64::INFINITY, f64::min);
+        let at_corner = c
+            .iter()
+            .filter(|cy| {
+                (cy.position.x - 10.0).abs() < 0.05
+                    && cy.position.y.abs() < 0.05
+                    && cy.position.z < -0.99
+            })
+            .map(|cy| cy.speed)
+            .fold(f64::INFINITY, f64::min);
         assert!(at_corner < 2.0, "{at_corner}");
         assert_eq!(c.last().unwrap().passed, moves.len());
         // units are passed in order
         assert!(c.windows(2).all(|w| w[0].passed <= w[1].passed));
         // the dwell holds for 50 cycles at (10, 20)
-        let still = c.iter().filter(|cy| cy.position == P3::new(10.0, 20.0, -1.0)).count();
+        let still = c
+            .iter()
+            .filter(|cy| cy.position == P3::new(10.0, 20.0, -1.0))
+            .count();
         assert!(still >= 50, "{still}");
     }
 
     #[test]
     fn a_hold_brakes_on_the_path_within_limits_and_resumes() {
-        let moves = [Move::Linear { to: P3::new(80.0, 60.0, 0.0), feed: 6000.0 }];
+        let moves = [Move::Linear {
+            to: P3::new(80.0, 60.0, 0.0),
+            feed: 6000.0,
+        }];
         let (c, p) = run(&moves, Some((100, 300)));
         check_limits(&c, &limits(), 0.002);
         let held = &c[250..300];
-        assert!(held.windows(2).all(|w| w[0].position == w[1].position), "stands still when held");
+        assert!(
+            held.windows(2).all(|w| w[0].position == w[1].position),
+            "stands still when held"
+        );
         assert!(held[0].speed == 0.0);
         for cy in &c {
             assert!(distance_to_path(&p.path, cy.position) < 1e-9);
