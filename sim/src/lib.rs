@@ -2,6 +2,7 @@
 //! over TCP or RTU, a pattern sewing machine, CANopen drives), with a motion model in
 //! simulated time, fault injection, and a trace of what they executed for tests to read.
 
+pub mod canopen;
 pub mod grbl;
 pub mod kinds;
 pub mod modbus;

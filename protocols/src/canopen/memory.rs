@@ -60,7 +60,15 @@ impl MemoryBus {
     }
 }
 
-impl MemoryPort {
+/// A handle that sends as one port (so its frames do not come back to that port), for a
+/// task other than the one receiving.
+#[derive(Clone)]
+pub struct MemorySender {
+    id: usize,
+    hub: Arc<Mutex<Hub>>,
+}
+
+impl MemorySender {
     /// Sends without waiting (the in-memory bus never blocks).
     pub fn send_now(&self, frame: &CanFrame) {
         let mut hub = self.hub.lock().unwrap();
@@ -68,6 +76,21 @@ impl MemoryPort {
         hub.stats.bits += frame.bits_on_wire() as u64;
         hub.ports
             .retain(|(id, tx)| *id == self.id || tx.send(*frame).is_ok());
+    }
+}
+
+impl MemoryPort {
+    /// Sends without waiting (the in-memory bus never blocks).
+    pub fn send_now(&self, frame: &CanFrame) {
+        self.sender().send_now(frame)
+    }
+
+    /// A handle that sends as this port.
+    pub fn sender(&self) -> MemorySender {
+        MemorySender {
+            id: self.id,
+            hub: self.hub.clone(),
+        }
     }
 
     /// The next frame if one is waiting.

@@ -26,4 +26,4 @@ pub use frame::CanFrame;
 pub use kind::{CanopenKind, CanopenSettings, DriveSettings, MovesPost};
 pub use master::{Axis, CanopenLink, CanopenOptions, Pace};
 
-pub use memory::{BusStats, MemoryBus, MemoryPort};
+pub use memory::{BusStats, MemoryBus, MemoryPort, MemorySender};
