@@ -167,6 +167,10 @@ pub struct CanopenLink {
     opts: CanopenOptions,
     nodes: Vec<Node>,
     events: Option<mpsc::UnboundedSender<LinkEvent>>,
+    /// An alarm or offline state went out in this stream.
+    stopped_reported: bool,
+    /// Heartbeats and EMCY stop what is under way (false while stopping the drives).
+    watching: bool,
 }
 
 /// The cycle clock: a thread that sleeps to each deadline and spins the last stretch (the
@@ -241,6 +245,8 @@ impl CanopenLink {
             opts,
             nodes,
             events: None,
+            stopped_reported: false,
+            watching: true,
         }
     }
 
@@ -250,7 +256,10 @@ impl CanopenLink {
         }
     }
 
-    fn status(&self, state: DeviceState, detail: String, feed: f64) {
+    fn status(&mut self, state: DeviceState, detail: String, feed: f64) {
+        if matches!(state, DeviceState::Alarm { .. } | DeviceState::Offline) {
+            self.stopped_reported = true;
+        }
         let mut position = [0.0; 3];
         for n in &self.nodes {
             position[n.axis.axis.min(2)] = n.axis.mm(n.actual);
@@ -329,7 +338,10 @@ impl CanopenLink {
 
     /// Fails naming the first node whose heartbeat is overdue, or that left operational
     /// while `operational` is expected.
-    fn check_nodes(&self, operational: bool) -> Result<(), LinkError> {
+    fn check_nodes(&mut self, operational: bool) -> Result<(), LinkError> {
+        if !self.watching {
+            return Ok(());
+        }
         let now = Instant::now();
         for n in &self.nodes {
             if let Some(t) = n.heard {
@@ -416,7 +428,12 @@ impl CanopenLink {
                 }
             };
             self.check_nodes(false)?;
-            let Some((j, data)) = self.on_frame(&f)? else {
+            let got = match self.on_frame(&f) {
+                Ok(got) => got,
+                Err(e) if self.watching => return Err(e),
+                Err(_) => None,
+            };
+            let Some((j, data)) = got else {
                 continue;
             };
             if j != i {
@@ -492,6 +509,8 @@ impl CanopenLink {
         let now = Instant::now();
         for n in &mut self.nodes {
             n.started = Some(now);
+            // what the heartbeat said before the start (boot-up) is no news
+            n.nmt = None;
         }
         for i in 0..self.nodes.len() {
             self.power_up(i).await?;
@@ -667,12 +686,14 @@ impl CanopenLink {
 
     /// Writes `word` to every drive's controlword, best effort (after a fault or a cancel).
     async fn all_controlword(&mut self, word: u16) {
+        self.watching = false;
         for i in 0..self.nodes.len() {
             let t = self.opts.sdo_timeout.min(Duration::from_millis(100));
             let _ = self
                 .sdo_within(i, od::CONTROLWORD, Some(&word.to_le_bytes()), t)
                 .await;
         }
+        self.watching = true;
     }
 
     /// The set-point frames of one cycle.
@@ -756,21 +777,31 @@ impl CanopenLink {
         let mut next = planner.next_cycle();
         let mut last = planner.position();
         let mut held_reported = false;
+        let mut settling = 0u32;
         let mut cancelling = false;
         let mut last_status = Instant::now();
         let sync_log = self.opts.sync_log.clone();
         let relative_total = total - from;
         loop {
             // wait for the cycle's moment, handling frames meanwhile
+            // lockstep: the next cycle once every drive has reported, or after one period
+            let lockstep_until = tokio::time::Instant::now() + self.opts.period;
             loop {
-                if lockstep && self.nodes.iter().all(|n| n.reports >= cycle) {
+                if lockstep
+                    && (self.nodes.iter().all(|n| n.reports >= cycle)
+                        || tokio::time::Instant::now() >= lockstep_until)
+                {
                     if planner.is_at_rest() && (cancelling || *control.borrow() == Control::Hold) {
                         // nothing moves: do not spin
                         tokio::time::sleep(Duration::from_micros(500)).await;
                     }
                     break;
                 }
-                let wait = self.opts.report_timeout.min(self.opts.heartbeat_timeout);
+                let wait = if lockstep {
+                    lockstep_until.saturating_duration_since(tokio::time::Instant::now())
+                } else {
+                    self.opts.report_timeout.min(self.opts.heartbeat_timeout)
+                };
                 let tick = async {
                     match ticker.as_mut() {
                         Some(t) => t.rx.recv().await,
@@ -889,7 +920,15 @@ impl CanopenLink {
                 });
             }
             if next.is_none() && pending.is_empty() && acked >= relative_total {
-                return Ok(StreamEnd::Completed);
+                // finished moving: every drive within a micrometre of its last set-point
+                // (or, for a drive that never gets there, after half a second)
+                settling += 1;
+                let settled = self.nodes.iter().all(|n| {
+                    (n.following.unsigned_abs() as f64) <= (n.axis.counts_per_mm * 1e-3).max(1.0)
+                });
+                if settled || settling as f64 * self.opts.period.as_secs_f64() > 0.5 {
+                    return Ok(StreamEnd::Completed);
+                }
             }
             if last_status.elapsed() > Duration::from_millis(100) {
                 last_status = Instant::now();
@@ -916,7 +955,18 @@ impl Link<Move> for CanopenLink {
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
             self.events = Some(events);
+            self.stopped_reported = false;
             let r = self.run(units, from.min(units.len()), &mut control).await;
+            if let Err(LinkError::Alarm { code, text }) = &r {
+                if !self.stopped_reported {
+                    // a stop found in start-up (an SDO abort, a power-up timeout): typed too
+                    let state = DeviceState::Alarm {
+                        code: *code,
+                        text: text.clone(),
+                    };
+                    self.status(state, "start-up stopped".into(), 0.0);
+                }
+            }
             self.events = None;
             r
         })

@@ -569,7 +569,11 @@ impl Planner {
     /// would go below zero stops.
     fn advance(&self, m: Motion, j: f64) -> Motion {
         let t = self.period;
-        let a1 = (m.a + j * t).clamp(-self.accel, self.accel);
+        let mut a1 = (m.a + j * t).clamp(-self.accel, self.accel);
+        if m.a < 0.0 && j > 0.0 && m.v <= m.a * m.a / (2.0 * self.jerk) {
+            // easing out of a brake: the acceleration comes back to zero, not past it
+            a1 = a1.min(0.0);
+        }
         let je = (a1 - m.a) / t;
         let v1 = m.v + m.a * t + je * t * t / 2.0;
         if v1 <= 1e-12 {
