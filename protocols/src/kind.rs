@@ -61,6 +61,7 @@ pub trait MachineKind: Send + Sync + 'static {
         settings: &Self::Settings,
     ) -> BoxFuture<'static, std::io::Result<Self::Device>>;
     /// Opens the link to the machine.
+    #[allow(clippy::type_complexity)]
     fn open(
         &self,
         machine: &str,

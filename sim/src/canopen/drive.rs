@@ -404,7 +404,7 @@ impl Drive {
         let mut bit = 0usize;
         for m in self.mapping(0x1600) {
             let bytes = (m.bits as usize).div_ceil(8);
-            if bit % 8 != 0 || bit / 8 + bytes > data.len() {
+            if !bit.is_multiple_of(8) || bit / 8 + bytes > data.len() {
                 // a frame shorter than its mapping (CiA 301: EMCY 0x8210)
                 self.fault(0x8210);
                 return;
@@ -485,7 +485,7 @@ impl Drive {
         // TPDO 1 on every n-th SYNC (transmission types 1–240)
         let cob = self.get_u32(0x1800, 1);
         let ty = self.get(0x1800, 2).first().copied().unwrap_or(0);
-        if cob & COB_INVALID == 0 && (1..=240).contains(&ty) && now % ty as u64 == 0 {
+        if cob & COB_INVALID == 0 && (1..=240).contains(&ty) && now.is_multiple_of(ty as u64) {
             let mut data = Vec::with_capacity(8);
             for m in self.mapping(0x1A00) {
                 let bytes = (m.bits as usize).div_ceil(8);
