@@ -365,11 +365,8 @@ impl CanopenLink {
                 .started
                 .is_some_and(|t| now.saturating_duration_since(t) > self.opts.heartbeat_timeout);
             if operational {
-                let left = |s: &NmtState| match s {
-                    NmtState::Operational => false,
-                    NmtState::BootUp | NmtState::Stopped => true,
-                    NmtState::PreOperational => settled,
-                };
+                // heartbeats sent before the start may still be on their way
+                let left = |s: &NmtState| *s != NmtState::Operational && settled;
                 if let Some(s) = n.nmt.filter(left) {
                     return Err(alarm(
                         None,
