@@ -125,12 +125,22 @@ impl Machine {
     async fn stream(
         &mut self,
         program: &Program,
+        on_event: impl FnMut(&LinkEvent, &watch::Sender<Control>, &SimCanopen),
+    ) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
+        self.stream_from(program, 0, on_event).await
+    }
+
+    /// Streams `program` from unit `from`.
+    async fn stream_from(
+        &mut self,
+        program: &Program,
+        from: usize,
         mut on_event: impl FnMut(&LinkEvent, &watch::Sender<Control>, &SimCanopen),
     ) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
         let (tx, mut rx) = mpsc::unbounded_channel();
         let (ctl, ctl_rx) = watch::channel(Control::Run);
         let sim: &SimCanopen = self.device.downcast_ref::<SimCanopen>().unwrap();
-        let stream = self.link.stream(program, 0, tx, ctl_rx);
+        let stream = self.link.stream(program, from, tx, ctl_rx);
         let driver = async {
             let mut seen = Vec::new();
             while let Some(ev) = rx.recv().await {
@@ -475,4 +485,52 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
             "after {what}"
         );
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_cancelled_pocket_stops_on_the_path_disables_the_drives_and_resumes_after_the_last_acknowledged_move(
+) {
+    let mut m = Machine::start().await;
+    let tp = pocket_path();
+    let program = m.program(&tp);
+    let half = program.len() / 2;
+    let mut sent = false;
+    let (end, events) = m
+        .stream(&program, |ev, ctl, _| {
+            if matches!(ev, LinkEvent::Acked { unit } if *unit >= half) && !sent {
+                sent = true;
+                ctl.send(Control::Cancel).unwrap();
+            }
+        })
+        .await;
+    let Ok(StreamEnd::Cancelled { acked: done }) = end else {
+        panic!("the job should end cancelled, got {end:?}");
+    };
+    assert!(
+        done > half && done < program.len(),
+        "{done} of {}",
+        program.len()
+    );
+    assert_eq!(acked(&events).last(), Some(&(done - 1)));
+    // braked on the path within the limits, then disabled (switched on)
+    let pos = m.positions();
+    let demand: Vec<P3> = pos.iter().map(|p| p.1).collect();
+    let (d, at) = worst_distance(&pieces(&tp, P3::default()), demand.iter().copied());
+    assert!(d <= 1e-3, "a set-point is {d:.6} mm off the path at {at:?}");
+    check_limits("cancelled run", &demand);
+    for n in 1..=3u8 {
+        let state = m.sim().drives.with_drive(n, |d| d.power_state()).unwrap();
+        assert_eq!(
+            state,
+            machlink_protocols::canopen::cia402::PowerState::SwitchedOn,
+            "node {n}"
+        );
+    }
+    // resumed after the last acknowledged move: the rest of the program from where the
+    // axes stood
+    let (end, events) = m.stream_from(&program, done, |_, _, _| {}).await;
+    assert_eq!(end.expect("the rest runs"), StreamEnd::Completed);
+    let a = acked(&events);
+    assert_eq!(a.first().copied().map(|u| u >= done), Some(true), "{a:?}");
+    assert_eq!(a.last(), Some(&(program.len() - 1)));
 }

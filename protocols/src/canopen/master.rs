@@ -901,16 +901,12 @@ impl CanopenLink {
                 && next.is_none_or(|c| c.speed == 0.0)
             {
                 held_reported = true;
-                if cancelling && pending.is_empty() {
-                    drop(ticker.take());
-                    return Ok(StreamEnd::Cancelled {
-                        acked: from + acked,
-                    });
-                }
                 if !cancelling {
                     self.status(DeviceState::Held, "held on the path".into(), 0.0);
                 }
             }
+            // cancelled and at rest: no more set-points; done once the drives have
+            // reported the last ones
             if cancelling && held_reported && pending.is_empty() {
                 return Ok(StreamEnd::Cancelled {
                     acked: from + acked,
@@ -937,7 +933,11 @@ impl CanopenLink {
                 let feed = next.map(|c| c.speed * 60.0).unwrap_or(0.0);
                 self.status(state, format!("SYNC {cycle}"), feed);
             }
-            next = planner.next_cycle();
+            next = if cancelling && held_reported {
+                None
+            } else {
+                planner.next_cycle()
+            };
         }
     }
 }
