@@ -25,6 +25,16 @@ pub trait CanBus: Send {
     /// The next frame from another node. Cancel-safe: a dropped call loses no frame, so it
     /// can sit in a `select!` beside a timer.
     fn recv(&mut self) -> BoxFuture<'_, Result<CanFrame, BusError>>;
+    /// A handle that sends from another thread without the async runtime (the SYNC clock
+    /// sends each cycle's frames itself, on time); None when the bus has none.
+    fn frame_sink(&mut self) -> Option<Box<dyn FrameSink>> {
+        None
+    }
+}
+
+/// Sends frames from a plain thread, blocking until they are written.
+pub trait FrameSink: Send {
+    fn send_now(&mut self, frames: &[CanFrame]) -> std::io::Result<()>;
 }
 
 /// Where the bus is: `socketcan:IFACE` or `slcan:PORT[@BITRATE]`.
@@ -104,13 +114,7 @@ pub async fn open(spec: &BusSpec) -> Result<Box<dyn CanBus>, crate::link::LinkEr
             })?;
             Ok(Box::new(bus))
         }
-        BusSpec::Slcan { port, bitrate } => {
-            let stream = crate::serial::open(port, 115_200)?;
-            let bus = super::slcan::SlcanBus::open(stream, port, *bitrate)
-                .await
-                .map_err(|e| crate::link::LinkError::Protocol(e.to_string()))?;
-            Ok(Box::new(bus))
-        }
+        BusSpec::Slcan { port, bitrate } => Ok(Box::new(open_slcan(port, *bitrate).await?)),
     }
 }
 
@@ -142,4 +146,22 @@ mod tests {
         assert!("can0".parse::<BusSpec>().is_err());
         assert!("socketcan:".parse::<BusSpec>().is_err());
     }
+}
+
+/// Opens an SLCAN adapter on serial port `port` at CAN bit rate `bitrate`, with a clock
+/// writer on the same port.
+pub async fn open_slcan(
+    port: &str,
+    bitrate: u32,
+) -> Result<super::slcan::SlcanBus<tokio_serial::SerialStream>, crate::link::LinkError> {
+    use std::os::fd::{AsRawFd, BorrowedFd};
+    let stream = crate::serial::open(port, 115_200)?;
+    // SAFETY: the fd is the open serial port's, borrowed only to duplicate it.
+    let writer = unsafe { BorrowedFd::borrow_raw(stream.as_raw_fd()) }
+        .try_clone_to_owned()
+        .map_err(crate::link::LinkError::Io)?;
+    let bus = super::slcan::SlcanBus::open(stream, port, bitrate)
+        .await
+        .map_err(|e| crate::link::LinkError::Protocol(e.to_string()))?;
+    Ok(bus.with_clock_writer(std::fs::File::from(writer)))
 }

@@ -3,7 +3,7 @@
 //! axis by RPDO, then the SYNC that applies them — while it watches heartbeats, EMCY and the
 //! drives' position reports (TPDO), and obeys hold, resume and cancel.
 
-use super::bus::{BusError, CanBus};
+use super::bus::{BusError, CanBus, FrameSink};
 use super::cia402::{Command, Mode, PowerState};
 use super::frame::CanFrame;
 use super::nmt::{self, classify, Cob, Emcy, NmtCommand, NmtState};
@@ -174,24 +174,49 @@ pub struct CanopenLink {
 }
 
 /// The cycle clock: a thread that sleeps to each deadline and spins the last stretch (the
-/// OS's timer slack is tens of µs), then wakes the session.
+/// OS's timer slack is tens of µs). With a [`FrameSink`] it sends the cycle's frames itself
+/// at the deadline — the session hands them over a cycle ahead — so the SYNC leaves on time
+/// whatever the async runtime is doing; it then tells the session when they went out.
+/// It asks for real-time scheduling (SCHED_FIFO), and runs without where that is refused.
 struct Ticker {
-    rx: mpsc::UnboundedReceiver<Instant>,
+    rx: mpsc::UnboundedReceiver<Result<Instant, String>>,
+    frames: Option<std::sync::mpsc::Sender<Vec<CanFrame>>>,
     stop: Arc<AtomicBool>,
 }
 
 const SPIN: Duration = Duration::from_micros(150);
 
+/// Asks for SCHED_FIFO for the calling thread; false where that is not allowed.
+fn realtime_priority() -> bool {
+    // SAFETY: plain calls on the current thread with a valid parameter block.
+    unsafe {
+        let param = libc::sched_param { sched_priority: 20 };
+        libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0
+    }
+}
+
 impl Ticker {
-    fn start(interval: Duration) -> Ticker {
+    fn start(interval: Duration, mut sink: Option<Box<dyn FrameSink>>) -> Ticker {
         let (tx, rx) = mpsc::unbounded_channel();
+        let (frames_tx, frames_rx) = std::sync::mpsc::channel::<Vec<CanFrame>>();
+        let sends = sink.is_some();
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         std::thread::Builder::new()
             .name("canopen-sync".into())
             .spawn(move || {
+                let rt = realtime_priority();
+                tracing::debug!("SYNC clock every {interval:?}, real-time scheduling: {rt}");
                 let mut next = Instant::now() + interval;
                 while !flag.load(Ordering::Relaxed) {
+                    let batch = if sends {
+                        match frames_rx.recv() {
+                            Ok(b) => Some(b),
+                            Err(_) => break,
+                        }
+                    } else {
+                        None
+                    };
                     let now = Instant::now();
                     if next > now + SPIN {
                         std::thread::sleep(next - now - SPIN);
@@ -199,7 +224,19 @@ impl Ticker {
                     while Instant::now() < next {
                         std::hint::spin_loop();
                     }
-                    if tx.send(next).is_err() {
+                    if flag.load(Ordering::Relaxed) {
+                        // the session ended meanwhile: no more SYNC
+                        break;
+                    }
+                    let sent = match (&mut sink, batch) {
+                        (Some(sink), Some(b)) => sink
+                            .send_now(&b)
+                            .map(|()| Instant::now())
+                            .map_err(|e| format!("the SYNC clock could not send: {e}")),
+                        _ => Ok(next),
+                    };
+                    let failed = sent.is_err();
+                    if tx.send(sent).is_err() || failed {
                         break;
                     }
                     next += interval;
@@ -211,7 +248,11 @@ impl Ticker {
                 }
             })
             .expect("a thread for the SYNC clock");
-        Ticker { rx, stop }
+        Ticker {
+            rx,
+            frames: sends.then_some(frames_tx),
+            stop,
+        }
     }
 }
 
@@ -759,13 +800,14 @@ impl CanopenLink {
     ) -> Result<StreamEnd, LinkError> {
         let lockstep = self.opts.pace == Pace::Lockstep;
         let mut ticker = match self.opts.pace {
-            Pace::RealTime { scale } => {
-                Some(Ticker::start(self.opts.period.div_f64(scale.max(1e-6))))
-            }
+            Pace::RealTime { scale } => Some(Ticker::start(
+                self.opts.period.div_f64(scale.max(1e-6)),
+                self.bus.frame_sink(),
+            )),
             Pace::Lockstep => None,
         };
         let sync = nmt::sync_frame();
-        let mut frames = Vec::with_capacity(self.nodes.len());
+        let mut frames = Vec::with_capacity(self.nodes.len() + 1);
         let mut sent_at: std::collections::VecDeque<Instant> = Default::default();
         let mut first_unreported = 0u64;
         let mut pending: std::collections::VecDeque<(u64, usize)> = Default::default();
@@ -780,6 +822,22 @@ impl CanopenLink {
         let sync_log = self.opts.sync_log.clone();
         let relative_total = total - from;
         loop {
+            // the set-points of this cycle, then the SYNC that applies them
+            let target = match next {
+                Some(c) => c.position,
+                None => last,
+            };
+            self.setpoints(target, &mut frames);
+            frames.push(sync);
+            // the clock thread sends them at the cycle's moment, when it can
+            let clock_sends = match ticker.as_ref().and_then(|t| t.frames.as_ref()) {
+                Some(tx) => {
+                    let _ = tx.send(frames.clone());
+                    true
+                }
+                None => false,
+            };
+            let mut sent_now: Option<Instant> = None;
             // wait for the cycle's moment, handling frames meanwhile
             // lockstep: the next cycle once every drive has reported, or after one period
             let lockstep_until = tokio::time::Instant::now() + self.opts.period;
@@ -808,7 +866,11 @@ impl CanopenLink {
                 tokio::select! {
                     biased;
                     t = tick => {
-                        let _ = t;
+                        match t {
+                            Some(Ok(at)) => sent_now = Some(at),
+                            Some(Err(e)) => return Err(LinkError::Protocol(e)),
+                            None => return Err(LinkError::Protocol("the SYNC clock stopped".into())),
+                        }
                         break;
                     }
                     f = tokio::time::timeout(wait, self.bus.recv()) => {
@@ -820,17 +882,15 @@ impl CanopenLink {
                 }
                 self.check_nodes(true)?;
             }
-            // the set-points of this cycle, then the SYNC that applies them
-            let target = match next {
-                Some(c) => c.position,
-                None => last,
-            };
-            self.setpoints(target, &mut frames);
-            for f in &frames {
-                self.bus.send(f).await.map_err(bus_err)?;
+            if !clock_sends {
+                for f in &frames {
+                    self.bus.send(f).await.map_err(bus_err)?;
+                }
             }
-            self.bus.send(&sync).await.map_err(bus_err)?;
-            let now = Instant::now();
+            let now = match (clock_sends, sent_now) {
+                (true, Some(at)) => at,
+                _ => Instant::now(),
+            };
             if let Some(log) = &sync_log {
                 log.lock().unwrap().push(now);
             }

@@ -1,7 +1,7 @@
 //! The in-memory bus: any number of nodes in one process, every frame delivered to every
 //! other node in the order sent, and each frame counted in bits for bus-load figures.
 
-use super::bus::{BusError, CanBus};
+use super::bus::{BusError, CanBus, FrameSink};
 use super::frame::CanFrame;
 use futures::future::BoxFuture;
 use std::sync::{Arc, Mutex};
@@ -114,6 +114,18 @@ impl CanBus for MemoryPort {
     }
     fn recv(&mut self) -> BoxFuture<'_, Result<CanFrame, BusError>> {
         Box::pin(async move { self.rx.recv().await.ok_or(BusError::Closed) })
+    }
+    fn frame_sink(&mut self) -> Option<Box<dyn FrameSink>> {
+        Some(Box::new(self.sender()))
+    }
+}
+
+impl FrameSink for MemorySender {
+    fn send_now(&mut self, frames: &[CanFrame]) -> std::io::Result<()> {
+        for f in frames {
+            MemorySender::send_now(self, f);
+        }
+        Ok(())
     }
 }
 

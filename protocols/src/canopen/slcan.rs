@@ -8,7 +8,7 @@
 //! same `t`/`T`/`r`/`R` lines, optionally followed by a 4-digit timestamp. Lines that are none
 //! of these are noise and ignored; a line longer than [`MAX_LINE`] is dropped whole.
 
-use super::bus::{BusError, CanBus};
+use super::bus::{BusError, CanBus, FrameSink};
 use super::frame::CanFrame;
 use futures::future::BoxFuture;
 use std::collections::VecDeque;
@@ -215,6 +215,40 @@ pub struct SlcanBus<S> {
     lines: Vec<SlcanLine>,
     frames: VecDeque<CanFrame>,
     out: Vec<u8>,
+    clock: Option<std::fs::File>,
+}
+
+/// Writes SLCAN lines to a serial port from the SYNC clock's thread (a duplicate of the
+/// port's descriptor; the port is non-blocking, so a full buffer is waited out here).
+pub struct SlcanSink {
+    file: std::fs::File,
+    buf: Vec<u8>,
+}
+
+impl FrameSink for SlcanSink {
+    fn send_now(&mut self, frames: &[CanFrame]) -> std::io::Result<()> {
+        use std::io::Write;
+        self.buf.clear();
+        for f in frames {
+            encode_frame(f, &mut self.buf);
+        }
+        let mut at = 0;
+        let give_up = std::time::Instant::now() + Duration::from_secs(1);
+        while at < self.buf.len() {
+            match self.file.write(&self.buf[at..]) {
+                Ok(n) => at += n,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if std::time::Instant::now() > give_up {
+                        return Err(e);
+                    }
+                    std::thread::sleep(Duration::from_micros(50));
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
 }
 
 impl<S: AsyncRead + AsyncWrite + Send + 'static> SlcanBus<S> {
@@ -230,6 +264,7 @@ impl<S: AsyncRead + AsyncWrite + Send + 'static> SlcanBus<S> {
             lines: Vec::new(),
             frames: VecDeque::new(),
             out: Vec::new(),
+            clock: None,
         };
         // closing a closed channel is an error on some adapters: its answer does not matter
         bus.command(SlcanLine::Close).await?;
@@ -295,6 +330,13 @@ impl<S: AsyncRead + AsyncWrite + Send + 'static> SlcanBus<S> {
         }
     }
 
+    /// The same bus, with `file` (the port opened again, or its descriptor duplicated) as the
+    /// SYNC clock's writer.
+    pub fn with_clock_writer(mut self, file: std::fs::File) -> SlcanBus<S> {
+        self.clock = Some(file);
+        self
+    }
+
     /// Closes the channel (`C`); the adapter's answer is not awaited.
     pub async fn close(&mut self) -> Result<(), BusError> {
         self.command(SlcanLine::Close).await
@@ -339,6 +381,14 @@ impl<S: AsyncRead + AsyncWrite + Send + 'static> CanBus for SlcanBus<S> {
                 }
             }
         })
+    }
+
+    fn frame_sink(&mut self) -> Option<Box<dyn FrameSink>> {
+        let file = self.clock.as_ref()?.try_clone().ok()?;
+        Some(Box::new(SlcanSink {
+            file,
+            buf: Vec::new(),
+        }))
     }
 }
 

@@ -1,7 +1,7 @@
 //! The socketcan transport: a Linux CAN interface (can0, vcan0) through the `socketcan`
 //! crate's tokio socket. Its bit rate is the interface's (`ip link set can0 type can bitrate …`).
 
-use super::bus::{BusError, CanBus};
+use super::bus::{BusError, CanBus, FrameSink};
 use super::frame::CanFrame;
 use futures::future::BoxFuture;
 use socketcan::{EmbeddedFrame, ExtendedId, Id, StandardId};
@@ -9,6 +9,7 @@ use socketcan::{EmbeddedFrame, ExtendedId, Id, StandardId};
 /// A CAN bus on a Linux CAN interface.
 pub struct SocketCanBus {
     socket: socketcan::tokio::CanSocket,
+    interface: String,
 }
 
 impl SocketCanBus {
@@ -16,6 +17,7 @@ impl SocketCanBus {
     pub fn open(name: &str) -> std::io::Result<SocketCanBus> {
         Ok(SocketCanBus {
             socket: socketcan::tokio::CanSocket::open(name)?,
+            interface: name.to_string(),
         })
     }
 }
@@ -67,6 +69,28 @@ impl CanBus for SocketCanBus {
                 }
             }
         })
+    }
+    fn frame_sink(&mut self) -> Option<Box<dyn FrameSink>> {
+        // a second, blocking socket on the interface (its frames reach this socket too, as
+        // any other node's would; the master ignores its own SYNC and RPDOs)
+        use socketcan::Socket;
+        let socket = socketcan::CanSocket::open(&self.interface).ok()?;
+        Some(Box::new(SocketCanSink(socket)))
+    }
+}
+
+/// Sends from the SYNC clock's thread on a blocking socket.
+struct SocketCanSink(socketcan::CanSocket);
+
+impl FrameSink for SocketCanSink {
+    fn send_now(&mut self, frames: &[CanFrame]) -> std::io::Result<()> {
+        use socketcan::Socket;
+        for f in frames {
+            let f = to_socketcan(f)
+                .ok_or_else(|| std::io::Error::other(format!("frame {f} does not convert")))?;
+            self.0.write_frame(&f)?;
+        }
+        Ok(())
     }
 }
 

@@ -4,9 +4,9 @@
 use super::adapter::{spawn_adapter, AdapterHandle};
 use super::{DriveFault, SimDrives};
 use futures::future::BoxFuture;
+use machlink_protocols::canopen::bus::open_slcan;
 use machlink_protocols::canopen::kind::{gcode_file_moves, moves_posts, DriveSettings};
 use machlink_protocols::canopen::master::{CanopenLink, Pace};
-use machlink_protocols::canopen::slcan::SlcanBus;
 use machlink_protocols::canopen::MemoryBus;
 use machlink_protocols::kind::{Joined, MachineKind};
 use machlink_protocols::post::{PostError, PostFor};
@@ -155,14 +155,7 @@ impl MachineKind for SimCanopenKind {
         Box::pin(async move {
             let bus: Box<dyn machlink_protocols::canopen::CanBus> = match (memory, port) {
                 (Some(m), _) => Box::new(m),
-                (None, Some(path)) => {
-                    let stream = machlink_protocols::serial::open(&path, 115_200)?;
-                    Box::new(
-                        SlcanBus::open(stream, &path, 1_000_000)
-                            .await
-                            .map_err(|e| LinkError::Protocol(e.to_string()))?,
-                    )
-                }
+                (None, Some(path)) => Box::new(open_slcan(&path, 1_000_000).await?),
                 (None, None) => unreachable!("memory or a port"),
             };
             Ok(Box::new(CanopenLink::new(bus, opts)) as Box<dyn Link<Move>>)

@@ -27,7 +27,7 @@ def main():
     try:
         for n in [int(x) for x in a.nodes.split(",")]:
             node = network.add_node(n, drive_od(n))
-            node.sdo.RESPONSE_TIMEOUT = 2.0
+            node.sdo.RESPONSE_TIMEOUT = 5.0
             r = {}
             r["device_type"] = node.sdo.upload(0x1000, 0).hex()
             r["device_name"] = node.sdo[0x1008].raw  # segmented upload
@@ -57,7 +57,7 @@ def main():
                 r["write_name"] = e.code
             node.sdo[0x1017].raw = 50
             node.nmt.state = "OPERATIONAL"
-            node.nmt.wait_for_heartbeat(timeout=5)
+            node.nmt.wait_for_heartbeat(timeout=10)
             time.sleep(0.12)
             r["nmt_state"] = node.nmt.state
             result[str(n)] = r
