@@ -118,6 +118,24 @@ pub async fn open(spec: &BusSpec) -> Result<Box<dyn CanBus>, crate::link::LinkEr
     }
 }
 
+/// Opens an SLCAN adapter on serial port `port` at CAN bit rate `bitrate`, with a clock
+/// writer on the same port.
+pub async fn open_slcan(
+    port: &str,
+    bitrate: u32,
+) -> Result<super::slcan::SlcanBus<tokio_serial::SerialStream>, crate::link::LinkError> {
+    use std::os::fd::{AsRawFd, BorrowedFd};
+    let stream = crate::serial::open(port, 115_200)?;
+    // SAFETY: the fd is the open serial port's, borrowed only to duplicate it.
+    let writer = unsafe { BorrowedFd::borrow_raw(stream.as_raw_fd()) }
+        .try_clone_to_owned()
+        .map_err(crate::link::LinkError::Io)?;
+    let bus = super::slcan::SlcanBus::open(stream, port, bitrate)
+        .await
+        .map_err(|e| crate::link::LinkError::Protocol(e.to_string()))?;
+    Ok(bus.with_clock_writer(std::fs::File::from(writer)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -146,22 +164,4 @@ mod tests {
         assert!("can0".parse::<BusSpec>().is_err());
         assert!("socketcan:".parse::<BusSpec>().is_err());
     }
-}
-
-/// Opens an SLCAN adapter on serial port `port` at CAN bit rate `bitrate`, with a clock
-/// writer on the same port.
-pub async fn open_slcan(
-    port: &str,
-    bitrate: u32,
-) -> Result<super::slcan::SlcanBus<tokio_serial::SerialStream>, crate::link::LinkError> {
-    use std::os::fd::{AsRawFd, BorrowedFd};
-    let stream = crate::serial::open(port, 115_200)?;
-    // SAFETY: the fd is the open serial port's, borrowed only to duplicate it.
-    let writer = unsafe { BorrowedFd::borrow_raw(stream.as_raw_fd()) }
-        .try_clone_to_owned()
-        .map_err(crate::link::LinkError::Io)?;
-    let bus = super::slcan::SlcanBus::open(stream, port, bitrate)
-        .await
-        .map_err(|e| crate::link::LinkError::Protocol(e.to_string()))?;
-    Ok(bus.with_clock_writer(std::fs::File::from(writer)))
 }
