@@ -195,9 +195,9 @@ async fn python_canopen_local_nodes_take_machlinks_configuration_nmt_and_setpoin
             "node {node}: TPDO1 maps 0x6064, 0x60F4"
         );
         assert!(
-            wrote(0x1400, 1, &format!("{:02x}0200", 0x00 + node))
-                || wrote(0x1400, 1, &format!("{:02x}020000", node)),
-            "node {node}: RPDO1 made valid: {writes:?}"
+            wrote(0x1400, 1, &format!("{node:02x}020080"))
+                && wrote(0x1400, 1, &format!("{node:02x}020000")),
+            "node {node}: RPDO1 invalidated while mapped, then made valid: {writes:?}"
         );
         for cw in ["0600", "0700", "1f00"] {
             assert!(wrote(0x6040, 0, cw), "node {node}: controlword {cw}");
