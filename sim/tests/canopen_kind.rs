@@ -90,11 +90,15 @@ struct Machine {
 
 impl Machine {
     async fn start() -> Machine {
+        Machine::start_with(settings()).await
+    }
+
+    async fn start_with(table: serde_json::Value) -> Machine {
         let mut registry = Registry::new();
         machlink_protocols::standard_kinds(&mut registry);
         machlink_sim::kinds::register(&mut registry);
         let kind: Arc<dyn AnyKind> = registry.kind("sim-canopen").expect("registered").clone();
-        let settings = kind.settings(settings()).expect("settings");
+        let settings = kind.settings(table).expect("settings");
         let device = kind.start("gantry", &settings).await.expect("drives start");
         let link = kind
             .open("gantry", &settings, &device)
@@ -533,4 +537,59 @@ async fn a_cancelled_pocket_stops_on_the_path_disables_the_drives_and_resumes_af
     let a = acked(&events);
     assert_eq!(a.first().copied().map(|u| u >= done), Some(true), "{a:?}");
     assert_eq!(a.last(), Some(&(program.len() - 1)));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cyclic_synchronous_position_paced_by_the_clock_follows_the_path_holds_and_resumes() {
+    // real time, 4 times as fast: the clock thread sends every cycle's frames itself
+    let mut table = settings();
+    table["mode"] = "csp".into();
+    table["transport"] = "memory".into();
+    table["lockstep"] = false.into();
+    table["time_scale"] = 4.0.into();
+    let mut m = Machine::start_with(table).await;
+    let mut tp = square(12.0);
+    tp.push(Move::Arc {
+        to: P3::new(6.0, 6.0, 0.0),
+        center: offset_core::Point::new(3.0, 3.0),
+        ccw: true,
+        feed: 1500.0,
+    });
+    let program = m.program(&tp);
+    let (mut hold_sent, mut held_at, mut resumed) = (false, None::<u64>, false);
+    let (end, events) = m
+        .stream(&program, |ev, ctl, sim| match ev {
+            LinkEvent::Acked { unit } if *unit >= 1 && !hold_sent => {
+                hold_sent = true;
+                ctl.send(Control::Hold).unwrap();
+            }
+            LinkEvent::Status(s) if s.state == DeviceState::Held && !resumed => {
+                let now = sim.drives.with_drive(1, |d| d.syncs()).unwrap();
+                if now >= *held_at.get_or_insert(now) + 50 {
+                    resumed = true;
+                    ctl.send(Control::Run).unwrap();
+                }
+            }
+            _ => {}
+        })
+        .await;
+    assert_eq!(end.expect("the square runs in CSP"), StreamEnd::Completed);
+    assert!(resumed, "held and resumed");
+    assert_eq!(acked(&events).last(), Some(&(program.len() - 1)));
+    // the drives moved only because their 0x607A set-points came mapped by RPDO
+    let pos = m.positions();
+    let demand: Vec<P3> = pos.iter().map(|p| p.1).collect();
+    assert!(
+        demand
+            .iter()
+            .any(|p| p.dist(P3::new(12.0, 12.0, 0.0)) < 0.01),
+        "reaches the far corner"
+    );
+    let (d, at) = worst_distance(&pieces(&tp, P3::default()), demand.iter().copied());
+    assert!(d <= 1e-3, "a set-point is {d:.6} mm off the path at {at:?}");
+    check_limits("csp", &demand);
+    check_limits(
+        "csp positions",
+        &pos.iter().map(|p| p.2).collect::<Vec<_>>(),
+    );
 }

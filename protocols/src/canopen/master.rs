@@ -799,13 +799,22 @@ impl CanopenLink {
         control: &mut watch::Receiver<Control>,
     ) -> Result<StreamEnd, LinkError> {
         let lockstep = self.opts.pace == Pace::Lockstep;
+        let interval = match self.opts.pace {
+            Pace::RealTime { scale } => self.opts.period.div_f64(scale.max(1e-6)),
+            Pace::Lockstep => self.opts.period,
+        };
         let mut ticker = match self.opts.pace {
-            Pace::RealTime { scale } => Some(Ticker::start(
-                self.opts.period.div_f64(scale.max(1e-6)),
-                self.bus.frame_sink(),
-            )),
+            Pace::RealTime { .. } => Some(Ticker::start(interval, self.bus.frame_sink())),
             Pace::Lockstep => None,
         };
+        // the clock thread gets the frames of about 10 ms of cycles ahead, so a session that
+        // is late by less than that (a busy machine) never delays a SYNC; hold and cancel
+        // take effect that much later
+        let lead = (Duration::from_millis(10).as_secs_f64() / interval.as_secs_f64())
+            .ceil()
+            .clamp(2.0, 16.0) as usize;
+        let mut inflight: std::collections::VecDeque<Option<super::trajectory::Cycle>> =
+            Default::default();
         let sync = nmt::sync_frame();
         let mut frames = Vec::with_capacity(self.nodes.len() + 1);
         let mut sent_at: std::collections::VecDeque<Instant> = Default::default();
@@ -815,28 +824,38 @@ impl CanopenLink {
         let mut cycle = 0u64;
         let mut next = planner.next_cycle();
         let mut last = planner.position();
+        let mut planned_last = last;
         let mut held_reported = false;
         let mut settling = 0u32;
         let mut cancelling = false;
         let mut last_status = Instant::now();
         let sync_log = self.opts.sync_log.clone();
         let relative_total = total - from;
+        let clock_sends = ticker.as_ref().is_some_and(|t| t.frames.is_some());
         loop {
-            // the set-points of this cycle, then the SYNC that applies them
-            let target = match next {
-                Some(c) => c.position,
-                None => last,
-            };
-            self.setpoints(target, &mut frames);
-            frames.push(sync);
-            // the clock thread sends them at the cycle's moment, when it can
-            let clock_sends = match ticker.as_ref().and_then(|t| t.frames.as_ref()) {
-                Some(tx) => {
-                    let _ = tx.send(frames.clone());
-                    true
+            // the set-points of a cycle, then the SYNC that applies them
+            if clock_sends {
+                // the clock thread sends them at their cycle's moment
+                while inflight.len() < lead {
+                    self.setpoints(next.map_or(planned_last, |c| c.position), &mut frames);
+                    frames.push(sync);
+                    if let Some(tx) = ticker.as_ref().and_then(|t| t.frames.as_ref()) {
+                        let _ = tx.send(frames.clone());
+                    }
+                    inflight.push_back(next);
+                    if let Some(c) = next {
+                        planned_last = c.position;
+                    }
+                    next = if cancelling && held_reported {
+                        None
+                    } else {
+                        planner.next_cycle()
+                    };
                 }
-                None => false,
-            };
+            } else {
+                self.setpoints(next.map_or(last, |c| c.position), &mut frames);
+                frames.push(sync);
+            }
             let mut sent_now: Option<Instant> = None;
             // wait for the cycle's moment, handling frames meanwhile
             // lockstep: the next cycle once every drive has reported, or after one period
@@ -882,11 +901,14 @@ impl CanopenLink {
                 }
                 self.check_nodes(true)?;
             }
-            if !clock_sends {
+            let this = if clock_sends {
+                inflight.pop_front().flatten()
+            } else {
                 for f in &frames {
                     self.bus.send(f).await.map_err(bus_err)?;
                 }
-            }
+                next
+            };
             let now = match (clock_sends, sent_now) {
                 (true, Some(at)) => at,
                 _ => Instant::now(),
@@ -896,7 +918,7 @@ impl CanopenLink {
             }
             sent_at.push_back(now);
             cycle += 1;
-            if let Some(c) = next {
+            if let Some(c) = this {
                 pending.push_back((cycle, c.passed));
                 last = c.position;
             }
@@ -955,10 +977,13 @@ impl CanopenLink {
                 }
                 _ => {}
             }
+            let standing = |c: &Option<super::trajectory::Cycle>| c.is_none_or(|c| c.speed == 0.0);
             if planner.is_at_rest()
                 && (ctl == Control::Hold || cancelling)
                 && !held_reported
-                && next.is_none_or(|c| c.speed == 0.0)
+                && standing(&this)
+                && standing(&next)
+                && inflight.iter().all(standing)
             {
                 held_reported = true;
                 if !cancelling {
@@ -967,12 +992,21 @@ impl CanopenLink {
             }
             // cancelled and at rest: no more set-points; done once the drives have
             // reported the last ones
-            if cancelling && held_reported && pending.is_empty() {
+            if cancelling
+                && held_reported
+                && pending.is_empty()
+                && inflight.iter().all(Option::is_none)
+            {
                 return Ok(StreamEnd::Cancelled {
                     acked: from + acked,
                 });
             }
-            if next.is_none() && pending.is_empty() && acked >= relative_total {
+            if this.is_none()
+                && next.is_none()
+                && inflight.iter().all(Option::is_none)
+                && pending.is_empty()
+                && acked >= relative_total
+            {
                 // finished moving: every drive within a micrometre of its last set-point
                 // (or, for a drive that never gets there, after half a second)
                 settling += 1;
@@ -990,14 +1024,16 @@ impl CanopenLink {
                 } else {
                     DeviceState::Running
                 };
-                let feed = next.map(|c| c.speed * 60.0).unwrap_or(0.0);
+                let feed = this.map(|c| c.speed * 60.0).unwrap_or(0.0);
                 self.status(state, format!("SYNC {cycle}"), feed);
             }
-            next = if cancelling && held_reported {
-                None
-            } else {
-                planner.next_cycle()
-            };
+            if !clock_sends {
+                next = if cancelling && held_reported {
+                    None
+                } else {
+                    planner.next_cycle()
+                };
+            }
         }
     }
 }
