@@ -3,6 +3,8 @@
 //! behind a simulated SLCAN adapter on a pty follows the planned path, keeps every axis
 //! within its velocity and acceleration, holds and resumes on the path, and stops on each
 //! injected fault with the drive's reason, after which the same link runs the next program.
+//! Also: a cancel brakes on the path and a resume starts after the last acknowledged move;
+//! cyclic synchronous position paced by the clock thread; NMT commands from the link.
 
 use machlink_protocols::kind::{AnyKind, MachineLink, Registry};
 use machlink_protocols::{Control, DeviceState, LinkError, LinkEvent, Program, StreamEnd};
@@ -592,4 +594,50 @@ async fn cyclic_synchronous_position_paced_by_the_clock_follows_the_path_holds_a
         "csp positions",
         &pos.iter().map(|p| p.2).collect::<Vec<_>>(),
     );
+}
+
+#[tokio::test]
+async fn nmt_commands_from_the_link_move_every_drive_between_states() {
+    use machlink_protocols::canopen::master::{Axis, CanopenLink, CanopenOptions};
+    use machlink_protocols::canopen::nmt::{NmtCommand, NmtState};
+    use machlink_protocols::canopen::trajectory::AxisLimits;
+    use machlink_protocols::canopen::MemoryBus;
+    use machlink_sim::canopen::SimDrives;
+    let bus = MemoryBus::new();
+    let drives = SimDrives::spawn(&bus, &[4, 5], 1.0);
+    let limits = AxisLimits {
+        velocity: 10.0,
+        acceleration: 100.0,
+        jerk: 1000.0,
+    };
+    let axes = [(0, 4u8), (1, 5u8)]
+        .map(|(axis, node)| Axis {
+            axis,
+            node,
+            counts_per_mm: 1000.0,
+            sign: 1.0,
+            limits,
+        })
+        .to_vec();
+    let mut link = CanopenLink::new(Box::new(bus.attach()), CanopenOptions::new(axes));
+    let states = |d: &SimDrives| [4u8, 5].map(|n| d.with_drive(n, |d| d.nmt_state()).unwrap());
+    for (cmd, want) in [
+        (NmtCommand::Start, NmtState::Operational),
+        (NmtCommand::Stop, NmtState::Stopped),
+        (NmtCommand::PreOperational, NmtState::PreOperational),
+        (NmtCommand::Start, NmtState::Operational),
+        (NmtCommand::ResetCommunication, NmtState::PreOperational),
+        (NmtCommand::Start, NmtState::Operational),
+        (NmtCommand::ResetNode, NmtState::PreOperational),
+    ] {
+        link.nmt(cmd).await.unwrap();
+        // the drives take the frames in their own tasks
+        for _ in 0..200 {
+            if states(&drives) == [want; 2] {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        assert_eq!(states(&drives), [want; 2], "after {cmd:?}");
+    }
 }

@@ -722,6 +722,16 @@ impl CanopenLink {
         }
     }
 
+    /// Sends NMT command `cmd` to every axis's node (start, stop, pre-operational, reset
+    /// node, reset communication), outside a stream.
+    pub async fn nmt(&mut self, cmd: NmtCommand) -> Result<(), LinkError> {
+        let ids: Vec<u8> = self.nodes.iter().map(|n| n.axis.node).collect();
+        for id in ids {
+            self.send(&cmd.frame(id)).await?;
+        }
+        Ok(())
+    }
+
     /// Writes `word` to every drive's controlword, best effort (after a fault or a cancel).
     async fn all_controlword(&mut self, word: u16) {
         self.watching = false;
