@@ -42,16 +42,11 @@ fn serpentine(rows: usize) -> Vec<Move> {
     }];
     for r in 0..rows {
         let y = r as f64 * 4.0;
-        let (x0, x1) = if r % 2 == 0 {
-            (0.0, 100.0)
-        } else {
-            (100.0, 0.0)
-        };
+        let x1 = if r % 2 == 0 { 100.0 } else { 0.0 };
         m.push(Move::Linear {
             to: P3::new(x1, y, 1.0),
             feed: 6000.0,
         });
-        let _ = x0;
         m.push(Move::Arc {
             to: P3::new(x1, y + 4.0, 1.0),
             center: Point::new(x1, y + 2.0),

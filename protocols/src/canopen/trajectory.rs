@@ -210,10 +210,6 @@ impl Path {
         if driven.is_empty() {
             return Err(PlanError::NoAxes);
         }
-        let amin = driven
-            .iter()
-            .map(|(_, l)| l.acceleration)
-            .fold(f64::INFINITY, f64::min);
         let amin_xy = driven
             .iter()
             .filter(|(i, _)| *i < 2)
@@ -224,7 +220,6 @@ impl Path {
             .filter(|(i, _)| *i < 2)
             .map(|(_, l)| l.jerk)
             .fold(f64::INFINITY, f64::min);
-        let _ = amin;
         let mut segs: Vec<Segment> = Vec::new();
         let mut stops = Vec::new();
         let mut unit_ends = Vec::with_capacity(moves.len());
