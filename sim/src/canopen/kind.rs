@@ -25,9 +25,9 @@ pub enum SimTransport {
     Slcan,
 }
 
-/// A fault armed on one node when the daemon starts.
+/// A fault armed on one node when the daemon starts. (No `deny_unknown_fields`: serde
+/// cannot deny them beside a flattened enum, and would refuse every key.)
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct SimFault {
     pub node: u8,
     #[serde(flatten)]
