@@ -5,7 +5,10 @@ use super::map::{
     exception_name, fault_name, reg, Command, Layout, ModbusState, MotionBlock, Status, WordOrder,
     BLOCK_REGISTERS, MAP_VERSION, MAX_READ_REGISTERS, MAX_WRITE_REGISTERS, STATUS_REGISTERS,
 };
-use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
+use crate::link::{
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Reattach, SendJournal,
+    StreamEnd,
+};
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
@@ -246,6 +249,8 @@ pub struct ModbusLink {
     /// Requests sent, reconnects made: for benchmarks and logs.
     pub requests: u64,
     pub reconnects: u64,
+    /// Where the sync that hands the device a program is journaled first (see `attach.rs`).
+    pub(super) journal: Option<Box<dyn SendJournal>>,
 }
 
 impl ModbusLink {
@@ -267,6 +272,7 @@ impl ModbusLink {
             target,
             requests: 0,
             reconnects: 0,
+            journal: None,
         })
     }
 
@@ -469,7 +475,7 @@ impl ModbusLink {
 
     /// Reads the sequence numbers and contents of ring slots for `first..=last` (at most
     /// one ring's worth) and says for each whether it holds that block of `blocks`.
-    async fn slots_match(
+    pub(crate) async fn slots_match(
         &mut self,
         blocks: &[MotionBlock],
         first: u32,
@@ -657,6 +663,7 @@ impl ModbusLink {
         if !p.synced {
             if s.state == ModbusState::Idle as u16 {
                 // A new job: the device's consumed sequence becomes `from`.
+                self.journal_sync(from, total)?;
                 self.write_seq(from).await?;
                 self.command(Command::Sync).await?;
                 let s = self.read_status().await?;
@@ -860,6 +867,21 @@ impl Link<MotionBlock> for ModbusLink {
                 .await
                 .map_err(LinkError::from)
         })
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        Box::pin(async move { Ok(self.read_status().await?.to_status()) })
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        blocks: &'a [MotionBlock],
+        handed: Handed,
+        _events: mpsc::UnboundedSender<LinkEvent>,
+        _control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(async move { self.where_is(blocks, handed).await.map_err(LinkError::from) })
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.journal = Some(journal);
     }
 }
 

@@ -2,6 +2,7 @@
 //! streams blocks into a device's ring buffer over Modbus TCP or RTU (docs/modbus.md), and
 //! the two machine kinds.
 
+mod attach;
 pub mod kind;
 pub mod link;
 pub mod map;
