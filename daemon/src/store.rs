@@ -1,8 +1,12 @@
 //! The job store: jobs, their programs and the journal of acknowledged units, in SQLite (WAL).
 //!
 //! A job's row and its program are committed before the first byte goes to the machine;
-//! the units the machine acknowledges are journaled in batches (`Journal`), never more than
-//! `journal_max_lag` behind, so after a crash `acked_units` is where the job resumes.
+//! every unit the machine acknowledges is journaled (`Journal`, one unit at a time by
+//! default), and links whose devices cannot be asked afterwards (GRBL) journal each write
+//! before its bytes leave (`sending_units`) and after (`sent_units`), so after a crash the
+//! store says exactly which units the device may hold. Commits do not wait for the disk
+//! (`synchronous = NORMAL`: they survive a crash of the process); a thread of its own
+//! checkpoints the write-ahead log, so no fsync stalls a stream.
 
 use machlink_protocols::Program;
 use rusqlite::{params, Connection, OptionalExtension};
@@ -103,6 +107,21 @@ pub struct JobRecord {
     pub total_units: usize,
     /// Units acknowledged by the machine; a resume starts at this unit.
     pub acked_units: usize,
+    /// Units handed to the machine (for links that journal their writes, else 0).
+    #[serde(default)]
+    pub sent_units: usize,
+    /// Why a paused or interrupted job waits, and what the daemon found on the machine.
+    #[serde(default)]
+    pub note: Option<String>,
+    /// How long the program takes on the machine, as its kind estimates it, ms.
+    #[serde(default)]
+    pub estimate_ms: Option<i64>,
+    /// Time since the job started (to its end, once it ended), ms.
+    #[serde(default)]
+    pub elapsed_ms: Option<i64>,
+    /// The machining time left, from the estimate and the units still to run, ms.
+    #[serde(default)]
+    pub eta_ms: Option<i64>,
 }
 
 /// What a new job is made of.
@@ -138,6 +157,53 @@ pub struct Store {
     conn: Arc<Mutex<Connection>>,
     /// Journal flushes so far (tests count them).
     flushes: Arc<std::sync::atomic::AtomicU64>,
+    _checkpoints: Arc<Checkpointer>,
+}
+
+/// The thread that checkpoints the write-ahead log into the database file (the only writes
+/// that wait for the disk), so commits on the streaming path never do; it stops with the
+/// last clone of the store.
+struct Checkpointer {
+    stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
+}
+
+impl Checkpointer {
+    fn start(path: &Path) -> Checkpointer {
+        let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
+        let s = stop.clone();
+        let path = path.to_path_buf();
+        let _ = std::thread::Builder::new()
+            .name("store-checkpoint".into())
+            .spawn(move || {
+                let Ok(conn) = Connection::open(&path) else {
+                    return;
+                };
+                let _ = conn.busy_timeout(Duration::from_millis(100));
+                let (lock, cv) = &*s;
+                let mut stopped = lock.lock().unwrap_or_else(|p| p.into_inner());
+                while !*stopped {
+                    let (g, _) = cv
+                        .wait_timeout(stopped, Duration::from_millis(500))
+                        .unwrap_or_else(|p| p.into_inner());
+                    stopped = g;
+                    if *stopped {
+                        break;
+                    }
+                    drop(stopped);
+                    let _ = conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |_| Ok(()));
+                    stopped = lock.lock().unwrap_or_else(|p| p.into_inner());
+                }
+            });
+        Checkpointer { stop }
+    }
+}
+
+impl Drop for Checkpointer {
+    fn drop(&mut self) {
+        let (lock, cv) = &*self.stop;
+        *lock.lock().unwrap_or_else(|p| p.into_inner()) = true;
+        cv.notify_all();
+    }
 }
 
 const SCHEMA: &str = "
@@ -153,7 +219,12 @@ CREATE TABLE IF NOT EXISTS jobs (
     finished_ms INTEGER,
     error       TEXT,
     total_units INTEGER NOT NULL,
-    acked_units INTEGER NOT NULL DEFAULT 0
+    acked_units INTEGER NOT NULL DEFAULT 0,
+    sent_units  INTEGER NOT NULL DEFAULT 0,
+    sending_units INTEGER NOT NULL DEFAULT 0,
+    estimate_ms INTEGER,
+    note        TEXT,
+    restart_at  INTEGER
 );
 CREATE TABLE IF NOT EXISTS programs (
     job_id INTEGER PRIMARY KEY REFERENCES jobs(id),
@@ -196,10 +267,15 @@ impl Store {
             .map_err(open_err)?;
         conn.busy_timeout(Duration::from_secs(5))
             .map_err(open_err)?;
+        // the checkpoint thread does what the commits would otherwise stop for
+        conn.pragma_update(None, "wal_autocheckpoint", 0)
+            .map_err(open_err)?;
         conn.execute_batch(SCHEMA).map_err(open_err)?;
+        migrate(&conn).map_err(open_err)?;
         Ok(Store {
             conn: Arc::new(Mutex::new(conn)),
             flushes: Arc::default(),
+            _checkpoints: Arc::new(Checkpointer::start(path)),
         })
     }
 
@@ -323,23 +399,111 @@ impl Store {
         Ok(())
     }
 
-    /// Records that units up to `acked_units` (exclusive) are acknowledged: one journal row
-    /// for the batch and the job's resume point, in one transaction.
+    /// Records that units up to `acked_units` (exclusive) are acknowledged: the job's resume
+    /// point, and a journal row when the count passes a hundred (the history; every
+    /// acknowledgement would make the table grow by one row a line).
     pub fn record_acks(
         &self,
         id: JobId,
         from_units: usize,
         acked_units: usize,
     ) -> Result<(), StoreError> {
-        self.move_resume_point(
-            id,
-            acked_units,
-            "acked",
-            &format!("units {from_units}..{acked_units}"),
-        )?;
+        if from_units / 100 != acked_units / 100 {
+            self.move_resume_point(
+                id,
+                acked_units,
+                "acked",
+                &format!("units {from_units}..{acked_units}"),
+            )?;
+        } else {
+            self.conn().execute(
+                "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
+                params![id, acked_units as i64],
+            )?;
+        }
         self.flushes
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         Ok(())
+    }
+
+    /// Before a link writes units `..upto`: records that the device may hold them, with
+    /// the `acked` units acknowledged so far.
+    pub fn record_sending(&self, id: JobId, acked: usize, upto: usize) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET sending_units = ?2, acked_units = MAX(acked_units, ?3) WHERE id = ?1",
+            params![id, upto as i64, acked as i64],
+        )?;
+        Ok(())
+    }
+
+    /// The device holds units `..upto`: their bytes left, or a reset dropped the rest.
+    pub fn record_sent(&self, id: JobId, upto: usize) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET sent_units = ?2, sending_units = ?2 WHERE id = ?1",
+            params![id, upto as i64],
+        )?;
+        Ok(())
+    }
+
+    /// How far the job's program went towards the device, as the journal knows it.
+    pub fn handed(&self, id: JobId) -> Result<machlink_protocols::Handed, StoreError> {
+        let (acked, sent, sending): (i64, i64, i64) = self.conn().query_row(
+            "SELECT acked_units, sent_units, sending_units FROM jobs WHERE id = ?1",
+            [id],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )?;
+        Ok(machlink_protocols::Handed {
+            acked: acked as usize,
+            sent: sent as usize,
+            sending: sending as usize,
+        })
+    }
+
+    /// Where a stream starts: `from` units done, nothing beyond handed over yet.
+    pub fn start_stream_at(&self, id: JobId, from: usize) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET acked_units = ?2, sent_units = ?2, sending_units = ?2 WHERE id = ?1",
+            params![id, from as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Notes why a job waits (or clears the note).
+    pub fn set_note(&self, id: JobId, note: Option<&str>) -> Result<(), StoreError> {
+        self.conn()
+            .execute("UPDATE jobs SET note = ?2 WHERE id = ?1", params![id, note])?;
+        Ok(())
+    }
+
+    /// The machining time the job's kind estimates, s.
+    pub fn set_estimate(&self, id: JobId, seconds: f64) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET estimate_ms = ?2 WHERE id = ?1",
+            params![id, (seconds * 1000.0).round() as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Where the operator asked a stopped job to restart (0-based unit), until it does.
+    pub fn set_restart_at(&self, id: JobId, unit: Option<usize>) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET restart_at = ?2 WHERE id = ?1",
+            params![id, unit.map(|u| u as i64)],
+        )?;
+        Ok(())
+    }
+
+    /// The restart point the operator chose, taken (it holds for one start).
+    pub fn take_restart_at(&self, id: JobId) -> Result<Option<usize>, StoreError> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let at: Option<i64> =
+            tx.query_row("SELECT restart_at FROM jobs WHERE id = ?1", [id], |r| {
+                r.get(0)
+            })?;
+        tx.execute("UPDATE jobs SET restart_at = NULL WHERE id = ?1", [id])?;
+        tx.commit()?;
+        Ok(at.map(|a| a as usize))
     }
 
     /// Moves a stopped job's resume point to unit `acked_units` (the operator's choice).
@@ -362,10 +526,17 @@ impl Store {
     ) -> Result<(), StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        tx.execute(
-            "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
-            params![id, acked_units as i64],
-        )?;
+        if event == "acked" {
+            tx.execute(
+                "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
+                params![id, acked_units as i64],
+            )?;
+        } else {
+            tx.execute(
+                "UPDATE jobs SET acked_units = ?2, sent_units = ?2, sending_units = ?2 WHERE id = ?1",
+                params![id, acked_units as i64],
+            )?;
+        }
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units, detail)
              VALUES (?1, ?2, ?3, ?4, ?5)",
@@ -409,7 +580,27 @@ impl Store {
 }
 
 const JOB_COLUMNS: &str = "id, machine, state, op, file_name, params, created_ms, started_ms,
-    finished_ms, error, total_units, acked_units";
+    finished_ms, error, total_units, acked_units, sent_units, note, estimate_ms";
+
+/// Adds the columns a store written by an older daemon lacks.
+fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    let mut st = conn.prepare("PRAGMA table_info(jobs)")?;
+    let have: Vec<String> = st
+        .query_map([], |r| r.get::<_, String>(1))?
+        .collect::<Result<_, _>>()?;
+    for (col, def) in [
+        ("sent_units", "INTEGER NOT NULL DEFAULT 0"),
+        ("sending_units", "INTEGER NOT NULL DEFAULT 0"),
+        ("estimate_ms", "INTEGER"),
+        ("note", "TEXT"),
+        ("restart_at", "INTEGER"),
+    ] {
+        if !have.iter().any(|h| h == col) {
+            conn.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {col} {def}"))?;
+        }
+    }
+    Ok(())
+}
 
 fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreError>> {
     let id: i64 = r.get(0)?;
@@ -428,6 +619,19 @@ fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreErro
             ))))
         }
     };
+    let started_ms: Option<i64> = r.get(7)?;
+    let finished_ms: Option<i64> = r.get(8)?;
+    let total_units = r.get::<_, i64>(10)? as usize;
+    let acked_units = r.get::<_, i64>(11)? as usize;
+    let estimate_ms: Option<i64> = r.get(14)?;
+    let elapsed_ms = started_ms.map(|s| (finished_ms.unwrap_or_else(now_ms) - s).max(0));
+    let eta_ms = match (estimate_ms, state) {
+        (Some(e), JobState::Queued | JobState::Running | JobState::Paused) if total_units > 0 => {
+            let left = total_units.saturating_sub(acked_units) as f64 / total_units as f64;
+            Some((e as f64 * left).round() as i64)
+        }
+        _ => None,
+    };
     Ok(Ok(JobRecord {
         id,
         machine: r.get(1)?,
@@ -436,11 +640,16 @@ fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreErro
         file_name: r.get(4)?,
         params,
         created_ms: r.get(6)?,
-        started_ms: r.get(7)?,
-        finished_ms: r.get(8)?,
+        started_ms,
+        finished_ms,
         error: r.get(9)?,
-        total_units: r.get::<_, i64>(10)? as usize,
-        acked_units: r.get::<_, i64>(11)? as usize,
+        total_units,
+        acked_units,
+        sent_units: r.get::<_, i64>(12)? as usize,
+        note: r.get(13)?,
+        estimate_ms,
+        elapsed_ms,
+        eta_ms,
     }))
 }
 

@@ -823,67 +823,6 @@ fn check_line(line: &str, index: usize, window: usize) -> Result<(), LinkError> 
     Ok(())
 }
 
-/// The modal state the lines before a resume point left behind (units, distance mode,
-/// motion mode G0/G1, feed, spindle), as lines to send before resuming: the controller
-/// may have been reset since.
-pub fn modal_preamble(done: &[String]) -> Vec<String> {
-    if done.is_empty() {
-        return Vec::new();
-    }
-    let mut units = "G21";
-    let mut distance = "G90";
-    let mut motion: Option<u32> = None;
-    let mut feed: Option<String> = None;
-    let mut spindle: Option<&str> = None;
-    let mut speed: Option<String> = None;
-    for line in done {
-        for (letter, value) in words(line) {
-            match (letter, value.as_str()) {
-                ('G', v) => match v.parse::<f64>().ok().map(|g| (g * 10.0).round() as i64) {
-                    Some(200) => units = "G20",
-                    Some(210) => units = "G21",
-                    Some(900) => distance = "G90",
-                    Some(910) => distance = "G91",
-                    Some(g @ (0 | 10 | 20 | 30)) => motion = Some(g as u32 / 10),
-                    Some(800) => motion = None,
-                    _ => {}
-                },
-                ('M', v) => match v.parse::<f64>().ok().map(|m| m.round() as i64) {
-                    Some(3) => spindle = Some("M3"),
-                    Some(4) => spindle = Some("M4"),
-                    Some(5) | Some(2) | Some(30) => spindle = Some("M5"),
-                    _ => {}
-                },
-                ('F', v) => feed = Some(v.to_string()),
-                ('S', v) => speed = Some(v.to_string()),
-                _ => {}
-            }
-        }
-    }
-    let mut out = vec![format!("{units} {distance}")];
-    let mut modal = String::new();
-    if let Some(m @ (0 | 1)) = motion {
-        modal.push_str(&format!("G{m}"));
-    }
-    if let Some(f) = feed {
-        if !modal.is_empty() {
-            modal.push(' ');
-        }
-        modal.push_str(&format!("F{f}"));
-    }
-    if !modal.is_empty() {
-        out.push(modal);
-    }
-    if let Some(s) = spindle {
-        match (s, speed) {
-            ("M5", _) => out.push("M5".into()),
-            (s, Some(v)) => out.push(format!("{s} S{v}")),
-            (s, None) => out.push(s.to_string()),
-        }
-    }
-    out
-}
-
 /// The words of a G-code line (letter upper-cased, value as written), comments skipped.
 fn words(line: &str) -> Vec<(char, String)> {
     let mut out = Vec::new();

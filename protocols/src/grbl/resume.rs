@@ -466,9 +466,9 @@ mod tests {
     fn a_resume_retracts_restores_spins_up_rapids_and_plunges_before_the_line() {
         let p = ls(&[
             "G21 G90 G17 G94",
+            "G55",
             "G0 Z5",
             "M3 S12000",
-            "G55",
             "G0 X10 Y10",
             "G1 Z-1 F300",
             "G1 X20 F1200",
