@@ -631,7 +631,11 @@ time_scale = 20
         assert_eq!(c.machines[1].link, "sim-grbl");
         assert_eq!(
             c.machines[1].settings.get::<SimGrblSettings>(),
-            Some(&SimGrblSettings { time_scale: 20.0 })
+            Some(&SimGrblSettings {
+                time_scale: 20.0,
+                homing: false,
+                spindle_dwell_s: 2.0
+            })
         );
     }
 

@@ -89,6 +89,20 @@ pub struct Executed {
     pub block: MotionBlock,
 }
 
+/// What the device did, as its event trace (and `--trace FILE`) records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceEvent {
+    /// A block's sequence number was written into its ring slot (the block sent to the
+    /// device), with the device's consumed sequence at that moment: `seq <= consumed` is
+    /// a block sent again after it had run.
+    Written { seq: u32, consumed: u32 },
+    /// A block executed to its end.
+    Executed { seq: u32, block: MotionBlock },
+    /// A sync command set the consumed sequence to `at` (a job starts there).
+    Synced { at: u32 },
+}
+
 /// What the device has seen, for tests to check that the faults really happened.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct SimStats {
@@ -106,6 +120,7 @@ struct Device {
     /// The whole map, from the base address.
     regs: Vec<u16>,
     trace: Vec<Executed>,
+    events: Vec<TraceEvent>,
     /// Bumped by stop and fault: a block in motion under an older epoch is abandoned.
     epoch: u64,
 }
@@ -163,6 +178,7 @@ impl Shared {
             dev: Mutex::new(Device {
                 regs,
                 trace: Vec::new(),
+                events: Vec::new(),
                 epoch: 0,
             }),
             wake: Notify::new(),
@@ -231,6 +247,17 @@ impl Shared {
                 }
             }
             dev.regs[off..end].copy_from_slice(words);
+            // a write that sets a slot's sequence number sends that block
+            let block = BLOCK_REGISTERS as usize;
+            let first_slot = (off - ring) / block;
+            let last_slot = (end - 1 - ring) / block;
+            for slot in first_slot..=last_slot {
+                let at = ring + slot * block;
+                if off <= at && at + 2 <= end {
+                    let seq = dev.get32(order, at as u16);
+                    dev.events.push(TraceEvent::Written { seq, consumed });
+                }
+            }
             return Ok(());
         }
         if end > ring {
@@ -312,6 +339,7 @@ impl Shared {
                 }
                 let write = dev.get32(order, reg::WRITE_SEQ);
                 dev.put32(order, reg::CONSUMED_SEQ, write);
+                dev.events.push(TraceEvent::Synced { at: write });
             }
         }
         Ok(())
@@ -479,6 +507,7 @@ async fn execute(shared: Arc<Shared>) {
             dev.put32(order, reg::POS_Z, block.target[2] as u32);
             dev.put32(order, reg::CONSUMED_SEQ, seq);
             dev.trace.push(Executed { seq, block });
+            dev.events.push(TraceEvent::Executed { seq, block });
             if block.kind == BlockKind::End {
                 dev.set_state(ModbusState::Idle);
             }
@@ -702,6 +731,14 @@ impl ModbusSim {
     /// The blocks executed so far, in execution order.
     pub fn trace(&self) -> Vec<Executed> {
         lock(&self.shared.dev).trace.clone()
+    }
+    /// The events from number `from` on (writes of blocks, executions, syncs), in order.
+    pub fn events_from(&self, from: usize) -> Vec<TraceEvent> {
+        let dev = lock(&self.shared.dev);
+        dev.events
+            .get(from..)
+            .map(<[_]>::to_vec)
+            .unwrap_or_default()
     }
     pub fn stats(&self) -> SimStats {
         *lock(&self.shared.stats)
