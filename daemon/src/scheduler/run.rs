@@ -764,7 +764,14 @@ impl Job<'_> {
             }
             (Request::Resume(None), Control::Run) => {
                 // asked while the daemon still asks the device: go on once it has answered
-                self.resume_requested = true;
+                if !self.resume_requested {
+                    self.resume_requested = true;
+                    if let Ok(Some(j)) = inner.store.job(id) {
+                        if j.state == JobState::Interrupted {
+                            inner.set_state(id, JobState::Running, None);
+                        }
+                    }
+                }
             }
             (Request::Pause, Control::Hold) => {}
             (Request::Cancel, _) => {
