@@ -216,18 +216,10 @@ pub enum Show {
     Quiet,
 }
 
-/// Follows a job with a progress bar (lines acknowledged / total, machine state, feed,
-/// ETA) until it ends, or with lines when stderr is not a terminal; an error unless it
-/// completed.
+/// Follows a job with a progress bar on stderr (lines acknowledged / total, machine state,
+/// feed, ETA; drawn only on a terminal) until it ends; an error unless it completed.
 pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
-    let show = if quiet {
-        Show::Quiet
-    } else if std::io::stderr().is_terminal() {
-        Show::Bar
-    } else {
-        Show::Quiet
-    };
-    watch_with(client, id, show).await
+    watch_with(client, id, if quiet { Show::Quiet } else { Show::Bar }).await
 }
 
 /// Follows a job the way `show` says until it ends; an error unless it completed.
