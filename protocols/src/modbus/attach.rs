@@ -21,6 +21,17 @@ impl ModbusLink {
         Ok(())
     }
 
+    /// Journals that the sync went out: the device holds this job from now on.
+    pub(super) fn journal_synced(&mut self, total: u32) -> Result<(), ModbusError> {
+        if let Some(j) = self.journal.as_mut() {
+            j.sent(total as usize).map_err(|e| ModbusError::Protocol {
+                target: format!("{}", self.settings().transport),
+                message: format!("cannot journal the job's start: {e}"),
+            })?;
+        }
+        Ok(())
+    }
+
     /// Where `blocks` stand on the device: still running (followed from its consumed
     /// sequence, feeding the ring from its write sequence), stopped after its consumed
     /// sequence, or done. The device's own sequences are the truth once the ring shows it
@@ -34,7 +45,9 @@ impl ModbusLink {
         let journal = Reattach::Stopped {
             next: handed.acked.min(blocks.len()),
         };
-        if handed.sending == 0 {
+        if handed.sending == 0 || handed.sending > handed.sent {
+            // this job never reached the device, or the daemon stopped between the journal
+            // and the sync: nothing of it ran beyond the journal's point
             return Ok(journal);
         }
         let s = self.read_status().await?;

@@ -677,6 +677,7 @@ impl ModbusLink {
                     });
                 }
                 (p.written, p.committed, p.touched, p.acked) = (from, from, from, from);
+                self.journal_synced(total)?;
             } else if s.state == ModbusState::Fault as u16 {
                 return Err(ModbusError::Protocol {
                     target: self.target.clone(),

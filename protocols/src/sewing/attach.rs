@@ -28,6 +28,14 @@ impl SewingLink {
         Ok(())
     }
 
+    /// Journals that the START went out: the machine sews this job from now on.
+    pub(super) fn journal_started(&mut self, len: usize) -> Result<(), LinkError> {
+        if let Some(j) = self.journal.as_mut() {
+            j.sent(len).map_err(LinkError::Journal)?;
+        }
+        Ok(())
+    }
+
     /// Where `records` stand on the machine: still being sewn (followed from its counter),
     /// stopped at its counter, or done. The machine's counter, length and CRC survive a
     /// power loss, so they are the truth; a machine holding another pattern, or a job whose
@@ -53,6 +61,12 @@ impl SewingLink {
             });
         }
         let counter = (st.counter as usize).min(len);
+        if handed.sending > handed.sent && !st.state.is_sewing() {
+            // the daemon stopped between the journal and the START, which did not go out
+            return Ok(Reattach::Stopped {
+                next: handed.acked.min(len),
+            });
+        }
         Ok(match st.state {
             s if s.is_sewing() => {
                 self.follow = true;

@@ -276,6 +276,7 @@ impl SewingLink {
             }
             self.journal_start(done, len)?;
             self.start(done, crc).await?;
+            self.journal_started(len)?;
         }
         let mut last_state: Option<SewingState> = None;
         let mut held = sewing && st.state != SewingState::Sewing;
