@@ -456,6 +456,7 @@ impl Store {
             acked: acked as usize,
             sent: sent as usize,
             sending: sending as usize,
+            cut_off: false,
         })
     }
 

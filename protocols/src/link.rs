@@ -301,6 +301,10 @@ pub struct Handed {
     /// Units a write was about to hand over: `sent..sending` may or may not have reached the
     /// device (the daemon stopped between the journal and the write).
     pub sending: usize,
+    /// The link dropped under a stream (a cable pulled, a port gone): bytes handed to the
+    /// operating system may have been lost on the way, so `acked..sent` is in doubt too.
+    /// False after a restart of the daemon, whose written bytes all reach the device.
+    pub cut_off: bool,
 }
 
 /// Where a program stands on a device the daemon has just (re)connected to.

@@ -211,7 +211,7 @@ impl Job<'_> {
         let mut from = match restart_at {
             Some(at) => at,
             None if job.started_ms.is_some() || mode == Mode::Follow => {
-                match self.attach(link, &program, mode).await {
+                match self.attach(link, &program, mode, false).await {
                     Attached::Go(f) => f,
                     Attached::Wait { next, note } => {
                         if mode == Mode::Follow && !self.resume_requested {
@@ -333,6 +333,7 @@ impl Job<'_> {
         link: &mut Option<Box<dyn MachineLink>>,
         program: &Program,
         mode: Mode,
+        cut_off: bool,
     ) -> Attached {
         let (inner, m, id) = (self.inner, self.m, self.id);
         let Some(l) = link.as_mut() else {
@@ -362,7 +363,7 @@ impl Job<'_> {
             let _ = self.control.send(Control::Run);
         }
         let handed = match inner.store.handed(id) {
-            Ok(h) => h,
+            Ok(h) => machlink_protocols::Handed { cut_off, ..h },
             Err(e) => return Attached::Failed(e.to_string()),
         };
         let (ev_tx, mut ev_rx) = mpsc::unbounded_channel();
@@ -515,7 +516,7 @@ impl Job<'_> {
                 m.config.name
             );
             self.resume_requested = false;
-            match self.attach(link, program, Mode::Follow).await {
+            match self.attach(link, program, Mode::Follow, true).await {
                 Attached::Go(f) => return Back::Stream(f),
                 Attached::Done => return Back::Done,
                 Attached::Cancelled => return Back::Cancelled,

@@ -155,8 +155,13 @@ impl GrblLink {
                 }
             }
         }
-        self.read_info().await?;
         let next = self.settle_doubt(lines, handed, &events).await?;
+        if next < n {
+            // an idle controller may hold half a line cut off in the wire: a reset (harmless
+            // while nothing moves; a resume restores the modes) clears it
+            self.recover(false).await?;
+        }
+        self.read_info().await?;
         Ok(if next >= n {
             Reattach::Completed
         } else {
@@ -178,6 +183,9 @@ impl GrblLink {
         let n = lines.len();
         let sent = handed.sent.max(handed.acked).min(n);
         let sending = handed.sending.max(sent).min(n);
+        if handed.cut_off {
+            return self.settle_cut_off(lines, handed, events).await;
+        }
         if sending == sent {
             return Ok(sent);
         }
@@ -207,6 +215,46 @@ impl GrblLink {
             }
             Ok(sent)
         }
+    }
+
+    /// After the link dropped: the lines after the last acknowledged one may have been lost
+    /// on the way (the controller runs a prefix of them, in order), so where the tool stands
+    /// says how many ran: the last line ending there. Lines that do not move, at the end of
+    /// that prefix, are taken as lost (sent again) rather than skipped.
+    async fn settle_cut_off(
+        &mut self,
+        lines: &[String],
+        handed: Handed,
+        events: &mpsc::UnboundedSender<LinkEvent>,
+    ) -> Result<usize, LinkError> {
+        let n = lines.len();
+        let lo = handed.acked.min(n);
+        let hi = handed.sending.max(handed.sent).max(lo).min(n);
+        if hi == lo {
+            return Ok(lo);
+        }
+        let ends = end_positions(&lines[..hi]);
+        let pos = self.work_position().await?;
+        let near = |p: [Option<f64>; 3], q: [Option<f64>; 3]| {
+            (0..3).all(|k| match (p[k], q[k]) {
+                (Some(a), Some(b)) => (a - b).abs() < AT_LINE_END,
+                (None, None) => true,
+                _ => false,
+            })
+        };
+        let here = pos.map(Some);
+        let at = |k: usize| k > 0 && near(ends[k - 1], here);
+        let Some(mut k) = (lo..=hi).rev().find(|&k| at(k)) else {
+            let _ = events.send(LinkEvent::Message(format!(
+                "the machine stands at X{:.3} Y{:.3} Z{:.3}, at the end of none of lines {}..{}; taking line {} as the next",
+                pos[0], pos[1], pos[2], lo + 1, hi, lo + 1
+            )));
+            return Ok(lo);
+        };
+        while k > lo && k >= 2 && near(ends[k - 1], ends[k - 2]) {
+            k -= 1;
+        }
+        Ok(k)
     }
 
     /// The tool's work position, waiting (a few reports) for the work offset to be known.
