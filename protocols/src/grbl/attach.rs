@@ -49,9 +49,16 @@ impl GrblLink {
         let mut idle_seen = 0u32;
         let mut held = false;
         let mut control_open = true;
-        if *control.borrow_and_update() == Control::Hold {
-            self.write(&[realtime::FEED_HOLD]).await?;
-            held = true;
+        // asked to go on (a resume): a controller found holding is let go, once
+        let mut let_go = false;
+        let initial = *control.borrow_and_update();
+        match initial {
+            Control::Hold => {
+                self.write(&[realtime::FEED_HOLD]).await?;
+                held = true;
+            }
+            Control::Run => let_go = true,
+            Control::Cancel => {}
         }
         loop {
             tokio::select! {
@@ -65,6 +72,14 @@ impl GrblLink {
                                 self.wco = s.wco;
                             }
                             let mut status = s.to_status(self.wco);
+                            if std::mem::take(&mut let_go) && matches!(s.state.as_str(), "Hold" | "Door") {
+                                self.write(&[realtime::CYCLE_START]).await?;
+                                idle_seen = 0;
+                                let _ = events.send(LinkEvent::Message(
+                                    "the machine held the lines it was running: cycle start lets it finish them".into(),
+                                ));
+                                continue;
+                            }
                             match s.state.as_str() {
                                 "Idle" => {
                                     let planner_empty = match (s.buffer, self.planner_blocks) {
