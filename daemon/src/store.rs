@@ -157,6 +157,8 @@ pub struct Store {
     conn: Arc<Mutex<Connection>>,
     /// Journal flushes so far (tests count them).
     flushes: Arc<std::sync::atomic::AtomicU64>,
+    /// Progress commits so far (acknowledgements and writes journaled), for the benchmark.
+    commits: Arc<std::sync::atomic::AtomicU64>,
     _checkpoints: Arc<Checkpointer>,
 }
 
@@ -275,6 +277,7 @@ impl Store {
         Ok(Store {
             conn: Arc::new(Mutex::new(conn)),
             flushes: Arc::default(),
+            commits: Arc::default(),
             _checkpoints: Arc::new(Checkpointer::start(path)),
         })
     }
@@ -423,7 +426,18 @@ impl Store {
         }
         self.flushes
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.count_commit();
         Ok(())
+    }
+
+    fn count_commit(&self) {
+        self.commits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// How many progress commits (acknowledgements and writes journaled) the store made.
+    pub fn commit_count(&self) -> u64 {
+        self.commits.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Before a link writes units `..upto`: records that the device may hold them, with
@@ -433,6 +447,7 @@ impl Store {
             "UPDATE jobs SET sending_units = ?2, acked_units = MAX(acked_units, ?3) WHERE id = ?1",
             params![id, upto as i64, acked as i64],
         )?;
+        self.count_commit();
         Ok(())
     }
 
@@ -442,6 +457,7 @@ impl Store {
             "UPDATE jobs SET sent_units = ?2, sending_units = ?2 WHERE id = ?1",
             params![id, upto as i64],
         )?;
+        self.count_commit();
         Ok(())
     }
 
