@@ -157,6 +157,8 @@ struct Machine {
     status: Mutex<Seen>,
     /// The overrides of the job it runs.
     overrides: Mutex<Overrides>,
+    /// Its slot in the store's progress file.
+    slot: usize,
 }
 
 /// The device's last report and when it came.
@@ -245,7 +247,7 @@ impl Scheduler {
         let (events, _) = broadcast::channel(4096);
         let mut receivers = Vec::new();
         let mut map = BTreeMap::new();
-        for MachineSetup { config, device } in machines {
+        for (slot, MachineSetup { config, device }) in machines.into_iter().enumerate() {
             let (tx, rx) = mpsc::unbounded_channel();
             let (otx, orx) = mpsc::unbounded_channel();
             let follow: Vec<JobId> = interrupted
@@ -264,6 +266,7 @@ impl Scheduler {
                     active: Mutex::new(None),
                     status: Mutex::new(Seen::default()),
                     overrides: Mutex::new(Overrides::default()),
+                    slot,
                 },
             );
         }

@@ -139,7 +139,8 @@ async fn main() {
     );
     row("send and wait", saw);
     println!(
-        "the daemon's journal: {commits} commits for {} lines ({:.1} a line)",
+        "the daemon's journal: {commits} writes for {} lines ({:.1} a line: each write of lines \
+         recorded before and after in the progress file, acknowledgements carried with them)",
         lines.len(),
         commits as f64 / lines.len() as f64
     );

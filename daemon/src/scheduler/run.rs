@@ -3,7 +3,7 @@
 //! reconnecting with backoff, and the operator's operations between jobs.
 
 use super::*;
-use crate::store::Journal;
+use crate::store::{Journal, SendRecord};
 use machlink_protocols::{LinkEvent, Program, Reattach, SendJournal, StreamEnd};
 use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 
@@ -48,10 +48,10 @@ enum Back {
     Failed(String),
 }
 
-/// The journal a link writes before its bytes leave (GRBL): the job's row in the store.
+/// The journal a link writes before its bytes leave (GRBL): the job's record in its
+/// machine's slot of the store's progress file.
 struct StoreJournal {
-    store: Store,
-    id: JobId,
+    record: SendRecord,
     /// The acknowledged count the store has, shared with the ack journal (which then
     /// skips a commit the link's journal already made).
     committed: Arc<AtomicUsize>,
@@ -59,16 +59,14 @@ struct StoreJournal {
 
 impl SendJournal for StoreJournal {
     fn sending(&mut self, acked: usize, upto: usize) -> Result<(), String> {
-        self.store
-            .record_sending(self.id, acked, upto)
+        self.record
+            .sending(acked, upto)
             .map_err(|e| e.to_string())?;
         self.committed.fetch_max(acked, AtomicOrdering::SeqCst);
         Ok(())
     }
     fn sent(&mut self, upto: usize) -> Result<(), String> {
-        self.store
-            .record_sent(self.id, upto)
-            .map_err(|e| e.to_string())
+        self.record.sent(upto).map_err(|e| e.to_string())
     }
 }
 
@@ -262,9 +260,12 @@ impl Job<'_> {
                 inner.note(id, None);
                 inner.set_state(id, JobState::Running, None);
             }
+            let record = match inner.store.send_record(m.slot, id, from) {
+                Ok(r) => r,
+                Err(e) => return Outcome::Final(JobState::Failed, Some(e.to_string())),
+            };
             l.keep_journal(Box::new(StoreJournal {
-                store: inner.store.clone(),
-                id,
+                record: record.clone(),
                 committed: self.committed.clone(),
             }));
             self.overrides_refused = l
@@ -281,6 +282,10 @@ impl Job<'_> {
                     &mut journal,
                 )
                 .await;
+            // the stream's record of its writes goes into the job's row
+            if let Err(e) = record.persist() {
+                tracing::error!("job {id}: cannot record how far the program went: {e}");
+            }
             return match result {
                 Ok(StreamEnd::Completed) => {
                     self.flush_to(&mut journal, self.total);
