@@ -601,7 +601,7 @@ impl Job<'_> {
                     }
                 }
                 _ = poll.tick() => {
-                    let Some(l) = link.as_mut() else { return None };
+                    let l = link.as_mut()?;
                     match with_timeout(l.inquire()).await {
                         Ok(st) => inner.saw(m, st),
                         Err(e) if e.is_disconnect() => {
