@@ -499,6 +499,7 @@ pub const ROUTES: &[Route] = &[
     route("GET", "/jobs/{id}/events", Need::Read, false),
     route("GET", "/locks", Need::Read, false),
     route("GET", "/whoami", Need::Read, false),
+    route("GET", "/jobs/{id}/resume", Need::Read, false),
     route("POST", "/jobs", Need::Operate(Scope::Body), true),
     route(
         "POST",
@@ -523,6 +524,19 @@ pub const ROUTES: &[Route] = &[
     route(
         "POST",
         "/machines/{name}/release",
+        Need::Operate(Scope::Machine),
+        false,
+    ),
+    route(
+        "POST",
+        "/jobs/{id}/override",
+        Need::Operate(Scope::Job),
+        false,
+    ),
+    // unlock, home and jog: between jobs, on a machine nobody else holds
+    route(
+        "POST",
+        "/machines/{name}/{op}",
         Need::Operate(Scope::Machine),
         false,
     ),

@@ -21,6 +21,7 @@ pub mod limits;
 pub mod memory;
 pub mod planner;
 pub mod registry;
+pub mod resume;
 pub mod scheduler;
 pub mod store;
 pub mod tls;

@@ -169,7 +169,7 @@ async fn whole_file(
         machine: Some(machine),
         input: crate::intake::Input::from_bytes(&file, bytes.to_vec()),
         operation: None,
-        tolerance: crate::intake::DEFAULT_TOLERANCE,
+        tolerance: None,
         layers: Vec::new(),
         post: None,
     };

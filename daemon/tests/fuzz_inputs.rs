@@ -118,7 +118,7 @@ proptest! {
             machine: Some("mill".into()),
             input: Input::from_bytes("x.nc", bytes),
             operation: None,
-            tolerance: intake::DEFAULT_TOLERANCE,
+            tolerance: None,
             layers: Vec::new(),
             post: None,
         };

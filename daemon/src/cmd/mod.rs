@@ -2,6 +2,7 @@
 
 pub mod access;
 pub mod connect;
+pub mod at_machine;
 pub mod demo;
 pub mod job;
 pub mod offset;
