@@ -53,6 +53,9 @@ pub struct Config {
     pub fleet: Option<crate::fleet::FleetConfig>,
     /// `[[webhook]]`: URLs that get a POST of chosen events.
     pub webhooks: Vec<crate::webhooks::WebhookConfig>,
+    /// The `[access]` table: tokens, local users and groups, socket group, audit log
+    /// (`crate::access`).
+    pub access: crate::access::AccessConfig,
 }
 
 /// The `[daemon]` table, resolved.
@@ -62,7 +65,8 @@ pub struct DaemonConfig {
     pub store: PathBuf,
     /// The Unix socket the API listens on.
     pub socket: PathBuf,
-    /// Flush the journal after this many acknowledged units (and at least every second).
+    /// Flush the journal after this many acknowledged units (1, the default: every one;
+    /// and at least every `journal_max_lag`).
     pub journal_every: usize,
     /// The longest the journal may lag the device's acknowledgements.
     pub journal_max_lag: Duration,
@@ -183,6 +187,8 @@ struct RawConfig {
     fleet: Option<toml::Spanned<crate::fleet::FleetConfig>>,
     #[serde(default)]
     webhook: Vec<toml::Spanned<crate::webhooks::WebhookConfig>>,
+    #[serde(default)]
+    access: crate::access::RawAccess,
 }
 
 #[derive(Default, Deserialize)]
@@ -194,14 +200,15 @@ struct RawDaemon {
     journal_max_lag_ms: Option<toml::Spanned<u64>>,
 }
 
-/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`,
-/// else `/tmp/machlink-$USER.sock`.
+/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`
+/// (a folder only its user can enter), else `/tmp/machlink-$USER/machlink.sock` (a folder
+/// the daemon creates 0700).
 pub fn default_socket() -> PathBuf {
     match std::env::var_os("XDG_RUNTIME_DIR") {
         Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("machlink.sock"),
         _ => {
             let user = std::env::var("USER").unwrap_or_else(|_| "user".into());
-            PathBuf::from(format!("/tmp/machlink-{user}.sock"))
+            PathBuf::from(format!("/tmp/machlink-{user}/machlink.sock"))
         }
     }
 }
@@ -213,12 +220,13 @@ impl Config {
             daemon: DaemonConfig {
                 store: PathBuf::from("machlink.db"),
                 socket: default_socket(),
-                journal_every: 50,
+                journal_every: 1,
                 journal_max_lag: Duration::from_secs(1),
             },
             machines: Vec::new(),
             fleet: None,
             webhooks: Vec::new(),
+            access: Default::default(),
         }
     }
 
@@ -329,6 +337,8 @@ impl Config {
             f.credentials = f.credentials.map(resolve);
             cfg.fleet = Some(f);
         }
+        let names: Vec<&str> = cfg.machines.iter().map(|m| m.name.as_str()).collect();
+        cfg.access = raw.access.resolve(&names, dir).map_err(|m| at(None, m))?;
         Ok(cfg)
     }
 
@@ -689,7 +699,8 @@ time_scale = 20
                 port: "/dev/ttyUSB0".into(),
                 baud: 115_200,
                 check_first: false,
-                auto_unlock: true
+                auto_unlock: false,
+                spindle_dwell_s: 2.0,
             })
         );
         assert_eq!(c.machines[0].max_feed, Some(3000.0));
@@ -697,7 +708,11 @@ time_scale = 20
         assert_eq!(c.machines[1].link, "sim-grbl");
         assert_eq!(
             c.machines[1].settings.get::<SimGrblSettings>(),
-            Some(&SimGrblSettings { time_scale: 20.0 })
+            Some(&SimGrblSettings {
+                time_scale: 20.0,
+                homing: false,
+                spindle_dwell_s: 2.0
+            })
         );
     }
 
@@ -778,7 +793,7 @@ time_scale = 20
         let text = include_str!("../../docs/machlink.example.toml");
         let c = Config::parse(text, Path::new("/srv/cell/machlink.toml")).unwrap();
         assert_eq!(c.daemon.store, PathBuf::from("/srv/cell/machlink.db"));
-        assert_eq!(c.daemon.journal_every, 50);
+        assert_eq!(c.daemon.journal_every, 1);
         let names: Vec<&str> = c.machines.iter().map(|m| m.name.as_str()).collect();
         assert_eq!(names, ["router", "bench"]);
         assert_eq!(c.machines[0].tools.len(), 2);

@@ -7,6 +7,7 @@ use crate::check;
 use crate::config::MachineConfig;
 use base64::Engine;
 use machlink_protocols::{AnyPost, Program};
+use offset_core::mesh::{Finish3dParams, Mesh, MeshOptions, Rough3dParams, WaterlineParams};
 use offset_core::ops::{PocketParams, ProfileParams};
 use offset_core::stitch::StitchParams;
 use offset_core::{Shape, Toolpath};
@@ -26,9 +27,10 @@ pub struct JobSpec {
     /// What to make of a shape; none for a G-code file, which runs as it is.
     #[serde(default)]
     pub operation: Option<Operation>,
-    /// The geometric tolerance of every approximation (reading curves, offsets, fitting), mm.
-    #[serde(default = "default_tolerance")]
-    pub tolerance: f64,
+    /// The geometric tolerance of every approximation (reading curves, offsets, fitting,
+    /// tessellating), mm; none: the operation's own (0.001 for 2D, 0.01 for 3D).
+    #[serde(default)]
+    pub tolerance: Option<f64>,
     /// DXF: read only the entities on these layers (all when empty).
     #[serde(default)]
     pub layers: Vec<String>,
@@ -37,12 +39,8 @@ pub struct JobSpec {
     pub post: Option<String>,
 }
 
-/// The tolerance a job gets when it names none, mm.
+/// The tolerance a shape is read with when the job names none, mm.
 pub const DEFAULT_TOLERANCE: f64 = 1e-3;
-
-fn default_tolerance() -> f64 {
-    DEFAULT_TOLERANCE
-}
 
 /// A job's input file: its name (whose extension picks the reader) and its bytes, as text
 /// or, for binary files, as base64.
@@ -59,10 +57,15 @@ pub struct Input {
 /// What kind of file an input is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum InputKind {
-    /// Geometry JSON, DXF or SVG: planned by an operation.
+    /// Geometry JSON, DXF or SVG: planned by a 2D operation.
     Shape,
     /// A G-code program (.nc, .gcode, .ngc, .tap, .gc, .cnc): checked and run as it is.
     Gcode,
+    /// An STL mesh (binary or ASCII): planned by a 3D operation, in the mesh's own frame.
+    Mesh,
+    /// A grid of measured points (CSV `x,y,z`, rows of equal length): a surface is fitted
+    /// through it and planned like a mesh.
+    Points,
 }
 
 impl Input {
@@ -114,10 +117,15 @@ impl Input {
 
     /// The kind of file, from its extension.
     pub fn kind(&self) -> InputKind {
-        if is_gcode_file(&self.file_name) {
-            InputKind::Gcode
-        } else {
-            InputKind::Shape
+        let ext = std::path::Path::new(&self.file_name)
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase());
+        match ext.as_deref() {
+            _ if is_gcode_file(&self.file_name) => InputKind::Gcode,
+            Some("stl") => InputKind::Mesh,
+            Some("csv") => InputKind::Points,
+            _ => InputKind::Shape,
         }
     }
 }
@@ -145,6 +153,12 @@ pub enum Operation {
     Pocket(PocketParams),
     /// Sew stitches along the shape.
     Stitch(StitchParams),
+    /// 3D: clear a mesh's stock level by level (z-level pockets), leaving an allowance.
+    Rough3d(Rough3dParams),
+    /// 3D: drop-cutter raster finishing of a mesh, gouge-free.
+    Finish3d(Finish3dParams),
+    /// 3D: waterline contours of a mesh with a ball cutter.
+    Waterline(WaterlineParams),
 }
 
 impl Operation {
@@ -154,7 +168,18 @@ impl Operation {
             Operation::Profile(_) => "profile",
             Operation::Pocket(_) => "pocket",
             Operation::Stitch(_) => "stitch",
+            Operation::Rough3d(_) => "rough3d",
+            Operation::Finish3d(_) => "finish3d",
+            Operation::Waterline(_) => "waterline",
         }
+    }
+
+    /// Whether it plans a mesh (true) or a 2D shape (false).
+    pub fn is_3d(&self) -> bool {
+        matches!(
+            self,
+            Operation::Rough3d(_) | Operation::Finish3d(_) | Operation::Waterline(_)
+        )
     }
 }
 
@@ -185,8 +210,10 @@ pub enum Target<'a> {
 #[derive(Clone, Debug)]
 pub struct Planned {
     pub program: Program,
-    /// The shape the job was planned from (none for a G-code file).
+    /// The shape the job was planned from (2D jobs).
     pub shape: Option<Shape>,
+    /// The mesh the job was planned from (3D jobs).
+    pub mesh: Option<Mesh>,
     /// The moves the program makes (planned, or read from the G-code file).
     pub toolpath: Toolpath,
     /// The readers' and planners' warnings (open contours, skipped entities, …).
@@ -198,32 +225,103 @@ pub struct Planned {
 /// Turns a job into a checked program for `target`. Nothing is sent anywhere: a refused
 /// job leaves no trace.
 pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> {
-    check_tolerance(spec.tolerance)?;
-    match spec.input.kind() {
-        InputKind::Gcode => plan_gcode(spec, target),
+    if let Some(t) = spec.tolerance {
+        check_tolerance(t)?;
+    }
+    let (toolpath, shape, mesh, mut warnings) = match spec.input.kind() {
+        InputKind::Gcode => return plan_gcode(spec, target),
         InputKind::Shape => {
             let (shape, warnings) = read_shape(spec)?;
             let toolpath = toolpath(spec, &shape)?;
-            let post = pick_post(spec, target)?;
-            if let Target::Machine(m) = target {
-                check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
-            }
-            let program = post.program(&toolpath).map_err(|e| {
-                IntakeError::Refused(format!("cannot write the {} program: {e}", e.post))
-            })?;
-            Ok(Planned {
-                program,
-                shape: Some(shape),
-                toolpath,
-                warnings,
-                operation: spec
-                    .operation
-                    .as_ref()
-                    .map_or("", Operation::name)
-                    .to_string(),
-            })
+            (toolpath, Some(shape), None, warnings)
         }
+        InputKind::Mesh | InputKind::Points => {
+            let mesh = read_mesh(spec)?;
+            let toolpath = toolpath_3d(spec, &mesh)?;
+            (toolpath, None, Some(mesh), Vec::new())
+        }
+    };
+    warnings.extend(toolpath.warnings.iter().cloned());
+    let post = pick_post(spec, target)?;
+    if let Target::Machine(m) = target {
+        check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
     }
+    let program = post
+        .program(&toolpath)
+        .map_err(|e| IntakeError::Refused(format!("cannot write the {} program: {e}", e.post)))?;
+    Ok(Planned {
+        program,
+        shape,
+        mesh,
+        toolpath,
+        warnings,
+        operation: spec
+            .operation
+            .as_ref()
+            .map_or("", Operation::name)
+            .to_string(),
+    })
+}
+
+/// Reads the job's mesh: an STL, or a surface fitted through a point grid (for roughing,
+/// closed into a solid down to 1 mm below its lowest point).
+pub fn read_mesh(spec: &JobSpec) -> Result<Mesh, IntakeError> {
+    let bytes = spec.input.bytes()?;
+    let file = &spec.input.file_name;
+    let err = |e: offset_core::mesh::MeshError| IntakeError::Input(e.to_string());
+    match spec.input.kind() {
+        InputKind::Points => {
+            let tol = spec.tolerance.unwrap_or(0.01);
+            let (surface, mesh) =
+                offset_core::mesh::mesh_from_points(&bytes, file, tol).map_err(err)?;
+            if matches!(spec.operation, Some(Operation::Rough3d(_))) {
+                let low = mesh.bounds().map_or(0.0, |(lo, _)| lo.z);
+                surface.solid(file, tol, low - 1.0).map_err(err)
+            } else {
+                Ok(mesh)
+            }
+        }
+        _ => offset_core::mesh::read_stl(&bytes, file, &MeshOptions::default()).map_err(err),
+    }
+}
+
+/// Plans the job's 3D operation on `mesh`, at the job's tolerance when it names one.
+pub fn toolpath_3d(spec: &JobSpec, mesh: &Mesh) -> Result<Toolpath, IntakeError> {
+    let file = &spec.input.file_name;
+    let planned = match &spec.operation {
+        Some(Operation::Rough3d(p)) => {
+            let mut p = p.clone();
+            p.tolerance = spec.tolerance.unwrap_or(p.tolerance);
+            offset_core::mesh::rough3d(mesh, &p)
+                .map_err(|e| format!("cannot plan the roughing: {e}"))
+        }
+        Some(Operation::Finish3d(p)) => {
+            let mut p = p.clone();
+            p.tolerance = spec.tolerance.unwrap_or(p.tolerance);
+            offset_core::mesh::finish3d(mesh, &p)
+                .map_err(|e| format!("cannot plan the finishing: {e}"))
+        }
+        Some(Operation::Waterline(p)) => {
+            let mut p = p.clone();
+            p.tolerance = spec.tolerance.unwrap_or(p.tolerance);
+            offset_core::mesh::waterline3d(mesh, &p)
+                .map_err(|e| format!("cannot plan the waterlines: {e}"))
+        }
+        Some(op) => {
+            return Err(IntakeError::Input(format!(
+                "{file} is a mesh: {} plans 2D shapes; use --op rough3d, finish3d or waterline",
+                op.name()
+            )))
+        }
+        None => {
+            return Err(IntakeError::Input(format!(
+            "{file} is a mesh: say which operation to plan (--op rough3d, finish3d or waterline)"
+        )))
+        }
+    };
+    let mut tp = planned.map_err(IntakeError::Plan)?;
+    tp.source = file.clone();
+    Ok(fitted(tp, spec.tolerance.unwrap_or(0.01)))
 }
 
 fn check_tolerance(t: f64) -> Result<(), IntakeError> {
@@ -245,10 +343,17 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
         file,
         &offset_core::io::ReadOptions {
             layers: spec.layers.clone(),
-            tolerance: spec.tolerance,
+            tolerance: spec.tolerance.unwrap_or(DEFAULT_TOLERANCE),
         },
     )
     .map_err(|e| IntakeError::Input(e.to_string()))?;
+    let vertices: usize = shape.paths.iter().map(|p| p.vertices.len()).sum();
+    if vertices > crate::limits::MAX_SHAPE_VERTICES {
+        return Err(IntakeError::Input(format!(
+            "{file} has {vertices} vertices, more than the daemon's limit of {} per job",
+            crate::limits::MAX_SHAPE_VERTICES
+        )));
+    }
     Ok((
         shape,
         warnings
@@ -269,21 +374,38 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
     let planned = match op {
         Operation::Profile(p) => {
             let mut p = p.clone();
-            p.cut.tolerance = spec.tolerance;
+            p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
             offset_core::ops::profile(shape, &p)
                 .map_err(|e| format!("cannot plan the profile: {e}"))
         }
         Operation::Pocket(p) => {
             let mut p = p.clone();
-            p.cut.tolerance = spec.tolerance;
+            p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
             offset_core::ops::pocket(shape, &p).map_err(|e| format!("cannot plan the pocket: {e}"))
         }
         Operation::Stitch(p) => offset_core::stitch::stitch(shape, p)
             .map_err(|e| format!("cannot plan the stitches: {e}")),
+        other => {
+            return Err(IntakeError::Input(format!(
+                "{} is a 2D shape: {} plans meshes (.stl) and point grids (.csv)",
+                spec.input.file_name,
+                other.name()
+            )))
+        }
     };
     let mut tp = planned.map_err(IntakeError::Plan)?;
     tp.source = spec.input.file_name.clone();
-    Ok(tp)
+    Ok(fitted(tp, spec.tolerance.unwrap_or(DEFAULT_TOLERANCE)))
+}
+
+/// The tool path with its runs of short lines fitted into lines and arcs within `tolerance`
+/// (never across a sharp corner), so every post that has arcs gets them.
+fn fitted(tp: Toolpath, tolerance: f64) -> Toolpath {
+    offset_core::biarc::fit_toolpath(
+        &tp,
+        &offset_core::biarc::BiarcOptions::with_tolerance(tolerance),
+    )
+    .0
 }
 
 /// The post of a job: the one it names (which the machine must run), else the machine's
@@ -345,6 +467,7 @@ fn plan_gcode(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError
     Ok(Planned {
         program: program_units,
         shape: None,
+        mesh: None,
         toolpath: program.moves,
         warnings: Vec::new(),
         operation: "gcode".into(),

@@ -1,7 +1,7 @@
 //! Where a client command finds the daemon's socket: `--socket`, then `MACHLINK_SOCKET`,
 //! then the `socket` of the daemon's config (`--config FILE`, else `MACHLINK_CONFIG`, else
 //! `./machlink.toml`, else `/etc/machlink/machlink.toml`, whichever exists first), then the
-//! default (`$XDG_RUNTIME_DIR/machlink.sock`, else `/tmp/machlink-$USER.sock`).
+//! default (`$XDG_RUNTIME_DIR/machlink.sock`, else `/tmp/machlink-$USER/machlink.sock`).
 
 use std::path::{Path, PathBuf};
 

@@ -124,6 +124,8 @@ impl Metrics {
             LinkError::Alarm { .. } => "alarm",
             LinkError::Timeout(_) => "timeout",
             LinkError::Protocol(_) => "protocol",
+            LinkError::Unsupported(_) => "unsupported",
+            LinkError::Journal(_) => "journal",
         };
         let m = machine.to_string();
         self.record(|| counter!(name::LINK_ERRORS, "machine" => m, "error" => kind).increment(1));

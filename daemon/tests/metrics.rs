@@ -28,7 +28,7 @@ fn job(machine: &str, text: &str) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes("part.nc", text.as_bytes().to_vec()),
         operation: None,
-        tolerance: machlink::intake::DEFAULT_TOLERANCE,
+        tolerance: None,
         layers: Vec::new(),
         post: None,
     }

@@ -112,6 +112,27 @@ pub fn check_offset(
     Checker::new(input).check(output, distance, tolerance)
 }
 
+/// The larger of the two one-way distances between `a` and `b` (how far a point of either
+/// lies from the other), measured at every vertex and at points no farther apart than
+/// `step` along every segment, with where it was found.
+pub fn sampled_deviation(a: &[Polyline], b: &[Polyline], step: f64) -> (f64, Point) {
+    let mut worst = (0.0, Point::default());
+    for (from, to) in [(a, b), (b, a)] {
+        let c = Checker::new(to);
+        for s in segments(from) {
+            let k = ((s.length() / step).ceil() as usize).clamp(1, 10_000_000);
+            for i in 0..=k {
+                let p = s.point_at(i as f64 / k as f64);
+                let d = c.distance(p);
+                if d > worst.0 {
+                    worst = (d, p);
+                }
+            }
+        }
+    }
+    worst
+}
+
 /// The first place where the paths cross themselves or each other (neighbouring segments
 /// meeting at their shared vertex do not count), as (path, point).
 pub fn first_crossing(paths: &[Polyline], tolerance: f64) -> Option<(usize, Point)> {

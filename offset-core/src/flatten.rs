@@ -83,7 +83,14 @@ fn piece(
     }
     // checked at three points, so keep a margin for the curve between them
     let chord_dist = |p: Point| crate::geom::Segment::Line { a: pa, b: pb }.distance_to(p) / 0.9;
-    let flat = chord_dist(pm) <= tol
+    // and the curve leaves and reaches the chord's ends heading along it: a piece that
+    // starts or ends at a sharp turn (the tip of a Bézier's U-turn) may overshoot that end
+    // between the checked points, where the distance to the chord is the distance to its end
+    let chord = pb - pa;
+    let h = (b - a) / 64.0;
+    let heads_on = (f(a + h) - pa).dot(chord) >= 0.0 && (pb - f(b - h)).dot(chord) >= 0.0;
+    let flat = heads_on
+        && chord_dist(pm) <= tol
         && chord_dist(f(0.5 * (a + m))) <= tol
         && chord_dist(f(0.5 * (m + b))) <= tol;
     if flat {

@@ -482,41 +482,8 @@ impl Polyline {
         for i in 0..n {
             let v = self.vertices[i];
             let (a, b) = (v.pos(), self.vertices[(i + 1) % n].pos());
-            // an arc: the loop "arc a→b, chord b→a" winds ±1 around the points between the
-            // arc and its chord, all of which lie within (|bulge| + 1) chords of the chord's
-            // box; farther points skip the exact test
-            let m = (b - a).len() * (v.bulge.abs() + 1.0);
             for (wk, &p) in w.iter_mut().zip(ps) {
-                *wk += crossing(a, b, p);
-                if v.bulge == 0.0
-                    || p.x < a.x.min(b.x) - m
-                    || p.x > a.x.max(b.x) + m
-                    || p.y < a.y.min(b.y) - m
-                    || p.y > a.y.max(b.y) + m
-                {
-                    continue;
-                }
-                if let Segment::Arc {
-                    center,
-                    radius,
-                    ccw,
-                    ..
-                } = Segment::from_bulge(a, b, v.bulge)
-                {
-                    // inside the circle and on the side of the chord the arc bulges to
-                    // (right for ccw, left for cw); on the chord's line, decide as if p sat
-                    // a hair above (and then a hair right), which is how `crossing` treats
-                    // points on an edge
-                    let d = b - a;
-                    let mut side = d.cross(p - a);
-                    if side == 0.0 {
-                        side = if d.x != 0.0 { d.x } else { -d.y };
-                    }
-                    let on_bulge_side = if ccw { side < 0.0 } else { side > 0.0 };
-                    if on_bulge_side && p.dist(center) < radius {
-                        *wk += if ccw { 1 } else { -1 };
-                    }
-                }
+                *wk += winding_of(a, b, v.bulge, p);
             }
         }
         w
@@ -531,6 +498,47 @@ impl Polyline {
             .iter()
             .all(|v| v.x.is_finite() && v.y.is_finite() && v.bulge.is_finite())
     }
+}
+
+/// What the segment from `a` to `b` with `bulge` adds to the winding number of a closed
+/// path around `p`: the chord's crossing, and ±1 for an arc when `p` lies between the arc
+/// and its chord (the loop "arc a→b, chord b→a" winds once around such points, all of
+/// which lie within (|bulge| + 1) chords of the chord's box; farther points skip the exact
+/// test). A point on the chord's line counts as if a hair above (then a hair right), as in
+/// the crossing rule.
+pub(crate) fn winding_of(a: Point, b: Point, bulge: f64, p: Point) -> i32 {
+    let mut w = crossing(a, b, p);
+    if bulge == 0.0 {
+        return w;
+    }
+    let m = (b - a).len() * (bulge.abs() + 1.0);
+    if p.x < a.x.min(b.x) - m
+        || p.x > a.x.max(b.x) + m
+        || p.y < a.y.min(b.y) - m
+        || p.y > a.y.max(b.y) + m
+    {
+        return w;
+    }
+    if let Segment::Arc {
+        center,
+        radius,
+        ccw,
+        ..
+    } = Segment::from_bulge(a, b, bulge)
+    {
+        // inside the circle and on the side of the chord the arc bulges to (right for
+        // ccw, left for cw)
+        let d = b - a;
+        let mut side = d.cross(p - a);
+        if side == 0.0 {
+            side = if d.x != 0.0 { d.x } else { -d.y };
+        }
+        let on_bulge_side = if ccw { side < 0.0 } else { side > 0.0 };
+        if on_bulge_side && p.dist(center) < radius {
+            w += if ccw { 1 } else { -1 };
+        }
+    }
+    w
 }
 
 /// Winding contribution of the directed edge a→b for point p (standard crossing rule).
@@ -596,6 +604,26 @@ impl Shape {
         self.paths
             .iter()
             .fold(Bounds::EMPTY, |b, p| b.union(&p.bounds()))
+    }
+    /// The first path that reaches beyond ±`limit` in x or y (arcs by their extent) or
+    /// holds a number that is not finite, with a point where it does.
+    pub fn first_beyond(&self, limit: f64) -> Option<(usize, Point)> {
+        for (i, p) in self.paths.iter().enumerate() {
+            if let Some(v) = p
+                .vertices
+                .iter()
+                .find(|v| !(v.x.abs() <= limit && v.y.abs() <= limit && v.bulge.is_finite()))
+            {
+                return Some((i, v.pos()));
+            }
+            let b = p.bounds();
+            for q in [b.min, b.max] {
+                if !(q.x.abs() <= limit && q.y.abs() <= limit) {
+                    return Some((i, q));
+                }
+            }
+        }
+        None
     }
     pub fn open_paths(&self) -> impl Iterator<Item = &Polyline> {
         self.paths.iter().filter(|p| !p.closed)

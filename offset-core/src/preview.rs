@@ -1,4 +1,4 @@
-//! Preview drawings: shapes and tool paths as SVG, +Y up, moves coloured by type (rapids dashed), stitch points as dots.
+//! Preview drawings: shapes and tool paths as SVG, +Y up, moves coloured by type (rapids dashed), stitch points as dots, the tool's swept width, a scale bar and a legend.
 
 use crate::geom::{Bounds, Point, Polyline, Segment, Shape};
 use crate::toolpath::{arc_segment, Move, Toolpath, P3};
@@ -13,22 +13,74 @@ pub const ARC_COLOUR: &str = "#2ca02c";
 pub const PLUNGE_COLOUR: &str = "#9467bd";
 pub const STITCH_COLOUR: &str = "#111111";
 pub const JUMP_COLOUR: &str = "#ff7f0e";
+/// The band the tool sweeps along cutting moves (drawn translucent under them).
+pub const SWEPT_COLOUR: &str = "#9ecae1";
+/// The scale bar and the legend's text.
+pub const TEXT_COLOUR: &str = "#222222";
 
-/// Draws a shape and/or a tool path. The drawing is `width_px` wide, scaled to fit, with
-/// the shape's outlines in grey, cutting lines blue, arcs green, plunges purple dots,
-/// rapids red dashed, stitches black dots and jumps orange dashed.
+/// What a preview shows besides the shape and the moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreviewOptions {
+    /// Width of the drawing, pixels; the height follows.
+    pub width_px: f64,
+    /// A scale bar of a round length in mm, below the drawing.
+    pub scale_bar: bool,
+    /// A legend of the kinds of line drawn, below the drawing.
+    pub legend: bool,
+    /// The band the tool sweeps (its diameter wide) under every cutting move below the stock
+    /// top, when the tool path names its tool.
+    pub swept: bool,
+}
+
+impl Default for PreviewOptions {
+    fn default() -> Self {
+        PreviewOptions {
+            width_px: 800.0,
+            scale_bar: true,
+            legend: true,
+            swept: true,
+        }
+    }
+}
+
+/// Draws a shape and/or a tool path `width_px` wide with the default options: see
+/// [`svg_with`].
 pub fn svg(shape: Option<&Shape>, tp: Option<&Toolpath>, width_px: f64) -> String {
+    svg_with(
+        shape,
+        tp,
+        &PreviewOptions {
+            width_px,
+            ..Default::default()
+        },
+    )
+}
+
+/// Draws a shape and/or a tool path, scaled to fit, +Y up: the shape's outlines grey,
+/// cutting lines blue, arcs green, plunges purple dots, rapids red dashed, stitches black
+/// dots and jumps orange dashed; under the cuts the band the tool sweeps; below the drawing
+/// a scale bar and a legend of what is drawn.
+pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions) -> String {
     let mut b = Bounds::EMPTY;
     if let Some(s) = shape {
         b = b.union(&s.bounds());
     }
+    let tool = tp.and_then(|t| t.tool).map_or(0.0, |t| t.diameter);
+    let swept = o.swept && tool > 0.0;
     if let Some(t) = tp {
         t.walk(P3::default(), |from, m, to| {
             if !matches!(m, Move::Rapid { .. }) || from.z < 0.0 || to.z < 0.0 {
-                b.add_point(to.xy());
+                let mut mb = Bounds::EMPTY;
+                mb.add_point(to.xy());
                 if let Move::Arc { center, ccw, .. } = m {
-                    b = b.union(&arc_segment(from.xy(), to.xy(), *center, *ccw).bounds());
+                    mb = mb.union(&arc_segment(from.xy(), to.xy(), *center, *ccw).bounds());
                 }
+                if swept && matches!(m, Move::Linear { .. } | Move::Arc { .. }) {
+                    let r = tool / 2.0;
+                    mb.add_point(mb.min - Point::new(r, r));
+                    mb.add_point(mb.max + Point::new(r, r));
+                }
+                b = b.union(&mb);
             }
         });
     }
@@ -37,11 +89,41 @@ pub fn svg(shape: Option<&Shape>, tp: Option<&Toolpath>, width_px: f64) -> Strin
     }
     let size = b.width().max(b.height()).max(1e-6);
     let margin = size * 0.04;
-    let (x0, y0) = (b.min.x - margin, b.min.y - margin);
-    let (w, h) = (b.width() + 2.0 * margin, b.height() + 2.0 * margin);
-    let px_w = width_px.max(16.0);
-    let px_h = (px_w * h / w).clamp(16.0, 20_000.0);
     let sw = size / 500.0;
+    let kinds = tp.map(kinds_drawn).unwrap_or_default();
+    // the band below the drawing: a line for the scale bar, then the legend, three to a line
+    let line = size / 28.0;
+    let mut legend: Vec<(&str, String)> = Vec::new();
+    if o.legend {
+        if shape.is_some() {
+            legend.push(("outline", "outline".into()));
+        }
+        if swept && (kinds.linear || kinds.arc) {
+            legend.push(("swept", format!("tool width ({} mm)", num(tool))));
+        }
+        for (on, key, text) in [
+            (kinds.linear, "linear", "cut"),
+            (kinds.arc, "arc", "arc cut"),
+            (kinds.plunge, "plunge", "straight down"),
+            (kinds.rapid, "rapid", "rapid"),
+            (kinds.stitch, "stitch", "stitch"),
+            (kinds.jump, "jump", "jump"),
+        ] {
+            if on {
+                legend.push((key, text.into()));
+            }
+        }
+    }
+    let rows = usize::from(o.scale_bar) + legend.len().div_ceil(3);
+    let band = if rows > 0 {
+        line * (rows as f64 + 0.5)
+    } else {
+        0.0
+    };
+    let (x0, y0) = (b.min.x - margin, b.min.y - margin - band);
+    let (w, h) = (b.width() + 2.0 * margin, b.height() + 2.0 * margin + band);
+    let px_w = o.width_px.max(16.0);
+    let px_h = (px_w * h / w).clamp(16.0, 20_000.0);
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -61,6 +143,9 @@ pub fn svg(shape: Option<&Shape>, tp: Option<&Toolpath>, width_px: f64) -> Strin
     );
     // +Y up: everything below is drawn in the shape's own coordinates
     out.push_str("<g transform=\"scale(1,-1)\" fill=\"none\" stroke-linecap=\"round\" stroke-linejoin=\"round\">\n");
+    if let (true, Some(t)) = (swept, tp) {
+        draw_swept(&mut out, t, tool);
+    }
     if let Some(s) = shape {
         for pl in &s.paths {
             let _ = writeln!(
@@ -74,8 +159,175 @@ pub fn svg(shape: Option<&Shape>, tp: Option<&Toolpath>, width_px: f64) -> Strin
     if let Some(t) = tp {
         draw_toolpath(&mut out, t, sw);
     }
-    out.push_str("</g>\n</svg>\n");
+    out.push_str("</g>\n");
+    // the band, in the drawing's unflipped frame (y down): world (x, y) is at (x, -y)
+    let font = line * 0.6;
+    let left = b.min.x;
+    let mut row_y = -(b.min.y - margin) + line * 0.9;
+    if o.scale_bar {
+        let len = round_length(w * 0.2);
+        let (xa, xb) = (left, left + len);
+        let tick = line * 0.25;
+        let _ = writeln!(
+            out,
+            r#"<path d="M{} {}V{}H{}V{}" fill="none" stroke="{TEXT_COLOUR}" stroke-width="{}"/>"#,
+            f(xa),
+            f(row_y - tick),
+            f(row_y),
+            f(xb),
+            f(row_y - tick),
+            f(sw * 1.5)
+        );
+        let _ = writeln!(
+            out,
+            r#"<text x="{}" y="{}" font-family="sans-serif" font-size="{}" fill="{TEXT_COLOUR}">{} mm</text>"#,
+            f(xb + line * 0.3),
+            f(row_y),
+            f(font),
+            num(len)
+        );
+        row_y += line;
+    }
+    let col = w / 3.0;
+    for (k, (key, text)) in legend.iter().enumerate() {
+        let x = left + col * (k % 3) as f64;
+        let y = row_y + line * (k / 3) as f64;
+        let sample = line * 1.2;
+        let dash = format!("{} {}", f(sw * 6.0), f(sw * 4.0));
+        let mark = match *key {
+            "outline" => format!(r#"stroke="{SHAPE_COLOUR}" stroke-width="{}""#, f(sw * 2.0)),
+            "swept" => format!(
+                r#"stroke="{SWEPT_COLOUR}" stroke-width="{}" stroke-opacity="0.45""#,
+                f(font * 0.8)
+            ),
+            "linear" => format!(r#"stroke="{LINEAR_COLOUR}" stroke-width="{}""#, f(sw * 2.0)),
+            "arc" => format!(r#"stroke="{ARC_COLOUR}" stroke-width="{}""#, f(sw * 2.0)),
+            "rapid" => format!(
+                r#"stroke="{RAPID_COLOUR}" stroke-width="{}" stroke-dasharray="{dash}""#,
+                f(sw * 2.0)
+            ),
+            "jump" => format!(
+                r#"stroke="{JUMP_COLOUR}" stroke-width="{}" stroke-dasharray="{dash}""#,
+                f(sw * 2.0)
+            ),
+            _ => String::new(),
+        };
+        let ym = y - font * 0.35;
+        match *key {
+            "plunge" | "stitch" => {
+                let c = if *key == "plunge" {
+                    PLUNGE_COLOUR
+                } else {
+                    STITCH_COLOUR
+                };
+                let _ = writeln!(
+                    out,
+                    r#"<circle cx="{}" cy="{}" r="{}" fill="{c}"/>"#,
+                    f(x + sample / 2.0),
+                    f(ym),
+                    f(sw * 3.0)
+                );
+            }
+            _ => {
+                let _ = writeln!(
+                    out,
+                    r#"<path d="M{} {}H{}" fill="none" {mark}/>"#,
+                    f(x),
+                    f(ym),
+                    f(x + sample)
+                );
+            }
+        }
+        let _ = writeln!(
+            out,
+            r#"<text x="{}" y="{}" font-family="sans-serif" font-size="{}" fill="{TEXT_COLOUR}">{text}</text>"#,
+            f(x + sample + line * 0.3),
+            f(y),
+            f(font)
+        );
+    }
+    out.push_str("</svg>\n");
     out
+}
+
+/// Which kinds of move a tool path draws.
+#[derive(Clone, Copy, Debug, Default)]
+struct Kinds {
+    linear: bool,
+    arc: bool,
+    plunge: bool,
+    rapid: bool,
+    stitch: bool,
+    jump: bool,
+}
+
+fn kinds_drawn(t: &Toolpath) -> Kinds {
+    let mut k = Kinds::default();
+    t.walk(P3::default(), |from, m, to| {
+        let same_xy = from.xy().dist(to.xy()) < 1e-9;
+        match m {
+            Move::Rapid { .. } if !same_xy => k.rapid = true,
+            Move::Linear { .. } if same_xy && to.z < from.z => k.plunge = true,
+            Move::Linear { .. } if !same_xy => k.linear = true,
+            Move::Arc { .. } => k.arc = true,
+            Move::Stitch { .. } => k.stitch = true,
+            Move::Jump { .. } if !same_xy => k.jump = true,
+            _ => {}
+        }
+    });
+    k
+}
+
+/// The band the tool (of diameter `tool`) sweeps along every cutting move below the stock
+/// top, in one translucent group so overlaps do not darken.
+fn draw_swept(out: &mut String, t: &Toolpath, tool: f64) {
+    let _ = writeln!(
+        out,
+        r#"<g opacity="0.45" stroke="{SWEPT_COLOUR}" stroke-width="{}">"#,
+        f(tool)
+    );
+    t.walk(P3::default(), |from, m, to| {
+        if from.z >= 0.0 && to.z >= 0.0 {
+            return;
+        }
+        let (a, b) = (from.xy(), to.xy());
+        match m {
+            Move::Linear { .. } if a.dist(b) >= 1e-9 => {
+                let _ = writeln!(
+                    out,
+                    r#"<path d="M{} {}L{} {}"/>"#,
+                    f(a.x),
+                    f(a.y),
+                    f(b.x),
+                    f(b.y)
+                );
+            }
+            Move::Arc { center, ccw, .. } => {
+                let seg = arc_segment(a, b, *center, *ccw);
+                let _ = writeln!(out, r#"<path d="M{} {}{}"/>"#, f(a.x), f(a.y), arc_d(&seg));
+            }
+            _ => {}
+        }
+    });
+    out.push_str("</g>\n");
+}
+
+/// A round length near `l`: 1, 2 or 5 times a power of ten.
+fn round_length(l: f64) -> f64 {
+    let l = l.max(1e-9);
+    let p = 10f64.powf(l.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|k| k * p)
+        .find(|&v| v <= l)
+        .unwrap_or(p)
+}
+
+/// A length for a label: few digits.
+fn num(v: f64) -> String {
+    let s = format!("{v:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    s.to_string()
 }
 
 fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
@@ -219,5 +471,63 @@ mod tests {
         assert!(s.contains(ARC_COLOUR) && s.contains(PLUNGE_COLOUR));
         // the ccw arc is drawn with sweep flag 1 in the y-up group
         assert!(s.contains("A4 4 0 0 1 10 9"), "{s}");
+    }
+
+    #[test]
+    fn a_plan_shows_its_swept_width_a_scale_bar_and_a_legend_of_what_is_drawn() {
+        let mut tp = Toolpath::new("t");
+        tp.tool = Some(crate::toolpath::Tool::flat(6.0));
+        tp.push(Move::Rapid {
+            to: P3::new(0.0, 0.0, 5.0),
+        });
+        tp.push(Move::Linear {
+            to: P3::new(0.0, 0.0, -1.0),
+            feed: 100.0,
+        });
+        tp.push(Move::Linear {
+            to: P3::new(80.0, 0.0, -1.0),
+            feed: 100.0,
+        });
+        let s = svg(None, Some(&tp), 400.0);
+        usvg::Tree::from_str(&s, &usvg::Options::default()).unwrap();
+        // the swept band is the tool's diameter wide
+        assert!(
+            s.contains(SWEPT_COLOUR) && s.contains(r#"stroke-width="6""#),
+            "{s}"
+        );
+        // a scale bar of a round length: the drawing is about 93 mm wide, a fifth is 18.6
+        assert!(s.contains(">10 mm</text>"), "{s}");
+        assert!(s.contains(">tool width (6 mm)</text>") && s.contains(">cut</text>"));
+        assert!(s.contains(">straight down</text>"));
+        assert!(
+            !s.contains(">arc cut</text>"),
+            "no arc drawn, none in the legend"
+        );
+        // a shape alone: an outline in the legend, nothing of a tool path
+        let shape = Shape::new(vec![Polyline::circle(Point::new(0.0, 0.0), 10.0)]);
+        let s = svg(Some(&shape), None, 400.0);
+        assert!(
+            s.contains(">outline</text>") && !s.contains(LINEAR_COLOUR),
+            "{s}"
+        );
+        assert!(!s.contains("stroke-dasharray"));
+        let bare = svg_with(
+            Some(&shape),
+            None,
+            &PreviewOptions {
+                scale_bar: false,
+                legend: false,
+                ..Default::default()
+            },
+        );
+        assert!(!bare.contains("<text"));
+    }
+
+    #[test]
+    fn scale_bars_are_round_lengths() {
+        assert_eq!(round_length(18.6), 10.0);
+        assert_eq!(round_length(23.0), 20.0);
+        assert_eq!(round_length(0.07), 0.05);
+        assert_eq!(round_length(5000.0), 5000.0);
     }
 }

@@ -133,6 +133,10 @@ pub struct Toolpath {
     pub operation: String,
     /// Where the shape came from (file name or job id).
     pub source: String,
+    /// What the operation could not do as asked, in sentences for the operator (an entry
+    /// that had to plunge into the material, say).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 impl Toolpath {

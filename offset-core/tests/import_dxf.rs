@@ -6,6 +6,7 @@ use offset_core::io::{read_shape, svg};
 use proptest::prelude::*;
 use std::path::PathBuf;
 
+/// A file of `shared/data/dxf`; a test that needs one fails, naming it, when it is absent.
 fn data(name: &str) -> Option<Vec<u8>> {
     let p = PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -14,10 +15,10 @@ fn data(name: &str) -> Option<Vec<u8>> {
     .join(name);
     match std::fs::read(&p) {
         Ok(b) => Some(b),
-        Err(_) => {
-            eprintln!("skipping: {} is absent", p.display());
-            None
-        }
+        Err(e) => panic!(
+            "{} is needed by this test and cannot be read: {e}",
+            p.display()
+        ),
     }
 }
 
@@ -261,12 +262,13 @@ fn a_curve_too_big_for_the_tolerance_is_refused_by_name() {
 
 #[test]
 fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
-    // each 3 km ellipse takes about 130 000 points within 0.001 mm; sixteen of them pass
-    // the drawing's budget of two million
-    let e: String = (0..16)
+    // each 2 km ellipse takes about 120 000 points within 0.0005 mm (half the tolerance
+    // of 0.001 mm: the other half is the arc fit's); twenty of them pass the drawing's
+    // budget of two million
+    let e: String = (0..20)
         .map(|i| {
             format!(
-                "0\nELLIPSE\n10\n{}\n20\n0\n11\n3e6\n21\n0\n40\n0.5\n",
+                "0\nELLIPSE\n10\n{}\n20\n0\n11\n2e6\n21\n0\n40\n0.5\n",
                 i as f64 * 1e7
             )
         })
@@ -290,7 +292,7 @@ fn huge_curves_in_all_are_refused_before_they_fill_the_memory() {
         },
     )
     .unwrap();
-    assert_eq!(d.shape.paths.len(), 16);
+    assert_eq!(d.shape.paths.len(), 20);
     assert!(d.shape.paths.iter().all(|p| p.closed));
 }
 
@@ -307,9 +309,28 @@ fn a_polyline_of_a_hundred_thousand_vertices_is_read_whole() {
             500.0 * a.sin()
         ));
     }
+    let d = read_with(
+        &one_entity(&e),
+        "ring.dxf",
+        &DxfOptions {
+            fit: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(d.shape.paths.len(), 1);
+    assert!(d.shape.paths[0].closed && d.shape.paths[0].len() == n);
+    // fitted (the default), the ring comes back as a few arcs of its radius
     let s = read_shape(&one_entity(&e), "ring.dxf").unwrap();
     assert_eq!(s.paths.len(), 1);
-    assert!(s.paths[0].closed && s.paths[0].len() == n);
+    assert!(
+        s.paths[0].closed && s.paths[0].len() <= 4,
+        "{:?}",
+        s.paths[0]
+    );
+    assert!(s.paths[0]
+        .segments()
+        .all(|g| matches!(g, Segment::Arc { radius, .. } if (radius - 500.0).abs() < 1e-3)));
 }
 
 #[test]
@@ -355,4 +376,314 @@ fn ends_far_out_do_not_overflow_the_chaining_grid() {
     assert_eq!(p.len(), 3);
     assert!(!p.closed);
     assert_eq!(p.vertices[0].pos(), Point::new(1e300, -1e300));
+}
+
+/// A drawing with a header setting `$INSUNITS` (when given), the blocks
+/// (name, base point, entities) and the entities.
+fn drawing(units: Option<i32>, blocks: &[(&str, (f64, f64), &str)], entities: &str) -> Vec<u8> {
+    let mut s = String::new();
+    if let Some(u) = units {
+        s.push_str(&format!(
+            "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n{u}\n0\nENDSEC\n"
+        ));
+    }
+    s.push_str("0\nSECTION\n2\nBLOCKS\n");
+    for (name, (x, y), body) in blocks {
+        s.push_str(&format!(
+            "0\nBLOCK\n8\n0\n2\n{name}\n70\n0\n10\n{x}\n20\n{y}\n30\n0\n3\n{name}\n{body}0\nENDBLK\n8\n0\n"
+        ));
+    }
+    s.push_str(&format!(
+        "0\nENDSEC\n0\nSECTION\n2\nENTITIES\n{entities}0\nENDSEC\n0\nEOF\n"
+    ));
+    s.into_bytes()
+}
+
+/// A closed LWPOLYLINE through the points.
+fn lwpoly(layer: &str, pts: &[(f64, f64)]) -> String {
+    let mut e = format!("0\nLWPOLYLINE\n8\n{layer}\n90\n{}\n70\n1\n", pts.len());
+    for (x, y) in pts {
+        e.push_str(&format!("10\n{x}\n20\n{y}\n"));
+    }
+    e
+}
+
+fn square10() -> String {
+    lwpoly("0", &[(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)])
+}
+
+/// The vertices of every path, rounded to a micrometre and sorted, to compare as sets.
+fn corners(s: &offset_core::geom::Shape) -> Vec<(i64, i64)> {
+    let mut v: Vec<(i64, i64)> = s
+        .paths
+        .iter()
+        .flat_map(|p| p.vertices.iter())
+        .map(|v| ((v.x * 1e3).round() as i64, (v.y * 1e3).round() as i64))
+        .collect();
+    v.sort();
+    v
+}
+
+fn mm(pts: &[(f64, f64)]) -> Vec<(i64, i64)> {
+    let mut v: Vec<(i64, i64)> = pts
+        .iter()
+        .map(|(x, y)| ((x * 1e3).round() as i64, (y * 1e3).round() as i64))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn insunits_in_metres_scale_the_real_drawings_to_mm() {
+    for f in ["1_polylines.dxf", "6_closed_loop_with_arcs.dxf"] {
+        let b = data(f).unwrap();
+        let d = read_with(&b, f, &DxfOptions::default()).unwrap();
+        assert_eq!(d.scale, 1000.0, "{f}: $INSUNITS 6 is metres");
+        // the same file read as if unitless is a thousand times smaller
+        let text =
+            String::from_utf8_lossy(&b).replace("$INSUNITS\n 70\n     6", "$INSUNITS\n 70\n     4");
+        let raw = read_with(text.as_bytes(), f, &DxfOptions::default()).unwrap();
+        assert_eq!(raw.scale, 1.0, "{f}: the header edit did not take");
+        let (bm, br) = (d.shape.bounds(), raw.shape.bounds());
+        assert!(
+            (bm.width() - 1000.0 * br.width()).abs() < 1e-6 * bm.width(),
+            "{f}: {bm:?} vs {br:?}"
+        );
+        assert!(
+            (bm.min.y - 1000.0 * br.min.y).abs() < 1e-6 * bm.height(),
+            "{f}"
+        );
+    }
+}
+
+#[test]
+fn insunits_in_inches_and_feet_scale_to_mm() {
+    for (units, k) in [(1, 25.4), (2, 304.8), (4, 1.0), (5, 10.0), (6, 1000.0)] {
+        let b = drawing(
+            Some(units),
+            &[],
+            "0\nLINE\n10\n0\n20\n0\n11\n2\n21\n0\n0\nCIRCLE\n10\n10\n20\n10\n40\n1\n",
+        );
+        let d = read_with(&b, "u.dxf", &DxfOptions::default()).unwrap();
+        assert_eq!(d.scale, k, "$INSUNITS {units}");
+        let line = d.shape.paths.iter().find(|p| !p.closed).unwrap();
+        assert!(
+            (line.length() - 2.0 * k).abs() < 1e-9 * k,
+            "$INSUNITS {units}: {line:?}"
+        );
+        let circle = d.shape.paths.iter().find(|p| p.closed).unwrap();
+        assert!(
+            (circle.area() - std::f64::consts::PI * k * k).abs() < 1e-9 * k * k,
+            "$INSUNITS {units}: circle area {}",
+            circle.area()
+        );
+    }
+}
+
+#[test]
+fn an_insert_places_its_block_by_base_point_scale_and_rotation() {
+    // the square (0,0)-(10,10) of a block based at (5,5), inserted at (100,50), twice the
+    // size, turned 90°: corners at (100,50) + R90 · 2 (p - (5,5))
+    let b = drawing(
+        None,
+        &[("SQ", (5.0, 5.0), &square10())],
+        "0\nINSERT\n8\nCUT\n2\nSQ\n10\n100\n20\n50\n41\n2\n42\n2\n50\n90\n",
+    );
+    let s = read_shape(&b, "i.dxf").unwrap();
+    assert_eq!(s.paths.len(), 1);
+    assert_eq!(
+        corners(&s),
+        mm(&[(110.0, 40.0), (110.0, 60.0), (90.0, 60.0), (90.0, 40.0)])
+    );
+}
+
+#[test]
+fn minsert_arrays_place_every_cell_along_the_rotated_axes() {
+    // 3 columns 30 apart, 2 rows 40 apart, turned 90°: columns step along +Y, rows along -X
+    let b = drawing(
+        None,
+        &[("SQ", (0.0, 0.0), &square10())],
+        "0\nINSERT\n2\nSQ\n10\n0\n20\n0\n50\n90\n70\n3\n71\n2\n44\n30\n45\n40\n",
+    );
+    let s = read_shape(&b, "m.dxf").unwrap();
+    assert_eq!(s.paths.len(), 6);
+    let mut want = Vec::new();
+    for col in 0..3 {
+        for row in 0..2 {
+            let (ox, oy) = (-40.0 * row as f64, 30.0 * col as f64);
+            want.extend([
+                (ox, oy),
+                (ox, oy + 10.0),
+                (ox - 10.0, oy + 10.0),
+                (ox - 10.0, oy),
+            ]);
+        }
+    }
+    assert_eq!(corners(&s), mm(&want));
+}
+
+#[test]
+fn nested_blocks_compose_their_placements() {
+    // OUTER holds SQ at (20,0) and a circle of radius 2 at (0,0); OUTER is inserted at
+    // (1000,0) turned 180°: the square lands on (980,0)-(970,-10), the circle at (1000,0)
+    let outer = "0\nINSERT\n2\nSQ\n10\n20\n20\n0\n0\nCIRCLE\n8\n0\n10\n0\n20\n0\n40\n2\n";
+    let b = drawing(
+        None,
+        &[
+            ("SQ", (0.0, 0.0), &square10()),
+            ("OUTER", (0.0, 0.0), outer),
+        ],
+        "0\nINSERT\n2\nOUTER\n10\n1000\n20\n0\n50\n180\n",
+    );
+    let s = read_shape(&b, "n.dxf").unwrap();
+    assert_eq!(s.paths.len(), 2);
+    let sq = s.paths.iter().find(|p| p.len() == 4).unwrap();
+    assert_eq!(
+        corners(&offset_core::geom::Shape::new(vec![sq.clone()])),
+        mm(&[(980.0, 0.0), (970.0, 0.0), (970.0, -10.0), (980.0, -10.0)])
+    );
+    let c = s.paths.iter().find(|p| p.len() != 4).unwrap();
+    let b = c.bounds();
+    assert!(
+        (b.min.x - 998.0).abs() < 1e-9 && (b.max.y - 2.0).abs() < 1e-9,
+        "{b:?}"
+    );
+}
+
+#[test]
+fn a_block_scaled_unevenly_turns_its_circles_into_ellipses() {
+    let b = drawing(
+        None,
+        &[("C", (0.0, 0.0), "0\nCIRCLE\n10\n0\n20\n0\n40\n10\n")],
+        "0\nINSERT\n2\nC\n10\n0\n20\n0\n41\n2\n42\n1\n",
+    );
+    let tol = 1e-3;
+    let s = read_shape(&b, "e.dxf").unwrap();
+    assert_eq!(s.paths.len(), 1);
+    let p = &s.paths[0];
+    assert!(p.closed);
+    // every point of the path within the tolerance of the ellipse x²/20² + y²/10² = 1
+    // (measured along the normal: |F| / |∇F| to first order)
+    for seg in p.segments() {
+        for k in 0..=8 {
+            let q = seg.point_at(k as f64 / 8.0);
+            let f = (q.x / 20.0).powi(2) + (q.y / 10.0).powi(2) - 1.0;
+            let g = ((2.0 * q.x / 400.0).powi(2) + (2.0 * q.y / 100.0).powi(2)).sqrt();
+            assert!(
+                (f / g).abs() <= tol * 1.01,
+                "{q:?} is {} from the ellipse",
+                f / g
+            );
+        }
+    }
+    assert!((p.area().abs() - std::f64::consts::PI * 200.0).abs() < 0.05);
+    // fitted with arcs, not hundreds of points
+    assert!(p.segment_count() < 200, "{} segments", p.segment_count());
+}
+
+#[test]
+fn a_mirrored_insert_turns_arcs_the_other_way() {
+    let arc = "0\nARC\n10\n0\n20\n0\n40\n5\n50\n0\n51\n90\n";
+    let b = drawing(
+        None,
+        &[("A", (0.0, 0.0), arc)],
+        "0\nINSERT\n2\nA\n10\n0\n20\n0\n41\n-1\n42\n1\n",
+    );
+    let s = read_shape(&b, "a.dxf").unwrap();
+    let p = &s.paths[0];
+    let b = p.bounds();
+    // the quarter from (5,0) to (0,5) mirrored in X: from (-5,0) to (0,5), bulging to (-3.5,3.5)
+    assert!(
+        (b.min.x + 5.0).abs() < 1e-9 && (b.max.x).abs() < 1e-9,
+        "{b:?}"
+    );
+    let mid = p.segments().next().unwrap().point_at(0.5);
+    assert!(
+        mid.x < 0.0 && mid.y > 0.0 && (mid.len() - 5.0).abs() < 1e-9,
+        "{mid:?}"
+    );
+}
+
+#[test]
+fn entities_on_layer_0_take_the_layer_of_their_insert() {
+    let b = drawing(
+        None,
+        &[(
+            "SQ",
+            (0.0, 0.0),
+            &(square10() + &lwpoly("OTHER", &[(50.0, 0.0), (60.0, 0.0), (60.0, 10.0)])),
+        )],
+        "0\nINSERT\n8\nCUT\n2\nSQ\n10\n0\n20\n0\n",
+    );
+    let d = read_with(
+        &b,
+        "l.dxf",
+        &DxfOptions {
+            layers: vec!["cut".into()],
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        d.shape.paths.len(),
+        1,
+        "only the square, on the INSERT's layer"
+    );
+    assert_eq!(d.shape.paths[0].len(), 4);
+}
+
+#[test]
+fn a_block_that_inserts_itself_is_refused_and_an_undefined_one_warned() {
+    let b = drawing(
+        None,
+        &[(
+            "LOOP",
+            (0.0, 0.0),
+            &(square10() + "0\nINSERT\n2\nLOOP\n10\n1\n20\n0\n"),
+        )],
+        "0\nINSERT\n5\n7F\n2\nLOOP\n10\n0\n20\n0\n",
+    );
+    let e = read_shape(&b, "loop.dxf").unwrap_err().to_string();
+    assert!(e.contains("nests blocks more than 64 deep"), "{e}");
+    // a block that inserts itself twice would double at every level: the placements run out
+    let b = drawing(
+        None,
+        &[(
+            "TWO",
+            (0.0, 0.0),
+            "0\nINSERT\n2\nTWO\n10\n1\n20\n0\n0\nINSERT\n2\nTWO\n10\n0\n20\n1\n",
+        )],
+        "0\nINSERT\n2\nTWO\n10\n0\n20\n0\n",
+    );
+    let e = read_shape(&b, "two.dxf").unwrap_err().to_string();
+    assert!(
+        e.contains("block instances") || e.contains("64 deep"),
+        "{e}"
+    );
+    let b = drawing(None, &[], "0\nINSERT\n5\n9A\n2\nNOPE\n10\n0\n20\n0\n");
+    let d = read_with(&b, "u.dxf", &DxfOptions::default()).unwrap();
+    assert!(
+        d.warnings
+            .iter()
+            .any(|w| w.contains("INSERT (handle 9A") && w.contains("\"NOPE\"")),
+        "{:?}",
+        d.warnings
+    );
+}
+
+#[test]
+fn the_real_r12_insert_places_a_block_of_text_only() {
+    // ASCII_R12.dxf inserts block *U1, which holds one TEXT: it is read (and skipped as
+    // text), and the drawing's two LINEs stay what it cuts
+    let b = data("ASCII_R12.dxf").unwrap();
+    let d = read_with(&b, "ASCII_R12.dxf", &DxfOptions::default()).unwrap();
+    assert!(
+        d.warnings
+            .iter()
+            .any(|w| w.contains("1 TEXT entity skipped")),
+        "{:?}",
+        d.warnings
+    );
+    let segs: usize = d.shape.paths.iter().map(|p| p.segment_count()).sum();
+    assert_eq!(segs, 2);
 }

@@ -1,13 +1,16 @@
 //! Pocketing: the swept tool covers every reachable part of the pocket and never touches a
 //! wall or an island, on pockets whose islands merge, split the pocket, or vanish into the
-//! wall; checked by rasterising the pocket and the tool's swept disc at 0.1 mm.
+//! wall; checked by rasterising the pocket and the tool's swept disc at 0.1 mm. Entries
+//! (helix, ramp) are cutting moves like any other, so the same check holds them to the
+//! tool radius from every wall and island; and no entry descends steeper than the ramp
+//! angle or goes straight down into the material.
 
 mod pocket_support;
 
 use offset_core::geom::{Point, Polyline, Region, Shape};
-use offset_core::ops::{pocket, pocket_with, OpError, PocketParams, Stepover};
-use offset_core::toolpath::{Move, Tool, P3};
-use pocket_support::{check_coverage, clipper_offset};
+use offset_core::ops::{pocket, pocket_with, Entry, OpError, PocketParams, Stepover};
+use offset_core::toolpath::{Move, Tool, Toolpath, P3};
+use pocket_support::{check_coverage, clipper_offset, descending_arcs, descents, disjoint_arc};
 
 fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polyline {
     Polyline::rect(Point::new(x0, y0), Point::new(x1, y1))
@@ -91,6 +94,7 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
         "{name}: {} of {} reachable cells uncut, e.g. at {:?}",
         c.uncut, c.cells, c.first_uncut
     );
+    check_entries(name, &tp, p);
     // rapids only ever at the safe height or straight down onto a start
     tp.walk(P3::default(), |from, m, to| {
         if let Move::Rapid { .. } = m {
@@ -100,6 +104,42 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
             );
         }
     });
+}
+
+/// Entries other than plunges never go straight down into the material and never descend
+/// steeper than the ramp angle; plunges are what was asked for, or warned about.
+fn check_entries(name: &str, tp: &Toolpath, p: &PocketParams) {
+    assert_eq!(
+        disjoint_arc(tp),
+        None,
+        "{name}: an arc that starts off its circle"
+    );
+    let d = descents(tp);
+    let slope = p.cut.ramp_angle.to_radians().tan();
+    if p.cut.entry == Entry::Plunge {
+        assert!(d.plunges > 0, "{name}: plunge entries asked for: {d:?}");
+        assert!(tp.warnings.is_empty(), "{name}: {:?}", tp.warnings);
+        return;
+    }
+    assert!(
+        d.steepest <= slope * (1.0 + 1e-9),
+        "{name}: an entry descends {} per mm at {:?}, steeper than the ramp angle ({slope})",
+        d.steepest,
+        d.steepest_at
+    );
+    if tp.warnings.is_empty() {
+        assert_eq!(
+            d.plunges, 0,
+            "{name}: the tool went straight down into the material at {:?}",
+            d.first_plunge
+        );
+    } else {
+        assert!(
+            d.plunges > 0,
+            "{name}: a warning with no plunge: {:?}",
+            tp.warnings
+        );
+    }
 }
 
 #[test]
@@ -197,4 +237,154 @@ fn passes_that_touch_the_wall_exactly_still_plan_and_cover() {
         },
     };
     check("touching", &shape, &p, true);
+}
+
+fn with_entry(mut p: PocketParams, entry: Entry) -> PocketParams {
+    p.cut.entry = entry;
+    p
+}
+
+#[test]
+fn pockets_entered_by_ramps_are_covered_without_gouging() {
+    for so in [Stepover::Percent(40.0), Stepover::Percent(90.0)] {
+        let p = with_entry(params(so), Entry::Ramp);
+        check("merging, ramps", &merging(), &p, true);
+        check("splitting, ramps", &splitting(), &p, true);
+        check("vanishing, ramps", &vanishing(), &p, true);
+        check("l-shape, ramps", &l_shape(), &p, true);
+    }
+}
+
+#[test]
+fn pockets_entered_by_plunges_go_straight_down_without_a_warning() {
+    let p = with_entry(params(Stepover::Percent(40.0)), Entry::Plunge);
+    check("merging, plunges", &merging(), &p, true);
+    check("l-shape, plunges", &l_shape(), &p, true);
+}
+
+#[test]
+fn helix_entries_turn_on_the_diameter_asked_for_inside_the_pocket() {
+    let mut p = params(Stepover::Percent(40.0));
+    p.cut.helix_diameter = 4.0;
+    check("splitting, helix 4 mm", &splitting(), &p, true);
+    let tp = pocket(&splitting(), &p).unwrap();
+    let arcs = descending_arcs(&tp);
+    assert!(!arcs.is_empty(), "no helix");
+    for (c, r) in arcs {
+        assert!((r - 2.0).abs() < 1e-9, "a helix turn of radius {r}");
+        // the helix's circle lies inside the area the tool centre may visit
+        let wall = Polyline::rect(Point::new(0.0, 0.0), Point::new(60.0, 40.0));
+        assert!(wall.distance_to(c) >= 3.0 + 2.0 - 1e-9, "centre {c:?}");
+    }
+}
+
+#[test]
+fn the_default_helix_is_the_tool_diameter_and_turns_the_climb_way() {
+    let p = params(Stepover::Percent(40.0));
+    let tp = pocket(&Shape::new(vec![rect(0.0, 0.0, 40.0, 30.0)]), &p).unwrap();
+    let mut turns = 0;
+    tp.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, ccw, .. } = m {
+            if to.z < from.z - 1e-12 {
+                assert!((from.xy().dist(*center) - 3.0).abs() < 1e-9);
+                assert!(*ccw, "climb: passes round the walls counter-clockwise");
+                turns += 1;
+            }
+        }
+    });
+    // a half turn of radius 3 mm is 9.42 mm long and goes down at most 9.42 tan 3° = 0.49
+    // mm: 1 mm a pass takes 3 half turns, made 4 to end where the pass starts; two passes
+    assert_eq!(turns, 8);
+    assert!(tp.warnings.is_empty());
+}
+
+#[test]
+fn a_slot_too_narrow_for_a_helix_is_ramped_along_its_pass() {
+    // 7.2 mm wide for a 6 mm tool: the tool centre has a 1.2 mm strip, no room for a
+    // helix of even 3 mm; the pass round the strip is 2 × 53 mm long
+    let shape = Shape::new(vec![rect(0.0, 0.0, 60.0, 7.2)]);
+    let p = params(Stepover::Percent(40.0));
+    check("slot", &shape, &p, true);
+    let tp = pocket(&shape, &p).unwrap();
+    assert!(
+        descending_arcs(&tp).is_empty(),
+        "a helix in a slot too narrow"
+    );
+    let d = descents(&tp);
+    assert!(d.ramps > 0 && d.plunges == 0, "{d:?}");
+    let strip = Polyline::rect(Point::new(3.0, 3.0), Point::new(57.0, 4.2));
+    tp.walk(P3::default(), |from, m, to| {
+        if matches!(m, Move::Linear { .. }) && to.z < from.z - 1e-12 && to.z < -1e-12 {
+            assert!(
+                strip.distance_to(to.xy()) < 1e-6,
+                "a ramp off the pass at {to:?}"
+            );
+        }
+    });
+}
+
+#[test]
+fn a_pocket_too_small_to_ramp_plunges_and_says_so() {
+    // a 6.6 mm hole for a 6 mm tool: the tool centre has a circle of 0.6 mm to go round
+    let shape = Shape::new(vec![Polyline::circle(Point::new(0.0, 0.0), 3.3)]);
+    let p = params(Stepover::Percent(40.0));
+    let tp = pocket(&shape, &p).unwrap();
+    assert_eq!(tp.warnings.len(), 1, "{:?}", tp.warnings);
+    assert!(
+        tp.warnings[0].contains("straight down into the material 2 times"),
+        "{}",
+        tp.warnings[0]
+    );
+    let d = descents(&tp);
+    assert_eq!(d.plunges, 2, "{d:?}");
+    check_entries("small hole", &tp, &p);
+}
+
+/// Issue 13's gear, r = 60 + 4 sin 24θ + 3 sin 5θ, at `n` points.
+fn gear(n: usize) -> Polyline {
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            let r = 60.0 + 4.0 * (24.0 * a).sin() + 3.0 * (5.0 * a).sin();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+#[test]
+fn the_issue_13_gear_of_100000_vertices_pockets() {
+    // as points (the hard case: the pocket's passes are offsets of offsets of a polygon
+    // whose 2 mm shrink once carried a back-step the kernel refused), 3 mm tool, 40 %
+    let shape = Shape::new(vec![gear(100_000)]);
+    let p = PocketParams {
+        stepover: Stepover::Percent(40.0),
+        cut: offset_core::ops::Cutting {
+            tool: Tool::flat(3.0),
+            depth: 1.0,
+            stepdown: 1.0,
+            ..Default::default()
+        },
+    };
+    let tp = pocket(&shape, &p).unwrap();
+    let b = tp.bounds().unwrap();
+    assert!((b.min.z + 1.0).abs() < 1e-12);
+    // the passes reach from the wall (the gear dips to r = 53.1) to the middle
+    assert!(b.max.x > 60.0 && b.min.x < -50.0, "{b:?}");
+    assert!(tp.warnings.is_empty(), "{:?}", tp.warnings);
+    check_entries("100 000-vertex gear", &tp, &p);
+    // every cut keeps the tool radius off the wall
+    let wall = &shape.paths[0];
+    let mut far = Vec::new();
+    tp.walk(P3::default(), |_, m, to| {
+        if matches!(m, Move::Linear { .. } | Move::Arc { .. }) && to.z < 0.0 {
+            far.push(to.xy());
+        }
+    });
+    for q in far.iter().step_by(997) {
+        assert!(
+            wall.contains(*q) && wall.distance_to(*q) >= 1.5 - 0.01,
+            "{q:?}"
+        );
+    }
 }

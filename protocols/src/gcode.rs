@@ -248,7 +248,18 @@ impl Writer {
             let n = (b - a).unit().perp();
             bases.push(mid + n * (center - mid).dot(n));
         }
+        // the planned centre, rounded, when GRBL takes it and it runs within a micrometre
+        // of the plan: on a short arc many centres run about as close, and the planned one
+        // keeps the arc's radius as planned
+        let planned_ij = Point::new(q(center.x - a.x), q(center.y - a.y));
         let mut best: Option<(f64, Point)> = None;
+        if grbl_arc_ok(a, b, planned_ij) && planned_ij.len() >= MIN_ARC_RADIUS {
+            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &seg);
+            if dev <= 1e-3 {
+                best = Some((dev, planned_ij));
+                bases.clear();
+            }
+        }
         for base in bases {
             let ij0 = Point::new(q(base.x - a.x), q(base.y - a.y));
             for dx in -3..=3 {

@@ -2,37 +2,14 @@
 //! under injected faults arrive complete, in order, each block executed exactly once; and
 //! exceptions and device faults stop the job with errors that name the register or code.
 
-use machlink_protocols::modbus::{post_blocks, ModbusLink, ModbusSettings, MotionBlock, WordOrder};
+use machlink_protocols::modbus::{ModbusLink, ModbusSettings, MotionBlock, WordOrder};
 use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
-use offset_core::{Move, Point, Toolpath, P3};
 use std::time::Duration;
-use tokio::sync::{mpsc, watch};
 
-/// A job of `n` moves: a zig-zag of short lines with an arc every tenth move.
-fn job(n: usize) -> Vec<MotionBlock> {
-    let mut tp = Toolpath::new("test zig-zag");
-    tp.push(Move::Rapid {
-        to: P3::new(0.0, 0.0, 2.0),
-    });
-    let mut x = 0.0;
-    for i in 1..n {
-        let y = if i % 2 == 0 { 0.0 } else { 0.5 };
-        let to = P3::new(x + 0.1, y, -0.5);
-        if i % 10 == 0 {
-            tp.push(Move::Arc {
-                to,
-                center: Point::new(x + 0.05, (y + 0.25) % 0.5),
-                ccw: i % 20 == 0,
-                feed: 600.0,
-            });
-        } else {
-            tp.push(Move::Linear { to, feed: 600.0 });
-        }
-        x += 0.1;
-    }
-    post_blocks(&tp).expect("the job fits 32-bit micrometres")
-}
+mod common;
+use common::{assert_exactly_once, job};
+use tokio::sync::{mpsc, watch};
 
 fn fast(mut s: ModbusSettings) -> ModbusSettings {
     s.timeout = Duration::from_millis(100);
@@ -61,34 +38,6 @@ async fn stream(
         events.push(e);
     }
     (r, events)
-}
-
-/// Every block of the job executed once, in order, and the acknowledgements only grew.
-fn assert_exactly_once(sim: &ModbusSim, blocks: &[MotionBlock], events: &[LinkEvent]) {
-    let trace = sim.trace();
-    assert_eq!(
-        trace.len(),
-        blocks.len(),
-        "executed {} of {} blocks",
-        trace.len(),
-        blocks.len()
-    );
-    for (i, (e, b)) in trace.iter().zip(blocks).enumerate() {
-        assert_eq!(e.seq as usize, i + 1, "block {i} executed out of order");
-        assert_eq!(&e.block, b, "block {i} arrived changed");
-    }
-    let acks: Vec<usize> = events
-        .iter()
-        .filter_map(|e| match e {
-            LinkEvent::Acked { unit } => Some(*unit),
-            _ => None,
-        })
-        .collect();
-    assert!(
-        acks.windows(2).all(|w| w[0] < w[1]),
-        "acks went back: {acks:?}"
-    );
-    assert_eq!(acks.last(), Some(&(blocks.len() - 1)));
 }
 
 fn faulty() -> Faults {
@@ -165,9 +114,10 @@ async fn rtu_job_of_5000_blocks_survives_drops_late_replies_busy_and_a_dead_line
 
 #[tokio::test]
 async fn an_exception_names_the_register_and_the_code() {
-    // Request 6 is the first block write (status, write seq, sync, status; status, blocks).
+    // Request 3 is the first block write (the status read, the sync with the header read
+    // back in the same FC23 request, then the blocks).
     let faults = Faults {
-        exceptions: vec![(6, 0x02)],
+        exceptions: vec![(3, 0x02)],
         ..Faults::default()
     };
     let sim = ModbusSim::spawn_tcp(sim_config(faults), "127.0.0.1:0".parse().unwrap())

@@ -265,9 +265,11 @@ async fn the_machine_sews_nothing_it_has_not_verified() {
         let mut p = ((k * wire::CHUNK_RECORDS) as u32).to_le_bytes().to_vec();
         p.extend_from_slice(&(chunk.len() as u16).to_le_bytes());
         chunk.iter().for_each(|r| p.extend_from_slice(&r.to_wire()));
+        // the acknowledgement carries the records loaded so far (protocol version 2)
+        let loaded = (k * wire::CHUNK_RECORDS + chunk.len()) as u32;
         assert_eq!(
             link.request(req::LOAD_CHUNK, p).await.unwrap(),
-            Reply::Ack(vec![])
+            Reply::Ack(loaded.to_le_bytes().to_vec())
         );
     }
     let r = link.request(req::LOAD_END, vec![]).await.unwrap();

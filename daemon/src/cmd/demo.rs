@@ -7,7 +7,7 @@ use anyhow::Context;
 use machlink::client::{Client, Endpoint};
 use machlink::config::{Config, MachineConfig};
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{self, Input, JobSpec, Operation, DEFAULT_TOLERANCE};
+use machlink::intake::{self, Input, JobSpec, Operation};
 use machlink_sim::grbl::GrblSimHandle;
 use offset_core::ops::{Cutting, ProfileParams, Side};
 use offset_core::Tool;
@@ -62,7 +62,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
             },
             ..ProfileParams::default()
         })),
-        tolerance: DEFAULT_TOLERANCE,
+        tolerance: None,
         layers: Vec::new(),
         post: None,
     };

@@ -2,8 +2,9 @@
 //! into the one `JobSpec` the intake takes. Every default is the operation's own (offset-core
 //! `Default`), so a flag left out here means what a key left out of a JSON job means.
 
-use machlink::intake::{Input, JobSpec, Operation, DEFAULT_TOLERANCE};
-use offset_core::ops::{Cutting, PocketParams, ProfileParams, Side, Stepover};
+use machlink::intake::{Input, JobSpec, Operation};
+use offset_core::mesh::{Cutter, CutterShape, Finish3dParams, Rough3dParams, WaterlineParams};
+use offset_core::ops::{Cutting, Entry, PocketParams, ProfileParams, Side, Stepover};
 use offset_core::stitch::StitchParams;
 use offset_core::Tool;
 use std::path::Path;
@@ -17,6 +18,28 @@ pub enum Op {
     Pocket,
     /// Sew stitches along the shape (sewing machines).
     Stitch,
+    /// 3D: clear a mesh (.stl) or point grid (.csv) level by level, leaving --stock-allowance.
+    Rough3d,
+    /// 3D: raster finishing with a drop cutter (--cutter ball|flat|bull), gouge-free.
+    Finish3d,
+    /// 3D: waterline contours with a ball cutter.
+    Waterline,
+}
+
+/// How the tool enters material.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum EntryArg {
+    Plunge,
+    Ramp,
+    Helix,
+}
+
+/// The end of a 3D cutter.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CutterArg {
+    Ball,
+    Flat,
+    Bull,
 }
 
 /// Side of the outline for a profile.
@@ -33,7 +56,7 @@ pub struct JobArgs {
     /// The operation (not for a G-code file, which runs as it is).
     #[arg(long, value_enum)]
     pub op: Option<Op>,
-    /// Cutter diameter, mm [3].
+    /// Cutter diameter, mm [3; 3D: 6].
     #[arg(long)]
     pub tool_diameter: Option<f64>,
     /// How far below the stock top (Z=0) the last pass cuts, mm [1].
@@ -60,6 +83,20 @@ pub struct JobArgs {
     /// Cut conventional instead of climb (for an M3 spindle).
     #[arg(long)]
     pub conventional: bool,
+    /// How the tool goes down into material: a helix where one fits, else a ramp along
+    /// the pass, else straight down with a warning [helix].
+    #[arg(long, value_enum)]
+    pub entry: Option<EntryArg>,
+    /// The steepest a ramp or helix descends, degrees from the horizontal [3].
+    #[arg(long)]
+    pub ramp_angle: Option<f64>,
+    /// Diameter of a helix entry, mm (0: the tool diameter, shrunk to half where there
+    /// is no room) [0].
+    #[arg(long)]
+    pub helix_diameter: Option<f64>,
+    /// Profile: go down the depth passes of a closed loop in one unbroken helix.
+    #[arg(long)]
+    pub spiral: bool,
     /// Geometric tolerance of every approximation (reading curves, offsets), mm [0.001].
     #[arg(long)]
     pub tolerance: Option<f64>,
@@ -112,6 +149,31 @@ pub struct JobArgs {
     /// Stitch: how far a stitch may stray from its curve, mm (at least 0.1) [0.2].
     #[arg(long)]
     pub stitch_tolerance: Option<f64>,
+    /// 3D finishing: the cutter's end [ball].
+    #[arg(long, value_enum)]
+    pub cutter: Option<CutterArg>,
+    /// 3D: a bull cutter's corner radius, mm [1].
+    #[arg(long)]
+    pub corner_radius: Option<f64>,
+    /// 3D roughing: material left on the part for finishing, mm [0.3].
+    #[arg(long)]
+    pub stock_allowance: Option<f64>,
+    /// 3D: the stock top, Z in the mesh's frame [the mesh's highest Z].
+    #[arg(long, allow_hyphen_values = true)]
+    pub stock_top: Option<f64>,
+    /// 3D: the lowest Z to cut to [the mesh's lowest Z].
+    #[arg(long, allow_hyphen_values = true)]
+    pub floor: Option<f64>,
+    /// 3D roughing: how far the stock reaches beyond the part's outline, mm [0].
+    #[arg(long)]
+    pub stock_margin: Option<f64>,
+    /// 3D finishing: direction of the raster rows, degrees from +X [0].
+    #[arg(long, allow_hyphen_values = true)]
+    pub angle: Option<f64>,
+    /// 3D finishing: cut every row in the same direction (retract between rows) instead of
+    /// zig-zag.
+    #[arg(long)]
+    pub one_way: bool,
 }
 
 fn parse_stepover(s: &str) -> Result<Stepover, String> {
@@ -131,7 +193,7 @@ impl JobArgs {
             machine,
             input: Input::from_path(path)?,
             operation: self.operation(),
-            tolerance: self.tolerance.unwrap_or(DEFAULT_TOLERANCE),
+            tolerance: self.tolerance,
             layers: self.layer.clone(),
             post,
         })
@@ -182,7 +244,81 @@ impl JobArgs {
                     ..d
                 })
             }
+            Op::Rough3d => {
+                let d = Rough3dParams::default();
+                Operation::Rough3d(Rough3dParams {
+                    tool: Tool {
+                        diameter: self.tool_diameter.unwrap_or(d.tool.diameter),
+                        ..d.tool
+                    },
+                    stepdown: self.stepdown.unwrap_or(d.stepdown),
+                    stepover: self.stepover.unwrap_or(d.stepover),
+                    stock_allowance: self.stock_allowance.unwrap_or(d.stock_allowance),
+                    stock_top: self.stock_top.or(d.stock_top),
+                    floor: self.floor.or(d.floor),
+                    stock_margin: self.stock_margin.unwrap_or(d.stock_margin),
+                    feed: self.feed.unwrap_or(d.feed),
+                    plunge_feed: self.plunge_feed.unwrap_or(d.plunge_feed),
+                    safe_z: self.safe_z.unwrap_or(d.safe_z),
+                    climb: !self.conventional && d.climb,
+                    spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
+                    tolerance: self.tolerance.unwrap_or(d.tolerance),
+                })
+            }
+            Op::Finish3d => {
+                let d = Finish3dParams::default();
+                Operation::Finish3d(Finish3dParams {
+                    cutter: self.cutter_over(d.cutter),
+                    stepover: self.stepover.unwrap_or(d.stepover),
+                    angle: self.angle.unwrap_or(d.angle),
+                    tolerance: self.tolerance.unwrap_or(d.tolerance),
+                    feed: self.feed.unwrap_or(d.feed),
+                    plunge_feed: self.plunge_feed.unwrap_or(d.plunge_feed),
+                    safe_z: self.safe_z.unwrap_or(d.safe_z),
+                    stock_top: self.stock_top.or(d.stock_top),
+                    spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
+                    zigzag: !self.one_way && d.zigzag,
+                    floor: self.floor.or(d.floor),
+                    ..d
+                })
+            }
+            Op::Waterline => {
+                let d = WaterlineParams::default();
+                Operation::Waterline(WaterlineParams {
+                    cutter: self.cutter_over(d.cutter),
+                    stepdown: self.stepdown.unwrap_or(d.stepdown),
+                    tolerance: self.tolerance.unwrap_or(d.tolerance),
+                    feed: self.feed.unwrap_or(d.feed),
+                    plunge_feed: self.plunge_feed.unwrap_or(d.plunge_feed),
+                    safe_z: self.safe_z.unwrap_or(d.safe_z),
+                    stock_top: self.stock_top.or(d.stock_top),
+                    floor: self.floor.or(d.floor),
+                    spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
+                    climb: !self.conventional && d.climb,
+                    ..d
+                })
+            }
         })
+    }
+
+    /// A 3D cutter from the flags over the operation's default cutter.
+    fn cutter_over(&self, d: Cutter) -> Cutter {
+        let shape = match self.cutter {
+            None => d.shape,
+            Some(CutterArg::Ball) => CutterShape::Ball,
+            Some(CutterArg::Flat) => CutterShape::Flat,
+            Some(CutterArg::Bull) => CutterShape::Bull,
+        };
+        let corner = match (self.corner_radius, shape) {
+            (Some(r), _) => r,
+            (None, CutterShape::Bull) if d.corner_radius == 0.0 => 1.0,
+            (None, _) => d.corner_radius,
+        };
+        Cutter {
+            shape,
+            diameter: self.tool_diameter.unwrap_or(d.diameter),
+            corner_radius: corner,
+        }
     }
 
     /// The tool, depths, feeds and heights from the flags over the operation's defaults.
@@ -200,6 +336,15 @@ impl JobArgs {
             climb: !self.conventional && d.climb,
             spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
             tolerance: self.tolerance.unwrap_or(d.tolerance),
+            entry: match self.entry {
+                None => d.entry,
+                Some(EntryArg::Plunge) => Entry::Plunge,
+                Some(EntryArg::Ramp) => Entry::Ramp,
+                Some(EntryArg::Helix) => Entry::Helix,
+            },
+            ramp_angle: self.ramp_angle.unwrap_or(d.ramp_angle),
+            helix_diameter: self.helix_diameter.unwrap_or(d.helix_diameter),
+            spiral: self.spiral || d.spiral,
         }
     }
 }

@@ -34,15 +34,66 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     let planned = intake::plan(&spec, Target::Post(post))?;
     print_warnings(&planned.warnings);
     let bytes = post.file(&planned.program, &label(&a.file))?;
-    std::fs::write(&a.output, bytes)
+    std::fs::write(&a.output, &bytes)
         .with_context(|| format!("cannot write {}", a.output.display()))?;
     eprintln!(
-        "wrote {} ({} {} units)",
+        "wrote {} ({} post: {} units, {} bytes)",
         a.output.display(),
+        post.name(),
         planned.program.len(),
-        post.name()
+        bytes.len()
     );
+    eprint!("{}", figures(&planned.toolpath));
     Ok(())
+}
+
+/// What a planner shows of a plan: lengths, moves by kind, arcs to lines, and the time it
+/// takes at the default kinematics (offset_core::stats::Kinematics).
+pub fn figures(tp: &offset_core::Toolpath) -> String {
+    let k = offset_core::stats::Kinematics::default();
+    let s = tp.stats(&k);
+    let mut out = String::new();
+    if s.stitches + s.jumps > 0 {
+        out.push_str(&format!(
+            "  {} stitches over {:.1} mm, {} jumps over {:.1} mm\n",
+            s.stitches, s.cutting_length, s.jumps, s.rapid_length
+        ));
+        return out;
+    }
+    let ratio = s.arcs_to_lines().map_or_else(
+        || "all arcs".to_string(),
+        |r| format!("{r:.2} arcs per line"),
+    );
+    out.push_str(&format!(
+        "  cutting {:.1} mm in {} lines and {} arcs ({ratio}); rapids {:.1} mm in {} moves\n",
+        s.cutting_length, s.lines, s.arcs, s.rapid_length, s.rapids
+    ));
+    out.push_str(&format!(
+        "  estimated time {} (cutting {}, rapids {}) at rapids {} mm/min, {} mm/s², junction deviation {} mm\n",
+        clock(s.time()),
+        clock(s.cutting_time),
+        clock(s.rapid_time + s.dwell_time),
+        k.rapid_feed,
+        k.acceleration,
+        k.junction_deviation
+    ));
+    out
+}
+
+/// Seconds as `1 h 02 min`, `4 min 07 s` or `12.3 s`.
+fn clock(secs: f64) -> String {
+    let s = secs.max(0.0);
+    if s >= 3600.0 {
+        format!(
+            "{} h {:02} min",
+            (s / 3600.0) as u64,
+            ((s % 3600.0) / 60.0) as u64
+        )
+    } else if s >= 60.0 {
+        format!("{} min {:02} s", (s / 60.0) as u64, (s % 60.0) as u64)
+    } else {
+        format!("{s:.1} s")
+    }
 }
 
 /// The job's label in a file header (a DST's): the input file's stem.

@@ -2,7 +2,7 @@
 
 use anyhow::Context;
 use machlink::config::Config;
-use machlink::daemon::{Daemon, StartOptions};
+use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 
@@ -14,12 +14,24 @@ pub struct ServeArgs {
     /// Listen on this Unix socket instead of the one the config names.
     #[arg(long)]
     pub socket: Option<PathBuf>,
-    /// Also listen on TCP at ADDR (e.g. 127.0.0.1:7878); needs --token.
-    #[arg(long, value_name = "ADDR", requires = "token")]
+    /// Also listen on TCP at ADDR (e.g. 0.0.0.0:7878): with TLS (--tls-cert, --tls-key) or,
+    /// spelled out, --insecure-plaintext. Every TCP request needs a token.
+    #[arg(long, value_name = "ADDR")]
     pub listen: Option<String>,
-    /// The bearer token every TCP request must carry (`Authorization: Bearer TOKEN`).
-    #[arg(long, requires = "listen")]
+    /// An admin token (at least 32 characters; `machlink token new` makes one) besides the
+    /// config's [[access.token]]s. Also $MACHLINK_SERVE_TOKEN.
+    #[arg(long, env = "MACHLINK_SERVE_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// The daemon's certificate chain (PEM) for TLS on --listen.
+    #[arg(long, value_name = "FILE", requires_all = ["listen", "tls_key"])]
+    pub tls_cert: Option<PathBuf>,
+    /// The certificate's private key (PEM).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Serve --listen in plaintext: tokens and jobs cross the network readable by anyone on
+    /// it. Warned about on every start.
+    #[arg(long, requires = "listen", conflicts_with = "tls_cert")]
+    pub insecure_plaintext: bool,
     /// Also serve the Prometheus metrics alone (`GET /metrics`, read-only, no token) on
     /// this TCP address, e.g. 127.0.0.1:9464.
     #[arg(long, value_name = "ADDR")]
@@ -48,9 +60,18 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
     let config = Config::load(&a.config)?;
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {
+        let tcp_security = match (a.tls_cert, a.tls_key, a.insecure_plaintext) {
+            (Some(cert), Some(key), _) => TcpSecurity::Tls { cert, key },
+            (_, _, true) => TcpSecurity::InsecurePlaintext,
+            _ => TcpSecurity::Unset,
+        };
         let opts = StartOptions {
             socket: a.socket,
-            tcp: a.listen.zip(a.token),
+            listen: a.listen,
+            token: a.token,
+            tcp_security,
+            config_path: Some(a.config.clone()),
+            planner: None,
             metrics_listen: a.metrics_listen,
         };
         let d = Daemon::start(config, opts).await?;
@@ -79,7 +100,9 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
             _ = term.recv() => {}
         }
         machlink::systemd::stopping();
-        tracing::info!("stopping: running jobs are cancelled and can be resumed later");
+        tracing::info!(
+            "stopping: running machines are feed-held; their jobs resume with `machlink resume`"
+        );
         watchdog.abort();
         d.shutdown().await;
         Ok(())

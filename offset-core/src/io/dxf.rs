@@ -1,19 +1,25 @@
-//! DXF import (ASCII, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE and ELLIPSE from the ENTITIES section, chained into contours, in mm.
+//! DXF import (ASCII, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE and ELLIPSE from the ENTITIES section and the blocks it inserts, chained into contours, in mm.
 //!
 //! Our own group-code reader rather than a full DXF library: it only needs the entity
 //! geometry, it must never panic on a broken file, and it stops at `0 EOF` (what follows
-//! is ignored). Entities of other types (TEXT, INSERT, 3DFACE, …) are skipped and counted
-//! in the warnings. Units come from `$INSUNITS` (unitless drawings are taken as mm).
+//! is ignored). INSERT places a block (its base point on the insertion point, X and Y
+//! scales, rotation, MINSERT arrays of columns and rows, extrusion mirrored or not), and
+//! blocks may insert blocks: they are read from a work list, never by recursion, to a
+//! depth of [`MAX_NESTING`] and at most [`MAX_PLACEMENTS`] instances. Entities on layer 0
+//! inside a block take the INSERT's layer. Entities of other types (TEXT, 3DFACE, …) are
+//! skipped and counted in the warnings. Units come from `$INSUNITS` (unitless drawings are
+//! taken as mm). Polylines are fitted with lines and arcs within the tolerance, curves are
+//! flattened within half of it and fitted within the other half.
 //! Problems that leave a usable drawing (open contours, gaps, duplicates, crossings,
-//! skipped entities) are warnings with their location; problems that make an entity
-//! meaningless (a CIRCLE or ARC with radius ≤ 0, a coordinate that is not a number)
-//! are errors naming the entity by handle and line.
+//! skipped entities, undefined blocks) are warnings with their location; problems that make
+//! an entity meaningless (a CIRCLE or ARC with radius ≤ 0, a coordinate that is not a
+//! number) are errors naming the entity by handle and line.
 
 use super::chain::{chain, self_intersections};
 use super::ImportError;
 use crate::flatten;
-use crate::geom::{Point, Polyline, Shape, Vertex};
-use std::collections::BTreeMap;
+use crate::geom::{Point, Polyline, Segment, Shape, Vertex};
+use std::collections::{BTreeMap, HashMap};
 
 /// How to read a DXF file.
 #[derive(Clone, Debug, PartialEq)]
@@ -21,9 +27,13 @@ pub struct DxfOptions {
     /// Read only entities on these layers (all layers when empty). Layer names compare
     /// case-insensitively, as in CAD programs.
     pub layers: Vec<String>,
-    /// Ends of loose entities closer than this are joined, and curves are flattened within
-    /// it, mm.
+    /// Ends of loose entities closer than this are joined, curves are flattened within it,
+    /// and polylines fitted with arcs within it, mm.
     pub tolerance: f64,
+    /// Fit polylines (LWPOLYLINE, POLYLINE) and flattened curves (SPLINE, ELLIPSE) with
+    /// lines and arcs ([`crate::biarc`]); when false they come as the points they are or
+    /// were flattened into.
+    pub fit: bool,
 }
 
 impl Default for DxfOptions {
@@ -31,6 +41,7 @@ impl Default for DxfOptions {
         DxfOptions {
             layers: Vec::new(),
             tolerance: 1e-3,
+            fit: true,
         }
     }
 }
@@ -174,6 +185,10 @@ impl Entity<'_> {
         };
         ImportError::invalid(file, format!("{} {what}", self.handle()))
     }
+    /// An error placing this entity in the drawing (`what` ends the sentence).
+    fn placed_error(&self, file: &str, what: String) -> ImportError {
+        ImportError::invalid(file, format!("{} {what}", self.handle()))
+    }
     fn int(&self, code: i32) -> i64 {
         self.groups
             .iter()
@@ -208,7 +223,8 @@ fn parse_num(g: &Group, file: &str, e: &Entity) -> Result<f64, ImportError> {
     }
 }
 
-/// Reads a DXF file: the entities of the ENTITIES section on the chosen layers, in mm.
+/// Reads a DXF file: the entities of the ENTITIES section on the chosen layers, with the
+/// blocks they insert, in mm.
 pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawing, ImportError> {
     let gs = groups(bytes, file)?;
     let tol = if opts.tolerance.is_finite() && opts.tolerance > 0.0 {
@@ -216,11 +232,14 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     } else {
         1e-3
     };
-    // split at every group 0 into records, noting the section each lies in
+    // split at every group 0 into records, noting the section each lies in; the BLOCKS
+    // section's records are grouped into blocks by name
     let mut scale = 1.0;
     let mut warnings = Vec::new();
     let mut section = String::new();
     let mut records: Vec<Entity> = Vec::new();
+    let mut blocks: HashMap<String, Block> = HashMap::new();
+    let mut block: Option<(String, Block)> = None;
     let mut i = 0;
     while i < gs.len() {
         if gs[i].code != 0 {
@@ -234,6 +253,11 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
         }
         let kind = gs[start].value.as_str();
         let body = &gs[start + 1..i];
+        let rec = Entity {
+            kind,
+            groups: body,
+            line: gs[start].line,
+        };
         match kind {
             "SECTION" => {
                 section = body
@@ -246,160 +270,290 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 }
             }
             "ENDSEC" => section.clear(),
-            _ if section == "ENTITIES" => records.push(Entity {
-                kind,
-                groups: body,
-                line: gs[start].line,
-            }),
+            _ if section == "ENTITIES" => records.push(rec),
+            "BLOCK" if section == "BLOCKS" => {
+                let name = body
+                    .iter()
+                    .find(|g| g.code == 2)
+                    .map(|g| g.value.to_uppercase())
+                    .unwrap_or_default();
+                let base = Point::new(
+                    rec.num(10, file)?.unwrap_or(0.0),
+                    rec.num(20, file)?.unwrap_or(0.0),
+                );
+                block = Some((
+                    name,
+                    Block {
+                        base,
+                        records: Vec::new(),
+                    },
+                ));
+            }
+            "ENDBLK" if section == "BLOCKS" => {
+                if let Some((name, b)) = block.take() {
+                    blocks.insert(name, b);
+                }
+            }
+            _ if section == "BLOCKS" => {
+                if let Some((_, b)) = block.as_mut() {
+                    b.records.push(rec);
+                }
+            }
             _ => {}
         }
     }
-    let wanted = |e: &Entity| {
-        opts.layers.is_empty()
-            || opts
-                .layers
-                .iter()
-                .any(|l| l.eq_ignore_ascii_case(e.layer()))
+    let wanted = |layer: &str| {
+        opts.layers.is_empty() || opts.layers.iter().any(|l| l.eq_ignore_ascii_case(layer))
     };
-    let ftol = tol / scale; // flattening tolerance in drawing units
     let mut pieces: Vec<Polyline> = Vec::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
     let mut curve_points = 0; // points flattened from ELLIPSEs and SPLINEs so far
-    let mut k = 0;
-    while k < records.len() {
-        let e = &records[k];
-        k += 1;
-        if e.kind == "POLYLINE" {
-            // old-style polyline: VERTEX records up to SEQEND
-            let mut verts = Vec::new();
-            while k < records.len() && records[k].kind == "VERTEX" {
-                verts.push(&records[k]);
-                k += 1;
-            }
-            if k < records.len() && records[k].kind == "SEQEND" {
-                k += 1;
-            }
-            if !wanted(e) {
+    let mut placed = 0usize; // block instances placed so far
+                             // the drawing, then every block instance it inserts: a work list, not recursion, so
+                             // deep nesting costs memory in proportion, never the stack
+    let mut work: Vec<Work> = vec![Work {
+        records: &records,
+        xf: Xf::scale(scale),
+        layer: None,
+        depth: 0,
+    }];
+    while let Some(w) = work.pop() {
+        let mut k = 0;
+        while k < w.records.len() {
+            let e = &w.records[k];
+            k += 1;
+            // an entity on layer 0 inside a block takes the layer of the INSERT
+            let layer = match (e.layer(), &w.layer) {
+                ("0", Some(l)) => l.clone(),
+                (l, _) => l.to_string(),
+            };
+            let xf = if e.ocs_x(file)? < 0.0 {
+                w.xf.then(&Xf::MIRROR_X)
+            } else {
+                w.xf
+            };
+            // the tolerance in this entity's own units
+            let ltol = tol / xf.stretch();
+            if e.kind == "POLYLINE" {
+                // old-style polyline: VERTEX records up to SEQEND
+                let mut verts = Vec::new();
+                while k < w.records.len() && w.records[k].kind == "VERTEX" {
+                    verts.push(&w.records[k]);
+                    k += 1;
+                }
+                if k < w.records.len() && w.records[k].kind == "SEQEND" {
+                    k += 1;
+                }
+                if !wanted(&layer) {
+                    continue;
+                }
+                let flags = e.int(70);
+                if flags & (16 | 64) != 0 {
+                    *skipped.entry("POLYLINE mesh".into()).or_default() += 1;
+                    continue;
+                }
+                let mut vs = Vec::new();
+                for v in verts {
+                    if v.int(70) & 16 != 0 {
+                        continue; // spline frame control point, not on the curve
+                    }
+                    let x = v.req(10, file)?;
+                    let y = v.req(20, file)?;
+                    let b = v.num(42, file)?.unwrap_or(0.0);
+                    vs.push(Vertex::new(x, y, b));
+                }
+                if let Some(pl) = poly(vs, flags & 1 != 0) {
+                    pieces
+                        .push(place(pl, &xf, tol, opts.fit).map_err(|m| e.placed_error(file, m))?);
+                }
                 continue;
             }
-            let flags = e.int(70);
-            if flags & (16 | 64) != 0 {
-                *skipped.entry("POLYLINE mesh".into()).or_default() += 1;
-                continue;
-            }
-            let mut vs = Vec::new();
-            for v in verts {
-                if v.int(70) & 16 != 0 {
-                    continue; // spline frame control point, not on the curve
-                }
-                let x = v.req(10, file)?;
-                let y = v.req(20, file)?;
-                let b = v.num(42, file)?.unwrap_or(0.0);
-                vs.push(Vertex::new(x, y, b));
-            }
-            push_poly(&mut pieces, vs, flags & 1 != 0, e.ocs_x(file)?);
-            continue;
-        }
-        if !wanted(e) {
-            continue;
-        }
-        match e.kind {
-            "LINE" => {
-                let a = Point::new(e.req(10, file)?, e.req(20, file)?);
-                let b = Point::new(e.req(11, file)?, e.req(21, file)?);
-                if a.dist(b) > 0.0 {
-                    pieces.push(Polyline::from_points(&[a, b], false));
-                }
-            }
-            "ARC" | "CIRCLE" => {
-                let sx = e.ocs_x(file)?;
-                let c = Point::new(e.req(10, file)? * sx, e.req(20, file)?);
-                let r = e.req(40, file)?;
-                if r <= 0.0 {
+            if e.kind == "INSERT" {
+                let name = e
+                    .groups
+                    .iter()
+                    .find(|g| g.code == 2)
+                    .map(|g| g.value.clone())
+                    .unwrap_or_default();
+                let Some(b) = blocks.get(&name.to_uppercase()) else {
+                    warnings.push(format!(
+                        "{} inserts block \"{name}\", which the file does not define; skipped",
+                        e.handle()
+                    ));
+                    continue;
+                };
+                if w.depth >= MAX_NESTING {
                     return Err(ImportError::invalid(
                         file,
                         format!(
-                            "{} has radius {r}; a radius must be more than 0",
+                            "{} nests blocks more than {MAX_NESTING} deep (does block \"{name}\" insert itself?)",
                             e.handle()
                         ),
                     ));
                 }
-                if e.kind == "CIRCLE" {
-                    pieces.push(Polyline::circle(c, r));
-                } else {
-                    let (mut a0, mut a1) = (
-                        e.req_angle(50, file, "degrees")?.to_radians(),
-                        e.req_angle(51, file, "degrees")?.to_radians(),
-                    );
-                    if sx < 0.0 {
-                        // mirrored OCS: the arc runs clockwise in world coordinates
-                        (a0, a1) = (std::f64::consts::PI - a1, std::f64::consts::PI - a0);
+                let at = Point::new(
+                    e.num(10, file)?.unwrap_or(0.0),
+                    e.num(20, file)?.unwrap_or(0.0),
+                );
+                let (sx, sy) = (
+                    e.num(41, file)?.unwrap_or(1.0),
+                    e.num(42, file)?.unwrap_or(1.0),
+                );
+                let rot = e.angle(50, file, "degrees")?.unwrap_or(0.0).to_radians();
+                let (cols, rows) = (e.int(70).max(1) as u64, e.int(71).max(1) as u64);
+                let (dx, dy) = (
+                    e.num(44, file)?.unwrap_or(0.0),
+                    e.num(45, file)?.unwrap_or(0.0),
+                );
+                if sx == 0.0 || sy == 0.0 {
+                    warnings.push(format!(
+                        "{} inserts block \"{name}\" at scale 0; skipped",
+                        e.handle()
+                    ));
+                    continue;
+                }
+                let n = cols.saturating_mul(rows);
+                placed = placed.saturating_add(n as usize);
+                if placed > MAX_PLACEMENTS {
+                    return Err(ImportError::invalid(
+                        file,
+                        format!(
+                            "the drawing places more than {MAX_PLACEMENTS} block instances (reached at {}); explode the arrays or split the drawing",
+                            e.handle()
+                        ),
+                    ));
+                }
+                // in the INSERT's frame: the block's base to the insertion point, scaled,
+                // rotated; array cells step along the rotated axes
+                let (c, s) = (rot.cos(), rot.sin());
+                for row in 0..rows {
+                    for col in 0..cols {
+                        let off = Point::new(col as f64 * dx, row as f64 * dy);
+                        let origin = at + Point::new(c * off.x - s * off.y, s * off.x + c * off.y);
+                        let inst = Xf {
+                            a: c * sx,
+                            b: -s * sy,
+                            c: s * sx,
+                            d: c * sy,
+                            t: Point::default(),
+                        };
+                        let t = origin - inst.apply(b.base);
+                        work.push(Work {
+                            records: &b.records,
+                            xf: xf.then(&Xf { t, ..inst }),
+                            layer: Some(layer.clone()),
+                            depth: w.depth + 1,
+                        });
                     }
-                    let v = flatten::elliptical_arc(c, Point::new(r, 0.0), 1.0, a0, a1, ftol)
+                }
+                continue;
+            }
+            if !wanted(&layer) {
+                continue;
+            }
+            match e.kind {
+                "LINE" => {
+                    let a = Point::new(e.req(10, file)?, e.req(20, file)?);
+                    let b = Point::new(e.req(11, file)?, e.req(21, file)?);
+                    if a.dist(b) > 0.0 {
+                        let pl = Polyline::from_points(&[a, b], false);
+                        pieces
+                            .push(place(pl, &xf, tol, false).map_err(|m| e.placed_error(file, m))?);
+                    }
+                }
+                "ARC" | "CIRCLE" => {
+                    let c = Point::new(e.req(10, file)?, e.req(20, file)?);
+                    let r = e.req(40, file)?;
+                    if r <= 0.0 {
+                        return Err(ImportError::invalid(
+                            file,
+                            format!(
+                                "{} has radius {r}; a radius must be more than 0",
+                                e.handle()
+                            ),
+                        ));
+                    }
+                    let pl = if e.kind == "CIRCLE" {
+                        Polyline::circle(c, r)
+                    } else {
+                        let (a0, a1) = (
+                            e.req_angle(50, file, "degrees")?.to_radians(),
+                            e.req_angle(51, file, "degrees")?.to_radians(),
+                        );
+                        let v = flatten::elliptical_arc(c, Point::new(r, 0.0), 1.0, a0, a1, ltol)
+                            .map_err(|err| e.curve_error(file, err, tol))?;
+                        Polyline::new(v, false)
+                    };
+                    pieces.push(place(pl, &xf, tol, false).map_err(|m| e.placed_error(file, m))?);
+                }
+                "LWPOLYLINE" => {
+                    let mut vs: Vec<Vertex> = Vec::new();
+                    for g in e.groups {
+                        match g.code {
+                            10 => vs.push(Vertex::new(parse_num(g, file, e)?, 0.0, 0.0)),
+                            20 => {
+                                if let Some(v) = vs.last_mut() {
+                                    v.y = parse_num(g, file, e)?;
+                                }
+                            }
+                            42 => {
+                                if let Some(v) = vs.last_mut() {
+                                    v.bulge = parse_num(g, file, e)?;
+                                }
+                            }
+                            _ => {}
+                        }
+                    }
+                    if let Some(pl) = poly(vs, e.int(70) & 1 != 0) {
+                        pieces.push(
+                            place(pl, &xf, tol, opts.fit).map_err(|m| e.placed_error(file, m))?,
+                        );
+                    }
+                }
+                "ELLIPSE" => {
+                    let c = Point::new(e.req(10, file)?, e.req(20, file)?);
+                    let major = Point::new(e.req(11, file)?, e.req(21, file)?);
+                    let ratio = e.req(40, file)?;
+                    let t0 = e.angle(41, file, "radians")?.unwrap_or(0.0);
+                    let t1 = e
+                        .angle(42, file, "radians")?
+                        .unwrap_or(std::f64::consts::TAU);
+                    if major.len() <= 0.0 || ratio <= 0.0 || ratio > 1.0 + 1e-9 {
+                        return Err(ImportError::invalid(
+                            file,
+                            format!(
+                                "{} has a zero major axis or an axis ratio {ratio} outside (0, 1]",
+                                e.handle()
+                            ),
+                        ));
+                    }
+                    // flattened within half the tolerance, fitted within the other half
+                    let v = flatten::elliptical_arc(c, major, ratio, t0, t1, ltol / 2.0)
                         .map_err(|err| e.curve_error(file, err, tol))?;
-                    pieces.push(Polyline::new(v, false));
-                }
-            }
-            "LWPOLYLINE" => {
-                let mut vs: Vec<Vertex> = Vec::new();
-                for g in e.groups {
-                    match g.code {
-                        10 => vs.push(Vertex::new(parse_num(g, file, e)?, 0.0, 0.0)),
-                        20 => {
-                            if let Some(v) = vs.last_mut() {
-                                v.y = parse_num(g, file, e)?;
-                            }
-                        }
-                        42 => {
-                            if let Some(v) = vs.last_mut() {
-                                v.bulge = parse_num(g, file, e)?;
-                            }
-                        }
-                        _ => {}
-                    }
-                }
-                push_poly(&mut pieces, vs, e.int(70) & 1 != 0, e.ocs_x(file)?);
-            }
-            "ELLIPSE" => {
-                let c = Point::new(e.req(10, file)?, e.req(20, file)?);
-                let major = Point::new(e.req(11, file)?, e.req(21, file)?);
-                let ratio = e.req(40, file)?;
-                let t0 = e.angle(41, file, "radians")?.unwrap_or(0.0);
-                let t1 = e
-                    .angle(42, file, "radians")?
-                    .unwrap_or(std::f64::consts::TAU);
-                if major.len() <= 0.0 || ratio <= 0.0 || ratio > 1.0 + 1e-9 {
-                    return Err(ImportError::invalid(
-                        file,
-                        format!(
-                            "{} has a zero major axis or an axis ratio {ratio} outside (0, 1]",
-                            e.handle()
-                        ),
-                    ));
-                }
-                let sx = e.ocs_x(file)?;
-                let v = flatten::elliptical_arc(c, major, ratio * sx, t0, t1, ftol)
-                    .map_err(|err| e.curve_error(file, err, tol))?;
-                let mut pl = Polyline::new(v, false);
-                if sx < 0.0 {
-                    pl = mirror_x(pl);
-                }
-                close_if_full(&mut pl, ftol);
-                spend(&mut curve_points, pl.len(), e, file, tol)?;
-                pieces.push(pl);
-            }
-            "SPLINE" => match spline(e, file, ftol, tol)? {
-                Some(pl) => {
+                    let mut pl = Polyline::new(v, false);
+                    close_if_full(&mut pl, ltol / 2.0);
                     spend(&mut curve_points, pl.len(), e, file, tol)?;
-                    pieces.push(pl)
+                    pieces.push(
+                        place(pl, &xf, tol / 2.0, opts.fit).map_err(|m| e.placed_error(file, m))?,
+                    );
                 }
-                None => warnings.push(format!(
-                    "{} has inconsistent knots, weights or points and was skipped",
-                    e.handle()
-                )),
-            },
-            "SEQEND" | "VERTEX" | "ATTRIB" => {}
-            other => *skipped.entry(other.to_string()).or_default() += 1,
+                "SPLINE" => match spline(e, file, ltol / 2.0, tol)? {
+                    Some((pl, flattened)) => {
+                        spend(&mut curve_points, pl.len(), e, file, tol)?;
+                        let fit_tol = if flattened { tol / 2.0 } else { tol };
+                        pieces.push(
+                            place(pl, &xf, fit_tol, opts.fit)
+                                .map_err(|m| e.placed_error(file, m))?,
+                        )
+                    }
+                    None => warnings.push(format!(
+                        "{} has inconsistent knots, weights or points and was skipped",
+                        e.handle()
+                    )),
+                },
+                "SEQEND" | "VERTEX" | "ATTRIB" | "ATTDEF" => {}
+                other => *skipped.entry(other.to_string()).or_default() += 1,
+            }
         }
     }
     for (kind, n) in skipped {
@@ -408,17 +562,6 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             if n == 1 { "y" } else { "ies" }
         ));
     }
-    // to mm, then chain
-    let pieces: Vec<Polyline> = pieces
-        .into_iter()
-        .map(|mut p| {
-            for v in &mut p.vertices {
-                v.x *= scale;
-                v.y *= scale;
-            }
-            p
-        })
-        .collect();
     let paths = chain(pieces, tol, &mut warnings);
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
@@ -440,6 +583,145 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
         shape: Shape::new(paths),
         scale,
         warnings,
+    })
+}
+
+/// Blocks nested deeper than this are refused (a block that inserts itself, directly or
+/// not, would nest without end).
+pub const MAX_NESTING: usize = 64;
+
+/// The most block instances (INSERTs, and every cell of MINSERT arrays) one drawing may
+/// place.
+pub const MAX_PLACEMENTS: usize = 1_000_000;
+
+/// A block definition: its base point and its entities.
+struct Block<'a> {
+    base: Point,
+    records: Vec<Entity<'a>>,
+}
+
+/// Entities to read, where they land in the drawing, the layer an entity on layer 0 takes
+/// (the INSERT's), and how deep in blocks they lie.
+struct Work<'r, 'a> {
+    records: &'r [Entity<'a>],
+    xf: Xf,
+    layer: Option<String>,
+    depth: usize,
+}
+
+/// A 2D affine map p ↦ (a x + b y, c x + d y) + t: units, block insertions (base point,
+/// scale, rotation, array cell) and mirrored extrusion directions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Xf {
+    a: f64,
+    b: f64,
+    c: f64,
+    d: f64,
+    t: Point,
+}
+
+impl Xf {
+    const MIRROR_X: Xf = Xf {
+        a: -1.0,
+        b: 0.0,
+        c: 0.0,
+        d: 1.0,
+        t: Point::new(0.0, 0.0),
+    };
+    fn scale(s: f64) -> Xf {
+        Xf {
+            a: s,
+            b: 0.0,
+            c: 0.0,
+            d: s,
+            t: Point::default(),
+        }
+    }
+    fn apply(&self, p: Point) -> Point {
+        Point::new(
+            self.a * p.x + self.b * p.y + self.t.x,
+            self.c * p.x + self.d * p.y + self.t.y,
+        )
+    }
+    /// This map after `inner`.
+    fn then(&self, inner: &Xf) -> Xf {
+        Xf {
+            a: self.a * inner.a + self.b * inner.c,
+            b: self.a * inner.b + self.b * inner.d,
+            c: self.c * inner.a + self.d * inner.c,
+            d: self.c * inner.b + self.d * inner.d,
+            t: self.apply(inner.t),
+        }
+    }
+    fn det(&self) -> f64 {
+        self.a * self.d - self.b * self.c
+    }
+    /// The most a length grows under the map (its largest singular value).
+    fn stretch(&self) -> f64 {
+        let s = self.a * self.a + self.b * self.b + self.c * self.c + self.d * self.d;
+        let det = self.det();
+        ((s + (s * s - 4.0 * det * det).max(0.0).sqrt()) / 2.0).sqrt()
+    }
+    /// Whether the map keeps circles circles (a rotation and a uniform scale, perhaps
+    /// mirrored).
+    fn is_similarity(&self) -> bool {
+        let e = 1e-12 * self.stretch();
+        ((self.a - self.d).abs() <= e && (self.b + self.c).abs() <= e)
+            || ((self.a + self.d).abs() <= e && (self.b - self.c).abs() <= e)
+    }
+}
+
+/// A piece in its entity's units placed in the drawing (mm) by `xf`, fitted with lines and
+/// arcs within `tol` mm when `fit`. A map that does not keep circles (a block inserted
+/// with unequal X and Y scales) turns arcs into ellipses: they are flattened within half
+/// of `tol` and fitted within the other half.
+fn place(pl: Polyline, xf: &Xf, tol: f64, fit: bool) -> Result<Polyline, String> {
+    let fitted = |pl: Polyline, tol: f64| {
+        crate::biarc::fit_polyline(&pl, &crate::biarc::BiarcOptions::with_tolerance(tol)).0
+    };
+    if xf.is_similarity() {
+        let flip = xf.det() < 0.0;
+        let vs = pl
+            .vertices
+            .iter()
+            .map(|v| {
+                let p = xf.apply(v.pos());
+                Vertex::new(p.x, p.y, if flip { -v.bulge } else { v.bulge })
+            })
+            .collect();
+        let out = Polyline::new(vs, pl.closed);
+        return Ok(if fit { fitted(out, tol) } else { out });
+    }
+    let has_arcs = pl.vertices.iter().any(|v| v.bulge != 0.0);
+    let local = tol / 2.0 / xf.stretch();
+    let mut pts: Vec<Point> = Vec::with_capacity(pl.len());
+    for s in pl.segments() {
+        pts.push(xf.apply(s.start()));
+        if let Segment::Arc { radius, .. } = s {
+            let step = 2.0 * (1.0 - (local / radius).min(1.0)).acos();
+            let k = (s.sweep().abs() / step.max(1e-9)).ceil();
+            if k.is_nan() || k > flatten::MAX_POINTS as f64 {
+                return Err(format!(
+                    "would need more than {} points to stay within {tol} mm of an arc stretched by its block's scales",
+                    flatten::MAX_POINTS
+                ));
+            }
+            let k = k as usize;
+            for i in 1..k {
+                pts.push(xf.apply(s.point_at(i as f64 / k as f64)));
+            }
+        }
+    }
+    if !pl.closed {
+        if let Some(v) = pl.vertices.last() {
+            pts.push(xf.apply(v.pos()));
+        }
+    }
+    let out = Polyline::from_points(&pts, pl.closed);
+    Ok(match (fit, has_arcs) {
+        (_, true) => fitted(out, tol / 2.0),
+        (true, false) => fitted(out, tol),
+        (false, false) => out,
     })
 }
 
@@ -495,30 +777,22 @@ fn header_scale(body: &[Group], warnings: &mut Vec<String>) -> f64 {
     }
 }
 
-fn push_poly(pieces: &mut Vec<Polyline>, mut vs: Vec<Vertex>, closed: bool, sx: f64) {
+/// The vertices of an LWPOLYLINE or POLYLINE as a polyline: repeated vertices dropped, a
+/// closing vertex that repeats the first dropped; None with fewer than two.
+fn poly(mut vs: Vec<Vertex>, closed: bool) -> Option<Polyline> {
     vs.dedup_by(|b, a| a.x == b.x && a.y == b.y);
     if closed && vs.len() > 2 && vs[0].pos() == vs[vs.len() - 1].pos() {
         vs.pop();
     }
     if vs.len() < 2 {
-        return;
+        return None;
     }
     if !closed {
         if let Some(v) = vs.last_mut() {
             v.bulge = 0.0;
         }
     }
-    let pl = Polyline::new(vs, closed);
-    pieces.push(if sx < 0.0 { mirror_x(pl) } else { pl });
-}
-
-/// Mirrors X (a downward extrusion direction): arcs turn the other way.
-fn mirror_x(mut pl: Polyline) -> Polyline {
-    for v in &mut pl.vertices {
-        v.x = -v.x;
-        v.bulge = -v.bulge;
-    }
-    pl
+    Some(Polyline::new(vs, closed))
 }
 
 fn close_if_full(pl: &mut Polyline, tol: f64) {
@@ -529,10 +803,15 @@ fn close_if_full(pl: &mut Polyline, tol: f64) {
     }
 }
 
-/// A SPLINE as a polyline: the NURBS from its control points, or its fit points when it
-/// has none.
-/// `tol` is in drawing units, `tol_mm` the same in mm (for messages).
-fn spline(e: &Entity, file: &str, tol: f64, tol_mm: f64) -> Result<Option<Polyline>, ImportError> {
+/// A SPLINE as a polyline in its own units: the NURBS from its control points flattened
+/// within `tol` (true beside it), or its fit points when it has none (false). `tol_mm` is
+/// the tolerance in mm, for messages.
+fn spline(
+    e: &Entity,
+    file: &str,
+    tol: f64,
+    tol_mm: f64,
+) -> Result<Option<(Polyline, bool)>, ImportError> {
     let degree = e.int(71).clamp(0, 32) as usize;
     let mut knots = Vec::new();
     let mut weights = Vec::new();
@@ -557,7 +836,8 @@ fn spline(e: &Entity, file: &str, tol: f64, tol_mm: f64) -> Result<Option<Polyli
             _ => {}
         }
     }
-    let pts = if !ctrl.is_empty() {
+    let flattened = !ctrl.is_empty();
+    let pts = if flattened {
         match flatten::nurbs(degree, &knots, &ctrl, &weights, tol) {
             Ok(p) => p,
             Err(flatten::FlattenError::NotACurve) => return Ok(None),
@@ -572,11 +852,7 @@ fn spline(e: &Entity, file: &str, tol: f64, tol_mm: f64) -> Result<Option<Polyli
     if e.int(70) & 1 != 0 || pts[0].dist(pts[pts.len() - 1]) <= tol {
         close_if_full(&mut pl, tol.max(1e-9));
     }
-    Ok(Some(if e.ocs_x(file)? < 0.0 {
-        mirror_x(pl)
-    } else {
-        pl
-    }))
+    Ok(Some((pl, flattened)))
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! Importers and exporters of shape files: the geometry JSON of DESIGN.md (and DXF, SVG, STL).
+//! Importers and exporters of shape files: the geometry JSON of DESIGN.md, DXF and SVG, fitted with arcs and refused beyond a documented range.
 
 pub mod chain;
 pub mod dxf;
@@ -6,25 +6,13 @@ pub mod json;
 pub mod svg;
 pub mod svg_out;
 
+use crate::biarc::BiarcOptions;
 use crate::geom::Shape;
 
-/// Reads a shape file, choosing the reader by the file name's extension
-/// (`.json`; DXF and SVG readers are added beside it).
+/// Reads a shape file, choosing the reader by the file name's extension (`.json`, `.dxf`,
+/// `.svg`), with the default options of [`ReadOptions`]: see [`read_shape_with`].
 pub fn read_shape(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
-    let ext = std::path::Path::new(file)
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(|e| e.to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "json" => json::read(bytes, file),
-        "dxf" => dxf::read(bytes, file),
-        "svg" => svg::read(bytes, file),
-        other => Err(ImportError::invalid(
-            file,
-            format!("cannot read .{other} files (known: .json, .dxf, .svg)"),
-        )),
-    }
+    read_shape_with(bytes, file, &ReadOptions::default()).map(|(s, _)| s)
 }
 
 /// How to read a shape file, for the readers that take options.
@@ -32,12 +20,23 @@ pub fn read_shape(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
 pub struct ReadOptions {
     /// DXF: read only these layers (all when empty).
     pub layers: Vec<String>,
-    /// DXF and SVG: chaining and curve tolerance, mm (0: the reader's default, 0.001).
+    /// Chaining, curve and arc-fitting tolerance, mm (0: the default, 0.001).
     pub tolerance: f64,
 }
 
+/// The largest coordinate a shape may have, in mm after units (10 km): beyond it the
+/// tolerances of machining (a micrometre) are lost in the rounding of the numbers, and no
+/// machine reaches so far. Readers refuse such shapes, naming the path.
+pub const MAX_COORDINATE: f64 = 1e7;
+
 /// Reads a shape file like [`read_shape`], with options, and returns the readers'
 /// warnings (open contours, gaps, crossings, skipped entities) beside the shape.
+///
+/// Every reader hands back arcs where the file has dense runs of points: polylines in
+/// JSON and DXF (LWPOLYLINE, POLYLINE) are fitted with lines and arcs within the
+/// tolerance ([`crate::biarc`]), and curves (DXF SPLINE and ELLIPSE, SVG Béziers) are
+/// flattened within half the tolerance and fitted within the other half. Loose DXF LINEs
+/// are chained as they are. A shape reaching beyond ±[`MAX_COORDINATE`] mm is refused.
 pub fn read_shape_with(
     bytes: &[u8],
     file: &str,
@@ -48,12 +47,12 @@ pub fn read_shape_with(
         .and_then(|e| e.to_str())
         .map(|e| e.to_ascii_lowercase())
         .unwrap_or_default();
-    let tol = if opts.tolerance > 0.0 {
+    let tol = if opts.tolerance.is_finite() && opts.tolerance > 0.0 {
         opts.tolerance
     } else {
         1e-3
     };
-    match ext.as_str() {
+    let (shape, warnings) = match ext.as_str() {
         "dxf" => {
             let d = dxf::read_with(
                 bytes,
@@ -61,15 +60,54 @@ pub fn read_shape_with(
                 &dxf::DxfOptions {
                     layers: opts.layers.clone(),
                     tolerance: tol,
+                    ..Default::default()
                 },
             )?;
-            Ok((d.shape, d.warnings))
+            (d.shape, d.warnings)
         }
         "svg" => {
             let d = svg::read_with(bytes, file, tol)?;
-            Ok((d.shape, d.warnings))
+            (d.shape, d.warnings)
         }
-        _ => read_shape(bytes, file).map(|s| (s, Vec::new())),
+        "json" => {
+            let shape = json::read(bytes, file)?;
+            check_range(&shape, file)?;
+            let (shape, _) = crate::biarc::fit_shape(&shape, &BiarcOptions::with_tolerance(tol));
+            (shape, Vec::new())
+        }
+        other => {
+            return Err(ImportError::invalid(
+                file,
+                format!("cannot read .{other} files (known: .json, .dxf, .svg)"),
+            ))
+        }
+    };
+    check_range(&shape, file)?;
+    Ok((shape, warnings))
+}
+
+/// Refuses a shape that reaches beyond ±[`MAX_COORDINATE`] mm, naming the first path that
+/// does (its index and where it reaches).
+pub fn check_range(shape: &Shape, file: &str) -> Result<(), ImportError> {
+    match shape.first_beyond(MAX_COORDINATE) {
+        None => Ok(()),
+        Some((i, at)) => Err(ImportError::invalid(
+            file,
+            format!(
+                "path {i} reaches ({}, {}) mm, beyond the ±{MAX_COORDINATE:e} mm (10 km) a shape may span; check the file's units",
+                short(at.x),
+                short(at.y)
+            ),
+        )),
+    }
+}
+
+/// A coordinate in few digits for a message.
+fn short(v: f64) -> String {
+    if v.abs() >= 1e6 || (v != 0.0 && v.abs() < 1e-3) {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.3}")
     }
 }
 

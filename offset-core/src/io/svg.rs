@@ -3,7 +3,8 @@
 //! usvg resolves styles, `use`, transforms and the viewBox, and turns basic shapes and
 //! elliptical arcs into cubic Béziers; we flatten the curves within half the tolerance and
 //! fit the points with biarcs within the other half, so a circle in the file comes back as
-//! arcs. Lengths: usvg works in CSS pixels (96 per inch), so a document with
+//! arcs; runs of three or more straight segments (dense polygons and polylines) are fitted
+//! within the tolerance. Lengths: usvg works in CSS pixels (96 per inch), so a document with
 //! `width="100mm"` is 100 mm wide here. Y is flipped about the document's height.
 //! Subpaths that end where they start are closed; open subpaths, crossings and gaps are
 //! warnings, as in the DXF reader. Text and images are skipped.
@@ -70,7 +71,8 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
 }
 
 /// The paths under `g` as polylines in mm; `flattened` counts the points curves were
-/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path.
+/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path. Groups
+/// are walked with a work list, so no depth of nesting can overflow the stack.
 fn collect(
     g: &usvg::Group,
     height: f64,
@@ -79,19 +81,24 @@ fn collect(
     out: &mut Vec<Polyline>,
     warnings: &mut Vec<String>,
 ) -> Result<(), String> {
-    for node in g.children() {
-        match node {
-            usvg::Node::Group(g) => collect(g, height, tol, flattened, out, warnings)?,
-            usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
-                if p.id().is_empty() {
-                    format!("a path {what}")
-                } else {
-                    format!("path \"{}\" {what}", p.id())
-                }
-            })?,
-            usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
-            #[allow(unreachable_patterns)]
-            _ => warnings.push(format!("text {} skipped", node.id())),
+    let mut todo: Vec<&usvg::Group> = vec![g];
+    while let Some(g) = todo.pop() {
+        // children in document order: groups are taken up after their siblings' paths,
+        // which changes no geometry
+        for node in g.children() {
+            match node {
+                usvg::Node::Group(g) => todo.push(g),
+                usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
+                    if p.id().is_empty() {
+                        format!("a path {what}")
+                    } else {
+                        format!("path \"{}\" {what}", p.id())
+                    }
+                })?,
+                usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
+                #[allow(unreachable_patterns)]
+                _ => warnings.push(format!("text {} skipped", node.id())),
+            }
         }
     }
     Ok(())
@@ -117,8 +124,41 @@ fn path(
         ..Default::default()
     };
     let mut cur: Vec<Vertex> = Vec::new();
+    // where the subpath's run of straight segments (LineTo) began, and whether it has
+    // curves: a run of three or more points is fitted with lines and arcs within the
+    // tolerance when it ends
+    let mut run_from = 0usize;
+    let mut has_curves = false;
+    let line_fit = BiarcOptions::with_tolerance(tol);
+    let fit_run = |cur: &mut Vec<Vertex>, from: usize| {
+        if cur.len() >= from + 3 {
+            let pts: Vec<Point> = cur[from..].iter().map(|v| v.pos()).collect();
+            let f = fit_points(&pts, false, &line_fit);
+            cur.truncate(from);
+            cur.extend_from_slice(&f.vertices);
+        }
+    };
     let mut last = Point::default();
-    let finish = |cur: &mut Vec<Vertex>, closed: bool, out: &mut Vec<Polyline>| {
+    let finish = |cur: &mut Vec<Vertex>,
+                  closed: bool,
+                  run_from: usize,
+                  has_curves: bool,
+                  out: &mut Vec<Polyline>| {
+        let first = cur.first().map(|v| v.pos());
+        let end = cur.last().map(|v| v.pos());
+        let closes = matches!((first, end), (Some(a), Some(b)) if closed || a.dist(b) <= tol);
+        if !has_curves && closes && cur.len() >= 3 {
+            // a polygon: fitted as a loop, so its closing side is fitted too
+            let mut pts: Vec<Point> = cur.iter().map(|v| v.pos()).collect();
+            if pts.len() > 1 && pts[0].dist(pts[pts.len() - 1]) <= tol {
+                pts.pop();
+            }
+            let f = fit_points(&pts, true, &line_fit);
+            *cur = f.vertices;
+            cur.push(cur[0]);
+        } else {
+            fit_run(cur, run_from);
+        }
         let mut vs = std::mem::take(cur);
         if vs.len() < 2 {
             return;
@@ -159,13 +199,15 @@ fn path(
         cur.extend_from_slice(&f.vertices);
         Ok(())
     };
+    // a curve ends the straight run before it
     use usvg::tiny_skia_path::PathSegment;
     for seg in p.data().segments() {
         match seg {
             PathSegment::MoveTo(q) => {
-                finish(&mut cur, false, out);
+                finish(&mut cur, false, run_from, has_curves, out);
                 last = to_mm(q);
                 cur.push(Vertex::line(last));
+                (run_from, has_curves) = (0, false);
             }
             PathSegment::LineTo(q) => {
                 last = to_mm(q);
@@ -173,24 +215,29 @@ fn path(
             }
             PathSegment::QuadTo(a, b) => {
                 let (a, b) = (to_mm(a), to_mm(b));
+                fit_run(&mut cur, run_from);
                 curve(&mut cur, flatten::quadratic(last, a, b, tol / 2.0))?;
+                (run_from, has_curves) = (cur.len() - 1, true);
                 last = b;
             }
             PathSegment::CubicTo(a, b, c) => {
                 let (a, b, c) = (to_mm(a), to_mm(b), to_mm(c));
+                fit_run(&mut cur, run_from);
                 curve(&mut cur, flatten::cubic(last, a, b, c, tol / 2.0))?;
+                (run_from, has_curves) = (cur.len() - 1, true);
                 last = c;
             }
             PathSegment::Close => {
                 let start = cur.first().map(|v| v.pos());
-                finish(&mut cur, true, out);
+                finish(&mut cur, true, run_from, has_curves, out);
+                (run_from, has_curves) = (0, false);
                 if let Some(s) = start {
                     last = s;
                 }
             }
         }
     }
-    finish(&mut cur, false, out);
+    finish(&mut cur, false, run_from, has_curves, out);
     Ok(())
 }
 

@@ -573,9 +573,73 @@ fn run(
             continue;
         }
         let segs = joins::apply(segs, &whole_join, opts);
+        let segs = despike(segs, closed, valid_eps);
         if let Some(p) = build(segs, closed, eps) {
             out.push(p);
         }
+    }
+    out
+}
+
+/// Replaces the slivers the prune can leave where it cut and stitched (runs of segments
+/// each shorter than `delta`, which may turn back on themselves by a few nanometres) so the
+/// result is valid input again: a run shorter than `delta` in all is absorbed by a
+/// neighbouring line (that line's end moves onto the run's far end), a longer one becomes
+/// lines about `delta` long. No point moves by more than `delta`.
+fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
+    if segs.iter().all(|s| s.length() >= delta) {
+        return segs;
+    }
+    if closed {
+        // start at a long segment, so no run wraps round the seam
+        match segs.iter().position(|s| s.length() >= delta) {
+            Some(k) => segs.rotate_left(k),
+            None => return segs,
+        }
+    }
+    let n = segs.len();
+    let mut out: Vec<Seg> = Vec::with_capacity(n);
+    let mut k = 0;
+    while k < n {
+        if segs[k].length() >= delta {
+            out.push(segs[k]);
+            k += 1;
+            continue;
+        }
+        let mut e = k;
+        while e < n && segs[e].length() < delta {
+            e += 1;
+        }
+        let (p, q) = (segs[k].a, segs[e - 1].b);
+        let total: f64 = segs[k..e].iter().map(|s| s.length()).sum();
+        if total < delta {
+            if let Some(last) = out.last_mut().filter(|l| !l.is_arc()) {
+                *last = Seg::line(last.a, q);
+            } else if e < n && !segs[e].is_arc() {
+                segs[e] = Seg::line(p, segs[e].b);
+            } else if e == n && closed && !out[0].is_arc() {
+                out[0] = Seg::line(p, out[0].b);
+            } else {
+                out.push(Seg::line(p, q));
+            }
+        } else {
+            let mut start = p;
+            let mut acc = 0.0;
+            for s in &segs[k..e] {
+                acc += s.length();
+                if acc >= delta {
+                    out.push(Seg::line(start, s.b));
+                    start = s.b;
+                    acc = 0.0;
+                }
+            }
+            if start != q {
+                if let Some(last) = out.last_mut() {
+                    *last = Seg::line(last.a, q);
+                }
+            }
+        }
+        k = e;
     }
     out
 }

@@ -1,10 +1,11 @@
-//! Pocket: contour-parallel clearing of regions with islands, with clean-up of what the step-over leaves behind (after Park & Choi 2001).
+//! Pocket: contour-parallel clearing of regions with islands, with clean-up of what the step-over leaves behind (after Park & Choi 2001) and entries that never plunge into material.
 //!
 //! For each region of the shape and each depth pass:
 //! - The first pass runs on the region offset inward by the tool radius (P0); each next pass
 //!   is the previous pass's region offset inward by the step-over (P(k+1) = Pk ⊖ s), until
 //!   nothing is left. A region that splits gives several children; each is followed to
-//!   its own end (a tree of passes).
+//!   its own end (a tree of passes, built and walked with work lists: no recursion, so no
+//!   depth of nesting can overflow the stack).
 //! - Uncut material: the tool running on the boundary of Pk clears everything within the
 //!   tool radius R of it, so what it misses lies in Nk = Pk ⊖ R, and the later passes
 //!   (inside P(k+1)) clear what lies within R of P(k+1). Where s ≤ R that is all of Nk.
@@ -18,16 +19,27 @@
 //!   one inside it starts over floor the last pass has just cleared. A link is cut at depth
 //!   when it is a short hop (at most 1.5 step-overs) that stays inside the area the tool
 //!   centre may visit (the parent pass's region, so it never touches a wall or an island);
-//!   otherwise the tool retracts to the safe height, rapids and plunges.
+//!   otherwise the tool retracts to the safe height, rapids, and goes down by the entry.
+//! - Entries ([`super::entry`]): the tool descends through air to the floor of the last
+//!   depth pass, then into the material by a helix tangent to the pass at its start (or at
+//!   one of 16 points along it) whose circle lies inside P0, the area the tool centre may
+//!   visit, so it never comes nearer a wall or an island than the tool radius; else by a
+//!   ramp around the pass (back and forth along an open clean-up stretch), which lies in
+//!   P0 by construction; else, on a pass shorter than the tool diameter, straight down,
+//!   with a warning in the tool path.
 //! - Climb milling (M3 spindle) runs the passes around the walls counter-clockwise and
 //!   around the islands clockwise; conventional the other way.
 
+use super::entry::{self, Entry, Plunges};
 use super::{pass_depths, Cutting, OpError};
-use crate::geom::{Point, Polyline, Region, Segment, Shape, Vertex};
+use crate::geom::{winding_of, Point, Polyline, Region, Segment, Shape, Vertex};
+use crate::offset::index::{BBox, BoxIndex};
+use crate::offset::seg::{self as kseg, Seg};
 use crate::offset::{offset_region, OffsetError, OffsetOptions};
 use crate::ops::profile::cut;
 use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
+use std::f64::consts::PI;
 use std::str::FromStr;
 
 /// How far apart neighbouring passes are.
@@ -124,83 +136,167 @@ pub fn pocket(shape: &Shape, p: &PocketParams) -> Result<Toolpath, OpError> {
     pocket_with(shape, p, &|r: &Region, d: f64| offset_region(r, d, &opts))
 }
 
-/// One pass and the passes inside it.
+/// One pass and the passes inside it, in a tree held in a list (children by index).
 #[derive(Clone, Debug)]
 struct PassNode {
     region: Region,
     /// Clean-up paths (open or closed) cut after this pass, before the passes inside it.
     cleanup: Vec<Polyline>,
-    children: Vec<PassNode>,
+    children: Vec<usize>,
 }
 
-/// The pass tree from one tool-centre region, with its clean-up.
+/// The most passes (offsets) one pocket may take.
+const MAX_PASSES: usize = 100_000;
+
+/// The pass tree from one tool-centre region (P0), with its clean-up: the tree's nodes,
+/// the root first. Each node's step inward is made when the node is reached; a node whose
+/// own step the offset refuses as self-crossing is a degenerate region (an island grown to
+/// meet the wall exactly at this step), and then its parent's step is taken a hair shorter
+/// (1e-4 of the step-over), which opens the contact.
 fn build(
-    region: Region,
+    first: Region,
     s: f64,
     r: f64,
     tol: f64,
     off: &RegionOffset,
     budget: &mut usize,
-) -> Result<PassNode, OpError> {
-    if *budget == 0 {
-        return Err(OpError::BadParam(
-            "the pocket needs more than 100000 passes; use a larger step-over".into(),
-        ));
-    }
-    *budget -= 1;
-    // A pass whose walls exactly touch (an island grown to meet the wall at this step) is
-    // a degenerate region the offset may refuse as self-crossing; then this step is taken
-    // a hair shorter (1e-4 of the step-over), which opens the contact.
-    let mut children = Vec::new();
-    let mut touched = false;
-    for c in off(&region, -s)? {
-        match build(c, s, r, tol, off, budget) {
-            Ok(n) => children.push(n),
-            Err(OpError::Offset(OffsetError::SelfIntersecting { .. })) => {
-                touched = true;
-                break;
-            }
-            Err(e) => return Err(e),
+) -> Result<Vec<PassNode>, OpError> {
+    let mut nodes: Vec<PassNode> = Vec::new();
+    // (region, its step inward if made already, parent)
+    let mut todo: Vec<(Region, Option<Vec<Region>>, Option<usize>)> = vec![(first, None, None)];
+    while let Some((region, inner, parent)) = todo.pop() {
+        if *budget == 0 {
+            return Err(OpError::BadParam(format!(
+                "the pocket needs more than {MAX_PASSES} passes; use a larger step-over"
+            )));
         }
-    }
-    if touched {
-        children.clear();
-        for c in off(&region, -s * (1.0 - 1e-4))? {
-            children.push(build(c, s, r, tol, off, budget)?);
-        }
-    }
-    let mut cleanup = Vec::new();
-    if s > r + tol {
-        let threshold = r - (s - r) - tol;
-        let next: Vec<&Region> = children.iter().map(|c| &c.region).collect();
-        for missed in off(&region, -r)? {
-            for pl in missed.boundaries() {
-                cleanup.extend(far_stretches(pl, &next, threshold));
+        *budget -= 1;
+        let mut kids = match inner {
+            Some(k) => k,
+            None => off(&region, -s)?,
+        };
+        let mut grand = Vec::with_capacity(kids.len());
+        let mut touched = false;
+        for k in &kids {
+            match off(k, -s) {
+                Ok(g) => grand.push(g),
+                Err(OffsetError::SelfIntersecting { .. }) => {
+                    touched = true;
+                    break;
+                }
+                Err(e) => return Err(e.into()),
             }
         }
+        if touched {
+            kids = off(&region, -s * (1.0 - 1e-4))?;
+            grand = kids
+                .iter()
+                .map(|k| off(k, -s))
+                .collect::<Result<Vec<_>, _>>()?;
+        }
+        let mut cleanup = Vec::new();
+        if s > r + tol {
+            let threshold = r - (s - r) - tol;
+            let next = Geo::new(kids.iter());
+            for missed in off(&region, -r)? {
+                for pl in missed.boundaries() {
+                    cleanup.extend(far_stretches(pl, &next, threshold));
+                }
+            }
+        }
+        let idx = nodes.len();
+        nodes.push(PassNode {
+            region,
+            cleanup,
+            children: Vec::new(),
+        });
+        if let Some(p) = parent {
+            nodes[p].children.push(idx);
+        }
+        for (k, g) in kids.into_iter().zip(grand) {
+            todo.push((k, Some(g), Some(idx)));
+        }
     }
-    Ok(PassNode {
-        region,
-        cleanup,
-        children,
-    })
+    Ok(nodes)
 }
 
-/// Distance from `p` to the union of `regions` (0 inside one).
-fn dist_to(regions: &[&Region], p: Point) -> f64 {
-    if regions.iter().any(|r| r.contains(p)) {
-        return 0.0;
+/// Regions' boundaries as the kernel's segments, with an R-tree over their boxes: the
+/// distance and inside questions of the clean-up and of the helix entries, each in about
+/// logarithmic time.
+struct Geo {
+    segs: Vec<Seg>,
+    bulges: Vec<f64>,
+    index: BoxIndex,
+}
+
+impl Geo {
+    fn new<'a>(regions: impl Iterator<Item = &'a Region>) -> Geo {
+        let mut segs = Vec::new();
+        let mut bulges = Vec::new();
+        for r in regions {
+            for pl in r.boundaries() {
+                for i in 0..pl.segment_count() {
+                    let (a, b) = (pl.vertices[i], pl.vertices[(i + 1) % pl.len()]);
+                    segs.push(Seg::from_bulge(a.pos(), b.pos(), a.bulge));
+                    bulges.push(a.bulge);
+                }
+            }
+        }
+        let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
+        Geo {
+            index: BoxIndex::new(&boxes),
+            segs,
+            bulges,
+        }
     }
-    regions
-        .iter()
-        .flat_map(|r| r.boundaries())
-        .map(|b| b.distance_to(p))
-        .fold(f64::INFINITY, f64::min)
+
+    /// Distance from `p` to the nearest boundary.
+    fn dist(&self, p: Point) -> f64 {
+        let mut best = f64::INFINITY;
+        self.index.nearest(
+            p.x,
+            p.y,
+            f64::INFINITY,
+            |i| self.segs[i].dist(p),
+            |_, d| {
+                best = d;
+                false
+            },
+        );
+        best
+    }
+
+    /// Whether `p` lies inside one of the regions: the winding numbers of the outers
+    /// (counter-clockwise) and islands (clockwise) add up to 1 inside and 0 outside, and
+    /// only the boundaries whose boxes meet the ray from `p` to the right add anything.
+    fn contains(&self, p: Point) -> bool {
+        let mut w = 0;
+        self.index.query(&[p.x, p.y, f64::INFINITY, p.y], |i| {
+            let s = &self.segs[i];
+            w += winding_of(s.a, s.b, self.bulges[i], p);
+            true
+        });
+        w != 0
+    }
+
+    /// Distance from `p` to the union of the regions (0 inside).
+    fn dist_to_union(&self, p: Point) -> f64 {
+        if self.contains(p) {
+            0.0
+        } else {
+            self.dist(p)
+        }
+    }
+
+    /// Whether the disc about `c` of radius `rho` lies inside the regions.
+    fn holds_disc(&self, c: Point, rho: f64) -> bool {
+        self.dist(c) >= rho * (1.0 - 1e-9) && self.contains(c)
+    }
 }
 
 /// The stretches of the closed polyline whose segments come farther than `threshold` from
-/// `regions` (a segment is kept whole when one of five points along it does).
-fn far_stretches(pl: &Polyline, regions: &[&Region], threshold: f64) -> Vec<Polyline> {
+/// the regions of `next` (a segment is kept whole when one of five points along it does).
+fn far_stretches(pl: &Polyline, next: &Geo, threshold: f64) -> Vec<Polyline> {
     let n = pl.segment_count();
     if n == 0 {
         return Vec::new();
@@ -210,7 +306,7 @@ fn far_stretches(pl: &Polyline, regions: &[&Region], threshold: f64) -> Vec<Poly
         .map(|sg| {
             [0.0, 0.25, 0.5, 0.75, 1.0]
                 .iter()
-                .any(|&t| dist_to(regions, sg.point_at(t)) > threshold)
+                .any(|&t| next.dist_to_union(sg.point_at(t)) > threshold)
         })
         .collect();
     if keep.iter().all(|&k| k) {
@@ -244,6 +340,7 @@ pub fn pocket_with(
     off: &RegionOffset,
 ) -> Result<Toolpath, OpError> {
     p.check()?;
+    super::check_range(shape)?;
     let r = p.cut.tool.radius();
     let s = p.stepover.mm(p.cut.tool.diameter);
     let regions = shape.regions();
@@ -252,8 +349,29 @@ pub fn pocket_with(
             "a pocket needs closed outlines; the shape has none".into(),
         ));
     }
+    // the passes a region takes, at most: no point lies deeper inside it than half its box's
+    // smaller side, nor than the radius of a disc of its area
+    let passes: f64 = regions
+        .iter()
+        .map(|g| {
+            let b = g.bounds();
+            let inradius = (0.5 * b.width().min(b.height())).min((g.area().abs() / PI).sqrt());
+            ((inradius - r) / s).max(0.0) + 1.0
+        })
+        .sum();
+    if passes > MAX_PASSES as f64 {
+        let b = shape.bounds();
+        return Err(OpError::BadParam(format!(
+            "pocketing the shape ({:.0} × {:.0} mm) with a {} mm tool at a step-over of {} mm would take up to {:.0} passes, more than {MAX_PASSES}; use a larger tool or step-over, or check the drawing's units",
+            b.width(),
+            b.height(),
+            p.cut.tool.diameter,
+            s,
+            passes
+        )));
+    }
     let mut trees = Vec::new();
-    let mut budget = 100_000usize;
+    let mut budget = MAX_PASSES;
     for region in &regions {
         for first in off(region, -r)? {
             trees.push(build(first, s, r, p.cut.tolerance, off, &mut budget)?);
@@ -272,6 +390,10 @@ pub fn pocket_with(
         p,
         s,
         at: P3::new(0.0, 0.0, p.cut.safe_z),
+        z: 0.0,
+        z_top: 0.0,
+        slope: p.cut.ramp_angle.to_radians().tan(),
+        plunges: Plunges::default(),
     };
     em.tp.push(Move::Rapid { to: em.at });
     if p.cut.spindle_rpm > 0.0 {
@@ -281,15 +403,22 @@ pub fn pocket_with(
     }
     let depths = pass_depths(p.cut.depth, p.cut.stepdown);
     for tree in &trees {
-        for &z in &depths {
+        let root = Geo::new(std::iter::once(&tree[0].region));
+        for (k, &z) in depths.iter().enumerate() {
+            em.z = z;
+            em.z_top = if k == 0 { 0.0 } else { depths[k - 1] };
             em.retract();
-            em.node(tree, None, z);
+            em.tree(tree, &root);
         }
     }
     em.retract();
+    let warning = em.plunges.warning(
+        "no helix fitted there and the pass was shorter than the tool diameter for a ramp",
+    );
     if p.cut.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
+    tp.warnings.extend(warning);
     Ok(tp)
 }
 
@@ -298,6 +427,12 @@ struct Emitter<'a> {
     p: &'a PocketParams,
     s: f64,
     at: P3,
+    /// The depth of this pass, and the floor the last one left (the stock top at first).
+    z: f64,
+    z_top: f64,
+    /// tan of the ramp angle
+    slope: f64,
+    plunges: Plunges,
 }
 
 impl Emitter<'_> {
@@ -316,57 +451,74 @@ impl Emitter<'_> {
         }
     }
 
-    /// Goes to `q` at depth `z`: a feed move when the hop is short and inside `within`,
-    /// else up, across and down.
-    fn link(&mut self, q: Point, z: f64, within: Option<&Region>) {
-        let here = self.at.xy();
-        let at_depth = (self.at.z - z).abs() < 1e-9;
-        if at_depth && here.dist(q) <= 1e-9 {
-            return;
-        }
-        let inside = within.is_some_and(|reg| segment_inside(here, q, reg));
-        if at_depth && inside && here.dist(q) <= 1.5 * self.s + self.p.cut.tolerance {
-            self.push(Move::Linear {
-                to: P3::at_z(q, z),
-                feed: self.p.cut.feed,
-            });
-            return;
-        }
+    /// Over `q` at the safe height, then down to `z` at the plunge feed.
+    fn down_to(&mut self, q: Point, z: f64) {
         self.retract();
-        self.push(Move::Rapid {
-            to: P3::at_z(q, self.p.cut.safe_z),
-        });
+        if self.at.xy().dist(q) > 1e-12 {
+            self.push(Move::Rapid {
+                to: P3::at_z(q, self.p.cut.safe_z),
+            });
+        }
         self.push(Move::Linear {
             to: P3::at_z(q, z),
             feed: self.p.cut.plunge_feed,
         });
     }
 
-    fn node(&mut self, n: &PassNode, parent: Option<&Region>, z: f64) {
-        // the loops of this pass: the nearest first
-        let mut todo: Vec<usize> = (0..=n.region.islands.len()).collect();
+    /// One tree of passes at the current depth: each pass, then its clean-up, then the
+    /// passes inside it, the nearest first, depth-first with a work list.
+    fn tree(&mut self, nodes: &[PassNode], root: &Geo) {
+        self.node(nodes, 0, None, root);
+        let mut stack: Vec<(usize, Vec<usize>)> = vec![(0, nodes[0].children.clone())];
+        while let Some((n, kids)) = stack.last_mut() {
+            if kids.is_empty() {
+                stack.pop();
+                continue;
+            }
+            let here = self.at.xy();
+            let k = if kids.len() == 1 {
+                0
+            } else {
+                kids.iter()
+                    .enumerate()
+                    .map(|(k, &c)| (k, nodes[c].region.outer.distance_to(here)))
+                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a })
+                    .0
+            };
+            let kid = kids.swap_remove(k);
+            let parent = *n;
+            self.node(nodes, kid, Some(parent), root);
+            stack.push((kid, nodes[kid].children.clone()));
+        }
+    }
+
+    /// The loops of one pass (the nearest first), then its clean-up stretches.
+    fn node(&mut self, nodes: &[PassNode], n: usize, parent: Option<usize>, root: &Geo) {
+        let node = &nodes[n];
+        let within = parent.map_or(&node.region, |p| &nodes[p].region);
+        let loops: Vec<&Polyline> = node.region.boundaries().collect();
+        let mut todo: Vec<usize> = (0..loops.len()).collect();
         while !todo.is_empty() {
             let here = self.at.xy();
-            let (k, _) = todo
-                .iter()
-                .enumerate()
-                .map(|(k, &li)| (k, boundary(&n.region, li).distance_to(here)))
-                .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            let li = todo.remove(k);
-            let pl = boundary(&n.region, li);
-            let pl = if self.p.cut.climb {
-                pl.clone()
-            } else {
-                pl.reversed()
-            };
-            let (pl, start) = start_near(&pl, here);
-            self.link(start, z, parent.or(Some(&n.region)));
-            for seg in pl.segments() {
-                self.push(cut(seg, z, self.p.cut.feed));
+            let mut best = (0usize, 0usize, f64::INFINITY, here);
+            for (k, &li) in todo.iter().enumerate() {
+                if let Some((i, d, q)) = nearest_on(loops[li], here, best.2) {
+                    best = (k, i, d, q);
+                }
             }
+            let (k, i, _, q) = best;
+            let li = todo.swap_remove(k);
+            let pl = loops[li];
+            let l = along(&pl.segment(i), q).unwrap_or(0.0);
+            let started = entry::restart(pl, i, l);
+            let started = if self.p.cut.climb {
+                started
+            } else {
+                started.reversed()
+            };
+            self.pass(started, within, root);
         }
-        // clean-up stretches, the nearest end first
-        let mut todo: Vec<&Polyline> = n.cleanup.iter().collect();
+        let mut todo: Vec<&Polyline> = node.cleanup.iter().collect();
         while !todo.is_empty() {
             let here = self.at.xy();
             let (k, _) = todo
@@ -374,130 +526,233 @@ impl Emitter<'_> {
                 .enumerate()
                 .map(|(k, c)| (k, c.distance_to(here)))
                 .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            let c = todo.remove(k);
-            let (pl, start) = if c.closed {
-                start_near(c, here)
+            let c = todo.swap_remove(k);
+            let pl = if c.closed {
+                match nearest_on(c, here, f64::INFINITY) {
+                    Some((i, _, q)) => {
+                        let l = along(&c.segment(i), q).unwrap_or(0.0);
+                        entry::restart(c, i, l)
+                    }
+                    None => c.clone(),
+                }
             } else if c.vertices[0].pos().dist(here) <= c.vertices[c.len() - 1].pos().dist(here) {
-                (c.clone(), c.vertices[0].pos())
+                c.clone()
             } else {
-                let r = c.reversed();
-                let s0 = r.vertices[0].pos();
-                (r, s0)
+                c.reversed()
             };
-            self.link(start, z, Some(&n.region));
-            for seg in pl.segments() {
-                self.push(cut(seg, z, self.p.cut.feed));
+            self.pass(pl, &node.region, root);
+        }
+    }
+
+    /// Cuts the pass `pl` at the current depth from its first vertex: reached by a short
+    /// feed at depth when one stays inside `within`, else from above by the entry.
+    fn pass(&mut self, pl: Polyline, within: &Region, root: &Geo) {
+        let z = self.z;
+        let q = pl.vertices[0].pos();
+        let here = self.at.xy();
+        let at_depth = (self.at.z - z).abs() < 1e-9;
+        let pl = if at_depth && here.dist(q) <= 1e-9 {
+            pl
+        } else if at_depth
+            && here.dist(q) <= 1.5 * self.s + self.p.cut.tolerance
+            && segment_inside(here, q, within)
+        {
+            self.push(Move::Linear {
+                to: P3::at_z(q, z),
+                feed: self.p.cut.feed,
+            });
+            pl
+        } else {
+            self.enter(pl, root)
+        };
+        for seg in pl.segments() {
+            self.push(cut(seg, z, self.p.cut.feed));
+        }
+    }
+
+    /// Goes down into the material at the start of `pl` by the entry asked for; returns the
+    /// pass to cut, restarted where the entry ended.
+    fn enter(&mut self, pl: Polyline, root: &Geo) -> Polyline {
+        let c = &self.p.cut;
+        let (z, z_top, slope, feed) = (self.z, self.z_top, self.slope, c.feed);
+        let q = pl.vertices[0].pos();
+        match c.entry {
+            Entry::Plunge => {
+                self.down_to(q, z);
+                return pl;
+            }
+            Entry::Helix => {
+                if let Some((pl, centre, ccw)) = self.find_helix(&pl, root) {
+                    let start = pl.vertices[0].pos();
+                    self.down_to(start, z_top);
+                    for m in entry::helix(start, centre, ccw, z_top, z, slope, feed) {
+                        self.push(m);
+                    }
+                    return pl;
+                }
+            }
+            Entry::Ramp => {}
+        }
+        let len = pl.length();
+        if len >= c.tool.diameter {
+            self.down_to(q, z_top);
+            if pl.closed {
+                let (moves, rest) = entry::ramp_around(&pl, z_top, z, slope, feed);
+                for m in moves {
+                    self.push(m);
+                }
+                return rest;
+            }
+            for m in entry::zigzag(&pl, len, z_top, z, slope, feed) {
+                self.push(m);
+            }
+            return pl;
+        }
+        self.plunges.note(P3::at_z(q, z));
+        self.down_to(q, z);
+        pl
+    }
+
+    /// A helix circle tangent to the pass at its start (or, for a closed pass, at one of
+    /// 16 points along it, the nearest first) that lies inside the root region: the pass
+    /// restarted there, the circle's centre, and whether it turns counter-clockwise (so it
+    /// ends heading the pass's way). Diameters: the one asked for, or the tool diameter
+    /// and down to half of it.
+    fn find_helix(&self, pl: &Polyline, root: &Geo) -> Option<(Polyline, Point, bool)> {
+        let d = self.p.cut.tool.diameter;
+        let radii: Vec<f64> = if self.p.cut.helix_diameter > 0.0 {
+            vec![self.p.cut.helix_diameter / 2.0]
+        } else {
+            vec![d / 2.0, d * 0.375, d / 4.0]
+        };
+        let total = pl.length();
+        let spots: Vec<f64> = if pl.closed {
+            let mut v = vec![0.0];
+            for k in 1..=8 {
+                v.push(total * k as f64 / 16.0);
+                if k < 8 {
+                    v.push(total * (16 - k) as f64 / 16.0);
+                }
+            }
+            v
+        } else {
+            vec![0.0]
+        };
+        for l in spots {
+            let (i, li) = seg_at(pl, l)?;
+            let seg = pl.segment(i);
+            let len = seg.length();
+            let t = if len > 0.0 { li / len } else { 0.0 };
+            let (p, tan) = (seg.point_at(t), seg.tangent_at(t));
+            for &rho in &radii {
+                for left in [true, false] {
+                    let n = if left { tan.perp() } else { -tan.perp() };
+                    let c = p + n * rho;
+                    if root.holds_disc(c, rho) {
+                        let started = if pl.closed {
+                            entry::restart(pl, i, li)
+                        } else {
+                            pl.clone()
+                        };
+                        return Some((started, c, left));
+                    }
+                }
             }
         }
-        let mut kids: Vec<&PassNode> = n.children.iter().collect();
-        while !kids.is_empty() {
-            let here = self.at.xy();
-            let (k, _) = kids
-                .iter()
-                .enumerate()
-                .map(|(k, c)| (k, c.region.outer.distance_to(here)))
-                .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            let c = kids.remove(k);
-            self.node(c, Some(&n.region), z);
-        }
+        None
     }
 }
 
-fn boundary(r: &Region, i: usize) -> &Polyline {
-    if i == 0 {
-        &r.outer
-    } else {
-        &r.islands[i - 1]
+/// The segment `l` mm along the path and how far into it.
+fn seg_at(pl: &Polyline, l: f64) -> Option<(usize, f64)> {
+    let n = pl.segment_count();
+    let mut at = 0.0;
+    for i in 0..n {
+        let len = pl.segment(i).length();
+        if at + len >= l || i + 1 == n {
+            return Some((i, (l - at).clamp(0.0, len)));
+        }
+        at += len;
     }
+    None
 }
 
-/// The closed polyline started at its point nearest `p` (the segment there split in two).
-fn start_near(pl: &Polyline, p: Point) -> (Polyline, Point) {
-    let mut best = (0usize, f64::INFINITY, pl.vertices[0].pos());
-    for (i, s) in pl.segments().enumerate() {
-        let q = s.closest_point(p);
-        let d = q.dist(p);
-        if d < best.1 {
-            best = (i, d, q);
-        }
-    }
-    let (i, _, q) = best;
-    let n = pl.len();
-    let seg = pl.segment(i);
-    let mut vs: Vec<Vertex> = Vec::with_capacity(n + 1);
-    let (a, b) = (seg.start(), seg.end());
-    let bulge = pl.vertices[i].bulge;
-    if q.dist(a) < 1e-9 {
-        vs.extend((0..n).map(|k| pl.vertices[(i + k) % n]));
-        return (Polyline::new(vs, true), a);
-    }
-    if q.dist(b) < 1e-9 {
-        vs.extend((0..n).map(|k| pl.vertices[(i + 1 + k) % n]));
-        return (Polyline::new(vs, true), b);
-    }
-    // split segment i at q: q→b, the other segments, then a→q
-    let (b1, b2) = match seg {
-        Segment::Line { .. } => (0.0, 0.0),
-        Segment::Arc { center, .. } => {
-            let total = seg.sweep();
+/// How far along `s` its point `q` lies.
+fn along(s: &Segment, q: Point) -> Option<f64> {
+    match *s {
+        Segment::Line { a, .. } => Some(a.dist(q)),
+        Segment::Arc { a, center, .. } => {
+            let total = s.sweep();
             let part = crate::toolpath::arc_segment(a, q, center, total > 0.0).sweep();
-            ((part / 4.0).tan(), ((total - part) / 4.0).tan())
+            let part = if part.abs() > total.abs() + 1e-12 {
+                0.0
+            } else {
+                part
+            };
+            Some(s.length() * (part / total).abs())
         }
-    };
-    let _ = bulge;
-    vs.push(Vertex::new(q.x, q.y, b2));
-    for k in 1..n {
-        vs.push(pl.vertices[(i + k) % n]);
     }
-    let mut va = pl.vertices[i];
-    va.bulge = b1;
-    vs.push(va);
-    (Polyline::new(vs, true), q)
 }
 
-/// Whether the straight move a→b stays inside the region (crosses none of its boundaries).
+/// A box around a segment given by its ends and bulge: the chord's box grown by the
+/// sagitta (the arc strays no farther from its chord).
+fn rough_box(a: Point, b: Point, bulge: f64) -> BBox {
+    let g = a.dist(b) * bulge.abs() * 0.5;
+    [
+        a.x.min(b.x) - g,
+        a.y.min(b.y) - g,
+        a.x.max(b.x) + g,
+        a.y.max(b.y) + g,
+    ]
+}
+
+/// The point of the closed polyline nearest `p`, if nearer than `limit`: (segment, distance,
+/// point). Segments whose rough box lies farther than the best so far are skipped.
+fn nearest_on(pl: &Polyline, p: Point, limit: f64) -> Option<(usize, f64, Point)> {
+    let n = pl.segment_count();
+    let mut best: Option<(usize, f64, Point)> = None;
+    let mut lim = limit;
+    for i in 0..n {
+        let (va, vb) = (pl.vertices[i], pl.vertices[(i + 1) % pl.len()]);
+        let bx = rough_box(va.pos(), vb.pos(), va.bulge);
+        let dx = (bx[0] - p.x).max(0.0).max(p.x - bx[2]);
+        let dy = (bx[1] - p.y).max(0.0).max(p.y - bx[3]);
+        if dx * dx + dy * dy >= lim * lim {
+            continue;
+        }
+        let q = Segment::from_bulge(va.pos(), vb.pos(), va.bulge).closest_point(p);
+        let d = q.dist(p);
+        if d < lim {
+            lim = d;
+            best = Some((i, d, q));
+        }
+    }
+    best
+}
+
+/// Whether the straight move a→b stays inside the region (crosses none of its boundaries;
+/// touching at a or b does not count).
 fn segment_inside(a: Point, b: Point, reg: &Region) -> bool {
     if !reg.contains(a.lerp(b, 0.5)) {
         return false;
     }
-    let link = Segment::Line { a, b };
-    let lb = link.bounds();
+    let link = Seg::line(a, b);
+    let lb = link.bbox();
     for pl in reg.boundaries() {
-        if !pl.bounds().overlaps(&lb, 1e-9) {
-            continue;
-        }
-        for s in pl.segments() {
-            if !s.bounds().overlaps(&lb, 1e-9) {
+        for i in 0..pl.segment_count() {
+            let (va, vb) = (pl.vertices[i], pl.vertices[(i + 1) % pl.len()]);
+            let bx = rough_box(va.pos(), vb.pos(), va.bulge);
+            if bx[0] > lb[2] || bx[2] < lb[0] || bx[1] > lb[3] || bx[3] < lb[1] {
                 continue;
             }
-            // sample the boundary segment finely enough for a crossing test
-            let k = match s {
-                Segment::Line { .. } => 1,
-                Segment::Arc { .. } => ((s.sweep().abs() / 0.05).ceil() as usize).clamp(1, 256),
-            };
-            for q in 0..k {
-                let p0 = s.point_at(q as f64 / k as f64);
-                let p1 = s.point_at((q + 1) as f64 / k as f64);
-                if proper_cross(a, b, p0, p1) {
-                    return false;
-                }
+            let s = Seg::from_bulge(va.pos(), vb.pos(), va.bulge);
+            let h = kseg::intersect(&link, &s, 1e-12);
+            if h.iter().any(|(_, t, _)| t > 1e-9 && t < 1.0 - 1e-9) {
+                return false;
             }
         }
     }
     true
-}
-
-/// Segments ab and cd cross at a point interior to ab (touching at a's or b's end does not count).
-fn proper_cross(a: Point, b: Point, c: Point, d: Point) -> bool {
-    let r = b - a;
-    let s = d - c;
-    let den = r.cross(s);
-    if den.abs() < 1e-18 {
-        return false;
-    }
-    let t = (c - a).cross(s) / den;
-    let u = (c - a).cross(r) / den;
-    t > 1e-9 && t < 1.0 - 1e-9 && (0.0..=1.0).contains(&u)
 }
 
 #[cfg(test)]
@@ -516,10 +771,12 @@ mod tests {
     }
 
     #[test]
-    fn start_near_splits_an_arc_on_the_circle() {
+    fn a_loop_restarts_at_its_point_nearest_the_tool_on_the_circle() {
         let c = Polyline::circle(Point::default(), 10.0);
-        let (pl, q) = start_near(&c, Point::new(0.0, 20.0));
-        assert!(q.dist(Point::new(0.0, 10.0)) < 1e-9);
+        let (i, d, q) = nearest_on(&c, Point::new(0.0, 20.0), f64::INFINITY).unwrap();
+        assert!((d - 10.0).abs() < 1e-9 && q.dist(Point::new(0.0, 10.0)) < 1e-9);
+        let pl = entry::restart(&c, i, along(&c.segment(i), q).unwrap());
+        assert!(pl.vertices[0].pos().dist(q) < 1e-9);
         assert!((pl.area() - c.area()).abs() < 1e-6);
         for s in pl.segments() {
             assert!((s.point_at(0.5).len() - 10.0).abs() < 1e-9);

@@ -1,5 +1,6 @@
-//! Profile: cut along a shape's outline with the tool outside, inside or on the line, with lead-in/lead-out arcs and holding tabs.
+//! Profile: cut along a shape's outline with the tool outside, inside or on the line, with lead-in/lead-out arcs, holding tabs, and ramps down along the loop instead of plunges.
 
+use super::entry::{self, Entry, Plunges};
 use super::{pass_depths, Cutting, OpError};
 use crate::geom::Shape;
 use crate::geom::{Point, Polyline, Segment};
@@ -96,6 +97,7 @@ impl ProfileParams {
 /// depth before the next loop starts.
 pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     p.check()?;
+    super::check_range(shape)?;
     let opts = OffsetOptions {
         tolerance: p.cut.tolerance,
         ..Default::default()
@@ -146,20 +148,45 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     }
     let depths = pass_depths(p.cut.depth, p.cut.stepdown);
     let tab_z = -p.cut.depth + p.tab_height;
+    let ramps = p.cut.entry != Entry::Plunge;
+    let slope = p.cut.ramp_angle.to_radians().tan();
+    let (feed, plunge) = (p.cut.feed, p.cut.plunge_feed);
+    let d = p.cut.tool.diameter;
+    let mut plunges = Plunges::default();
+    if p.cut.spiral && ramps && p.tabs > 0 {
+        tp.warnings.push(
+            "a spiral cannot leave tabs: the passes go down one by one, each by its own ramp"
+                .into(),
+        );
+    }
     for (pl, material_inside) in loops {
         let pl = oriented(pl, material_inside, p.cut.climb);
         let start = pl.vertices[0].pos();
         if !pl.closed {
+            let len = pl.length();
             tp.push(Move::Rapid {
                 to: P3::at_z(start, p.cut.safe_z),
             });
-            for &z in &depths {
-                tp.push(Move::Linear {
-                    to: P3::at_z(start, z),
-                    feed: p.cut.plunge_feed,
-                });
+            for (k, &z) in depths.iter().enumerate() {
+                let z_top = if k == 0 { 0.0 } else { depths[k - 1] };
+                if ramps && len >= d {
+                    tp.push(Move::Linear {
+                        to: P3::at_z(start, z_top),
+                        feed: plunge,
+                    });
+                    tp.moves
+                        .extend(entry::zigzag(&pl, len, z_top, z, slope, feed));
+                } else {
+                    if ramps {
+                        plunges.note(P3::at_z(start, z));
+                    }
+                    tp.push(Move::Linear {
+                        to: P3::at_z(start, z),
+                        feed: plunge,
+                    });
+                }
                 for seg in pl.segments() {
-                    tp.push(cut(seg, z, p.cut.feed));
+                    tp.push(cut(seg, z, feed));
                 }
                 // back to the start at the safe height for the next pass of an open path
                 tp.push(Move::Rapid {
@@ -186,39 +213,97 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         };
         // without leads the tool steps down in place at the loop's start
         let in_place = lead_in.is_none() && lead_out.is_none();
+        if ramps && p.cut.spiral && tabs.is_empty() {
+            spiral(&mut tp, &pl, lead_in, lead_out, &depths, slope, p);
+            continue;
+        }
+        // room for a ramp back and forth from the start: up to the first tab, or the loop
+        let room = tabs.first().map_or(pl.length(), |t| t.0);
+        // the loop as this pass cuts it (a ramp around it restarts it where it reached depth)
+        let mut cur = pl.clone();
         for (k, &z) in depths.iter().enumerate() {
+            let z_top = if k == 0 { 0.0 } else { depths[k - 1] };
             let entry = lead_in.map_or(start, |(a, _, _)| a);
             if k == 0 || !in_place {
                 tp.push(Move::Rapid {
                     to: P3::at_z(entry, p.cut.safe_z),
                 });
             }
-            tp.push(Move::Linear {
-                to: P3::at_z(entry, z),
-                feed: p.cut.plunge_feed,
-            });
-            if let Some((_, center, ccw)) = lead_in {
-                tp.push(Move::Arc {
-                    to: P3::at_z(start, z),
-                    center,
-                    ccw,
-                    feed: p.cut.feed,
+            if !ramps {
+                tp.push(Move::Linear {
+                    to: P3::at_z(entry, z),
+                    feed: plunge,
                 });
-            }
-            if z < tab_z - 1e-9 && !tabs.is_empty() {
-                cut_with_tabs(&mut tp, &pl, &tabs, z, tab_z, p);
+                if let Some((_, center, ccw)) = lead_in {
+                    tp.push(Move::Arc {
+                        to: P3::at_z(start, z),
+                        center,
+                        ccw,
+                        feed,
+                    });
+                }
             } else {
-                for seg in pl.segments() {
-                    tp.push(cut(seg, z, p.cut.feed));
+                // the height the ramp along the loop starts from
+                let z_from = if let Some((a, center, ccw)) = lead_in {
+                    // from the stock top at the lead-in's start (air at every pass), down
+                    // the lead-in as far as the ramp angle lets it
+                    if tp_pos(&tp).is_some_and(|q| q.z > 1e-12) {
+                        tp.push(Move::Linear {
+                            to: P3::at_z(a, 0.0),
+                            feed: plunge,
+                        });
+                    }
+                    let len = crate::toolpath::arc_segment(a, start, center, ccw).length();
+                    let za = (-(len * slope)).max(z);
+                    tp.push(Move::Arc {
+                        to: P3::at_z(start, za),
+                        center,
+                        ccw,
+                        feed,
+                    });
+                    za
+                } else {
+                    // down through the air to the floor of the last pass
+                    let here = tp_pos(&tp).unwrap_or(P3::at_z(entry, p.cut.safe_z));
+                    if here.z > z_top + 1e-12 {
+                        tp.push(Move::Linear {
+                            to: P3::at_z(here.xy(), z_top),
+                            feed: plunge,
+                        });
+                    }
+                    z_top
+                };
+                if z_from > z + 1e-12 {
+                    if tabs.is_empty() && in_place && cur.length() >= d {
+                        let (moves, rest) = entry::ramp_around(&cur, z_from, z, slope, feed);
+                        tp.moves.extend(moves);
+                        cur = rest;
+                    } else if room >= d {
+                        tp.moves
+                            .extend(entry::zigzag(&pl, room, z_from, z, slope, feed));
+                    } else {
+                        plunges.note(P3::at_z(cur.vertices[0].pos(), z));
+                        tp.push(Move::Linear {
+                            to: P3::at_z(cur.vertices[0].pos(), z),
+                            feed: plunge,
+                        });
+                    }
                 }
             }
-            let mut exit = start;
+            if z < tab_z - 1e-9 && !tabs.is_empty() {
+                cut_with_tabs(&mut tp, &pl, &tabs, z, tab_z, ramps.then_some(slope), p);
+            } else {
+                for seg in cur.segments() {
+                    tp.push(cut(seg, z, feed));
+                }
+            }
+            let mut exit = cur.vertices[0].pos();
             if let Some((b, center, ccw)) = lead_out {
                 tp.push(Move::Arc {
                     to: P3::at_z(b, z),
                     center,
                     ccw,
-                    feed: p.cut.feed,
+                    feed,
                 });
                 exit = b;
             }
@@ -232,7 +317,110 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
     if p.cut.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
+    tp.warnings.extend(plunges.warning(
+        "the pass was shorter than the tool diameter (or its first tab nearer) for a ramp",
+    ));
     Ok(tp)
+}
+
+/// Where the tool path last moved to.
+fn tp_pos(tp: &Toolpath) -> Option<P3> {
+    tp.moves.iter().rev().find_map(|m| match m {
+        Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } => Some(*to),
+        _ => None,
+    })
+}
+
+/// A closed loop cut as one helix along itself: from the stock top down to the depth at
+/// most a step-down per lap and never steeper than the ramp angle, then once round at the
+/// depth, then on round to the loop's start for the lead-out.
+fn spiral(
+    tp: &mut Toolpath,
+    pl: &Polyline,
+    lead_in: Option<(Point, Point, bool)>,
+    lead_out: Option<(Point, Point, bool)>,
+    depths: &[f64],
+    slope: f64,
+    p: &ProfileParams,
+) {
+    let start = pl.vertices[0].pos();
+    let feed = p.cut.feed;
+    let z = *depths.last().unwrap_or(&0.0);
+    let entry = lead_in.map_or(start, |(a, _, _)| a);
+    tp.push(Move::Rapid {
+        to: P3::at_z(entry, p.cut.safe_z),
+    });
+    tp.push(Move::Linear {
+        to: P3::at_z(entry, 0.0),
+        feed: p.cut.plunge_feed,
+    });
+    if let Some((_, center, ccw)) = lead_in {
+        tp.push(Move::Arc {
+            to: P3::at_z(start, 0.0),
+            center,
+            ccw,
+            feed,
+        });
+    }
+    let len = pl.length();
+    let s = slope.min(p.cut.stepdown / len);
+    let (moves, rest) = entry::ramp_around(pl, 0.0, z, s, feed);
+    tp.moves.extend(moves);
+    for seg in rest.segments() {
+        tp.push(cut(seg, z, feed));
+    }
+    let mut exit = rest.vertices[0].pos();
+    if let Some((b, center, ccw)) = lead_out {
+        // on along the loop to its start, where the lead-out leaves it
+        let back = entry::restart(&rest, 0, 0.0);
+        let to_start = len - along_loop(pl, exit);
+        let mut at = 0.0;
+        for seg in back.segments() {
+            if at >= to_start - 1e-9 {
+                break;
+            }
+            let l = seg.length();
+            let piece = if at + l > to_start {
+                entry::part(seg, 0.0, to_start - at)
+            } else {
+                seg
+            };
+            tp.push(cut(piece, z, feed));
+            at += l;
+        }
+        tp.push(Move::Arc {
+            to: P3::at_z(b, z),
+            center,
+            ccw,
+            feed,
+        });
+        exit = b;
+    }
+    tp.push(Move::Rapid {
+        to: P3::at_z(exit, p.cut.safe_z),
+    });
+}
+
+/// How far along the closed loop (from its start) its point `q` lies.
+fn along_loop(pl: &Polyline, q: Point) -> f64 {
+    let mut best = (f64::INFINITY, 0.0);
+    let mut at = 0.0;
+    for s in pl.segments() {
+        let c = s.closest_point(q);
+        let d = c.dist(q);
+        if d < best.0 {
+            let l = match s {
+                Segment::Line { a, .. } => a.dist(c),
+                Segment::Arc { a, center, .. } => {
+                    let part = crate::toolpath::arc_segment(a, c, center, s.sweep() > 0.0);
+                    part.length().min(s.length())
+                }
+            };
+            best = (d, at + l);
+        }
+        at += s.length();
+    }
+    best.1
 }
 
 /// A quarter-circle lead of radius `r` touching the loop at `s` with tangent `t`, on the
@@ -262,40 +450,23 @@ fn tab_spans(len: f64, count: usize, width: f64) -> Vec<(f64, f64)> {
         .collect()
 }
 
-/// The part of segment `s` between lengths `l0` and `l1` along it (0 ≤ l0 < l1 ≤ length).
-fn sub_segment(s: Segment, l0: f64, l1: f64) -> Segment {
-    let len = s.length();
-    let (t0, t1) = (l0 / len, l1 / len);
-    let (a, b) = (s.point_at(t0), s.point_at(t1));
-    match s {
-        Segment::Line { .. } => Segment::Line { a, b },
-        Segment::Arc {
-            center,
-            radius,
-            ccw,
-            ..
-        } => Segment::Arc {
-            a,
-            b,
-            center,
-            radius,
-            ccw,
-        },
-    }
-}
-
-/// One closed pass at `z` that rises to `tab_z` over every tab span.
+/// One closed pass at `z` that rises to `tab_z` over every tab span. After a tab the tool
+/// goes back down along the loop no steeper than `slope` when one is given (the tab is
+/// then a trapezoid, `tab_width` wide at its top), else straight down.
 fn cut_with_tabs(
     tp: &mut Toolpath,
     pl: &Polyline,
     tabs: &[(f64, f64)],
     z: f64,
     tab_z: f64,
+    slope: Option<f64>,
     p: &ProfileParams,
 ) {
     // break points along the loop, and whether the stretch after each is a tab
     let mut at = 0.0;
     let mut on_tab = false;
+    let mut zc = z;
+    let feed = p.cut.feed;
     for seg in pl.segments() {
         let len = seg.length();
         let mut cuts: Vec<f64> = tabs
@@ -308,29 +479,61 @@ fn cut_with_tabs(
         let mut from = 0.0;
         for c in cuts {
             if c - from > 1e-9 {
-                let piece = sub_segment(seg, from, c);
+                let piece = entry::part(seg, from, c);
                 let mid = at + 0.5 * (from + c);
                 let tab = tabs.iter().any(|&(a, b)| mid > a && mid < b);
-                if tab != on_tab {
-                    let here = piece.start();
+                if tab {
+                    if !on_tab {
+                        tp.push(Move::Linear {
+                            to: P3::at_z(piece.start(), tab_z),
+                            feed: p.cut.plunge_feed,
+                        });
+                    }
+                    tp.push(cut(piece, tab_z, feed));
+                    zc = tab_z;
+                } else if on_tab && slope.is_none() {
                     tp.push(Move::Linear {
-                        to: P3::at_z(here, if tab { tab_z } else { z }),
+                        to: P3::at_z(piece.start(), z),
                         feed: p.cut.plunge_feed,
                     });
-                    on_tab = tab;
+                    tp.push(cut(piece, z, feed));
+                    zc = z;
+                } else if zc > z + 1e-12 {
+                    // on down from the tab along the loop
+                    let k = slope.unwrap_or(f64::INFINITY);
+                    let plen = piece.length();
+                    let need = (zc - z) / k;
+                    if need >= plen {
+                        zc -= plen * k;
+                        tp.push(entry::descend(piece, zc, feed));
+                    } else {
+                        tp.push(entry::descend(entry::part(piece, 0.0, need), z, feed));
+                        tp.push(cut(entry::part(piece, need, plen), z, feed));
+                        zc = z;
+                    }
+                } else {
+                    tp.push(cut(piece, z, feed));
                 }
-                tp.push(cut(piece, if tab { tab_z } else { z }, p.cut.feed));
+                on_tab = tab;
             }
             from = c;
         }
         at += len;
     }
-    if on_tab {
-        let end = pl.vertices[0].pos();
-        tp.push(Move::Linear {
-            to: P3::at_z(end, z),
-            feed: p.cut.plunge_feed,
-        });
+    if zc > z + 1e-12 {
+        match slope {
+            // on down along the loop's start, which this pass has cut to the depth already,
+            // and back to the start at the depth
+            Some(k) => {
+                tp.moves.extend(entry::ramp_around(pl, zc, z, k, feed).0);
+                tp.moves
+                    .extend(entry::back_along(pl, (zc - z) / k, z, feed));
+            }
+            None => tp.push(Move::Linear {
+                to: P3::at_z(pl.vertices[0].pos(), z),
+                feed: p.cut.plunge_feed,
+            }),
+        }
     }
 }
 
@@ -377,6 +580,7 @@ mod tests {
             cut: Cutting {
                 depth: 2.0,
                 stepdown: 0.8,
+                entry: Entry::Plunge,
                 ..ProfileParams::default().cut
             },
             ..Default::default()
@@ -395,6 +599,41 @@ mod tests {
         let (cut, _) = tp.lengths();
         // three laps, the plunge from the safe Z to the first depth, then two step-downs
         assert!((cut - (3.0 * 40.0 + 5.0 + 2.0)).abs() < 1e-9, "{cut}");
+    }
+
+    #[test]
+    fn without_a_lead_in_the_loop_is_ramped_down_along_itself() {
+        let sq = Polyline::rect(Point::new(0.0, 0.0), Point::new(10.0, 10.0));
+        let p = ProfileParams {
+            side: Side::On,
+            cut: Cutting {
+                depth: 2.0,
+                stepdown: 0.8,
+                ..ProfileParams::default().cut
+            },
+            ..Default::default()
+        };
+        let tp = profile(&Shape::new(vec![sq.clone()]), &p).unwrap();
+        let slope = p.cut.ramp_angle.to_radians().tan();
+        let mut descents = 0;
+        tp.walk(P3::default(), |from, m, to| {
+            if matches!(m, Move::Linear { .. } | Move::Arc { .. }) && to.z < from.z - 1e-12 {
+                let xy = from.xy().dist(to.xy());
+                if from.z <= 1e-12 {
+                    // below the stock top: along the outline, never steeper than the angle
+                    assert!(xy > 0.0, "a plunge to {to:?}");
+                    assert!(
+                        (from.z - to.z) <= xy * slope * (1.0 + 1e-9),
+                        "{from:?} -> {to:?}"
+                    );
+                    assert!(sq.distance_to(to.xy()) < 1e-9);
+                    descents += 1;
+                }
+            }
+        });
+        assert!(descents >= 3);
+        assert!(tp.warnings.is_empty(), "{:?}", tp.warnings);
+        assert!((tp.bounds().unwrap().min.z + 2.0).abs() < 1e-12);
     }
 
     #[test]

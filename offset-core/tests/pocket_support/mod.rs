@@ -189,3 +189,86 @@ pub fn check_coverage(
         cells,
     }
 }
+
+/// How a tool path goes down below the stock top (Z 0).
+#[derive(Debug, Default)]
+pub struct Descents {
+    /// The steepest descent of a move that also moves across (dz per mm across), and where.
+    pub steepest: f64,
+    pub steepest_at: Option<P3>,
+    /// Straight-down moves that cut into the material: ones the path follows with anything
+    /// but a further descent (a straight-down move followed by a ramp or helix is the
+    /// approach through air to the floor of the last pass, where the entry starts).
+    pub plunges: usize,
+    pub first_plunge: Option<P3>,
+    /// Moves that go down while moving across (ramps, helices).
+    pub ramps: usize,
+}
+
+/// Every descent below the stock top, sorted into ramps (with their steepness) and plunges.
+pub fn descents(tp: &Toolpath) -> Descents {
+    let mut moves: Vec<(P3, Move, P3)> = Vec::new();
+    tp.walk(P3::default(), |from, m, to| {
+        if matches!(
+            m,
+            Move::Linear { .. } | Move::Arc { .. } | Move::Rapid { .. }
+        ) {
+            moves.push((from, m.clone(), to));
+        }
+    });
+    let mut d = Descents::default();
+    for (i, (from, m, to)) in moves.iter().enumerate() {
+        if !(to.z < from.z - 1e-12 && to.z < -1e-12) {
+            continue;
+        }
+        let xy = match m {
+            Move::Arc { center, ccw, .. } => {
+                offset_core::toolpath::arc_segment(from.xy(), to.xy(), *center, *ccw).length()
+            }
+            _ => from.xy().dist(to.xy()),
+        };
+        if xy < 1e-9 {
+            let next_descends = moves.get(i + 1).is_some_and(|(f, _, t)| t.z < f.z - 1e-12);
+            if !next_descends {
+                d.plunges += 1;
+                d.first_plunge.get_or_insert(*to);
+            }
+            continue;
+        }
+        d.ramps += 1;
+        let s = (from.z - to.z) / xy;
+        if s > d.steepest {
+            d.steepest = s;
+            d.steepest_at = Some(*to);
+        }
+    }
+    d
+}
+
+/// The arcs of a tool path that descend (helix turns): (centre, radius).
+pub fn descending_arcs(tp: &Toolpath) -> Vec<(Point, f64)> {
+    let mut out = Vec::new();
+    tp.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, .. } = m {
+            if to.z < from.z - 1e-12 {
+                out.push((*center, from.xy().dist(*center)));
+            }
+        }
+    });
+    out
+}
+
+/// The first arc that does not start where the tool is (as far from its centre as its end
+/// lies), if any: a move planned from the wrong place.
+pub fn disjoint_arc(tp: &Toolpath) -> Option<(P3, P3, Point)> {
+    let mut bad = None;
+    tp.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, .. } = m {
+            let (r0, r1) = (from.xy().dist(*center), to.xy().dist(*center));
+            if (r0 - r1).abs() > 1e-6 * (1.0 + r0) && bad.is_none() {
+                bad = Some((from, to, *center));
+            }
+        }
+    });
+    bad
+}

@@ -30,6 +30,9 @@ pub struct RingSettings {
     /// The most registers per write (1 to 123; many drives take 10 or 12).
     #[serde(default = "default_max_write")]
     pub max_write_registers: u16,
+    /// Commit and read the header in one FC23 request when the device answers it.
+    #[serde(default = "default_read_write")]
+    pub read_write: bool,
     /// How long one request may wait for its reply, ms.
     #[serde(default = "default_timeout")]
     pub timeout_ms: u64,
@@ -48,6 +51,7 @@ impl Default for RingSettings {
             base_address: 0,
             word_order: WordOrder::default(),
             max_write_registers: default_max_write(),
+            read_write: default_read_write(),
             timeout_ms: default_timeout(),
             poll_ms: default_poll(),
             retries: default_retries(),
@@ -87,6 +91,9 @@ fn default_unit() -> u8 {
 fn default_max_write() -> u16 {
     123
 }
+fn default_read_write() -> bool {
+    true
+}
 fn default_timeout() -> u64 {
     500
 }
@@ -112,6 +119,7 @@ impl RingSettings {
         s.base_address = self.base_address;
         s.word_order = self.word_order;
         s.max_write_registers = self.max_write_registers;
+        s.read_write = self.read_write;
         s.timeout = Duration::from_millis(self.timeout_ms);
         s.poll_interval = Duration::from_millis(self.poll_ms);
         s.max_retries = self.retries;

@@ -14,15 +14,22 @@ pub const MAX_PAYLOAD: usize = 1024;
 /// link halves its chunks after a chunk had to be sent again (down to 4) and doubles them
 /// after 8 clean ones.
 pub const CHUNK_RECORDS: usize = 64;
+/// The fewest records per chunk the link shrinks to on a noisy line.
+pub const MIN_CHUNK_RECORDS: usize = 4;
+/// The most LOAD_CHUNK frames the link keeps in flight when the machine allows a window
+/// (INFO's window byte); two keep a line busy, more only waste frames behind a damaged one.
+pub const HOST_WINDOW: u8 = 2;
 
 /// Host → machine requests.
 pub mod req {
     /// → ACK: area min x, min y, max x, max y (i32 LE, 0.1 mm), max stitch (u16 LE, 0.1 mm),
-    /// stitches per minute (u16 LE).
+    /// stitches per minute (u16 LE), and from protocol version 2 on the upload window (u8):
+    /// how many LOAD_CHUNK frames the machine takes in flight (absent: 1).
     pub const INFO: u8 = 0x01;
     /// total records (u32 LE), pattern CRC-32 (u32 LE): forget any pattern, expect chunks.
     pub const LOAD_BEGIN: u8 = 0x10;
     /// offset (u32 LE, index of the first record), count (u16 LE), count × 9-byte records.
+    /// → ACK (version 2: with the records loaded so far, u32 LE).
     pub const LOAD_CHUNK: u8 = 0x11;
     /// check count, CRC and every record (grid, max stitch, area); only then may it sew.
     pub const LOAD_END: u8 = 0x12;
@@ -42,7 +49,9 @@ pub mod req {
 pub mod reply {
     /// Done: payload = request type, then the request's data.
     pub const ACK: u8 = 0x06;
-    /// A frame arrived corrupted: send it again.
+    /// A frame arrived corrupted (bad CRC), or (version 2) its bytes stopped coming before
+    /// its length was reached: send it again. Its sequence number is the damaged frame's,
+    /// not to be trusted.
     pub const NAK: u8 = 0x15;
     /// Well-formed but refused: payload = request type, reason code, UTF-8 text.
     pub const REFUSED: u8 = 0x18;
@@ -155,13 +164,18 @@ impl Decoder {
     /// nothing pending can still complete: its length was corrupted or a byte was lost. Drop
     /// start bytes one by one, keeping any whole frame that was stuck behind the bad one,
     /// until the buffer is empty.
-    pub fn resync_on_idle(&mut self) {
+    ///
+    /// Returns the sequence byte of the frame that timed out (not to be trusted), when there
+    /// was one: a machine answers it with a NAK.
+    pub fn resync_on_idle(&mut self) -> Option<u8> {
+        let stuck = (self.buf.first() == Some(&SOF)).then(|| self.buf.get(3).copied().unwrap_or(0));
         while !self.buf.is_empty() {
             self.buf.drain(..1);
             while let Some(d) = self.scan() {
                 self.ready.push_back(d);
             }
         }
+        stuck
     }
     pub fn clear(&mut self) {
         self.buf.clear();
@@ -269,17 +283,27 @@ pub struct Info {
     /// The longest stitch or jump one record may make, 0.1 mm.
     pub max_stitch: u16,
     pub spm: u16,
+    /// How many LOAD_CHUNK frames the machine takes in flight; `None` for a machine of
+    /// protocol version 1, whose INFO has no window byte (it takes one).
+    pub window: Option<u8>,
 }
 
 impl Info {
     pub fn encode(&self) -> Vec<u8> {
-        let mut b = Vec::with_capacity(20);
+        let mut b = Vec::with_capacity(21);
         for v in [self.min_x, self.min_y, self.max_x, self.max_y] {
             b.extend_from_slice(&v.to_le_bytes());
         }
         b.extend_from_slice(&self.max_stitch.to_le_bytes());
         b.extend_from_slice(&self.spm.to_le_bytes());
+        if let Some(w) = self.window {
+            b.push(w);
+        }
         b
+    }
+    /// The frames the machine takes in flight (1 when it does not say, or says 0).
+    pub fn window(&self) -> u8 {
+        self.window.unwrap_or(1).max(1)
     }
     pub fn decode(b: &[u8]) -> Option<Info> {
         if b.len() < 20 {
@@ -293,6 +317,7 @@ impl Info {
             max_y: i32at(12),
             max_stitch: u16::from_le_bytes([b[16], b[17]]),
             spm: u16::from_le_bytes([b[18], b[19]]),
+            window: b.get(20).copied(),
         })
     }
     pub fn contains(&self, x: i32, y: i32) -> bool {
@@ -324,7 +349,10 @@ mod tests {
         }
         // the noise `7E 7E 00` reads as a 126-byte frame: only the line going quiet unblocks it
         assert!(d.pending() > 0);
-        d.resync_on_idle();
+        assert!(
+            d.resync_on_idle().is_some(),
+            "the stuck frame is named for a NAK"
+        );
         while let Some(x) = d.next_frame() {
             got.push(x);
         }

@@ -38,10 +38,15 @@ pub struct ModbusArgs {
     /// Pace every exchange as a serial line at this baud (10 bits per byte).
     #[arg(long)]
     pub line_baud: Option<u32>,
+    /// Answer FC23 (read/write in one request) with Illegal Function, as devices that only
+    /// know FC3, FC6 and FC16 do.
+    #[arg(long)]
+    pub no_read_write: bool,
     /// Carry out request N but send no reply (repeatable; requests count from 1).
     #[arg(long = "drop-reply", value_name = "N")]
     pub drop_replies: Vec<u64>,
-    /// Carry out request N and reply --late-ms late (repeatable).
+    /// Carry out request N and answer it late: its reply ends --late-ms after the request
+    /// began (repeatable).
     #[arg(long = "late-reply", value_name = "N")]
     pub late_replies: Vec<u64>,
     /// How late a late reply is, ms.
@@ -59,6 +64,10 @@ pub struct ModbusArgs {
     /// Fault with CODE on reaching block SEQ (SEQ:CODE).
     #[arg(long, value_name = "SEQ:CODE", value_parser = parse_pair::<u32, u16>)]
     pub fault_at_block: Option<(u32, u16)>,
+    /// Append every block written into the ring, every block executed and every sync to
+    /// FILE, one JSON object per line.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
 }
 
 fn parse_pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str) -> Result<(A, B), String> {
@@ -91,6 +100,7 @@ impl ModbusArgs {
             rapid_feed: self.rapid_feed,
             acceleration: self.acceleration,
             line_baud: self.line_baud,
+            read_write: !self.no_read_write,
             faults: Faults {
                 drop_replies: self.drop_replies.clone(),
                 late_replies: self.late_replies.clone(),
@@ -126,7 +136,40 @@ pub async fn run(args: ModbusArgs) -> anyhow::Result<()> {
         }
         (None, None) => anyhow::bail!("give --tcp ADDR or --pty PATH"),
     };
-    tokio::signal::ctrl_c().await?;
+    let mut file = match &args.trace {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .map_err(|e| anyhow::anyhow!("cannot open the trace file {}: {e}", p.display()))?,
+        ),
+        None => None,
+    };
+    let mut written = 0usize;
+    let ctrl_c = tokio::signal::ctrl_c();
+    tokio::pin!(ctrl_c);
+    loop {
+        tokio::select! {
+            r = &mut ctrl_c => { r?; break; }
+            _ = tokio::time::sleep(Duration::from_millis(20)) => {
+                if let Some(f) = file.as_mut() {
+                    use std::io::Write;
+                    let new = sim.events_from(written);
+                    written += new.len();
+                    let mut buf = Vec::new();
+                    for e in &new {
+                        buf.extend(serde_json::to_vec(e)?);
+                        buf.push(b'\n');
+                    }
+                    if !buf.is_empty() {
+                        f.write_all(&buf)?;
+                        f.flush()?;
+                    }
+                }
+            }
+        }
+    }
     let trace = sim.trace();
     println!("executed {} blocks; {:?}", trace.len(), sim.stats());
     Ok(())

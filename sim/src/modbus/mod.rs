@@ -1,30 +1,30 @@
-//! A simulated motion-block device behind a tokio-modbus server on TCP or on a pty (RTU):
-//! it serves the register map, executes blocks at machine speed, records what it executed,
-//! and injects faults on request (docs/modbus.md).
+//! A simulated motion-block device serving the register map of docs/modbus.md on Modbus TCP
+//! or RTU (a pty, or any byte stream): it executes blocks at machine speed, records what it
+//! executed, and injects faults on request. Frames come from `machlink_protocols::modbus::frame`,
+//! the module the link uses too.
 
 pub mod cli;
+mod serve;
 
-use futures::future::BoxFuture;
+use machlink_protocols::modbus::frame::{
+    exception, Request, Response, MAX_READ, MAX_READ_WRITE_WRITE,
+};
 use machlink_protocols::modbus::map::{
     fault, reg, BlockKind, Command, Layout, ModbusState, MotionBlock, WordOrder, BLOCK_REGISTERS,
-    MAP_VERSION, MAX_READ_REGISTERS, MAX_WRITE_REGISTERS,
+    MAP_VERSION, MAX_WRITE_REGISTERS,
 };
 use offset_core::{Point, P3};
 use serde::Serialize;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
-use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::task::{Context as TaskContext, Poll};
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::net::TcpListener;
 use tokio::sync::Notify;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
-use tokio_modbus::server::Service;
-use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 
 /// Faults the device injects, by request number (1-based, counted over every request it
 /// receives on any connection) or by block sequence.
@@ -32,7 +32,9 @@ use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 pub struct Faults {
     /// Requests that are carried out but whose reply is never sent.
     pub drop_replies: Vec<u64>,
-    /// Requests that are carried out and answered `late_by` later.
+    /// Requests that are carried out and answered late: the reply's last byte leaves
+    /// `late_by` after the request's first byte arrived (RTU), or the reply is sent
+    /// `late_by` after the request arrived (TCP).
     pub late_replies: Vec<u64>,
     pub late_by: Duration,
     /// Requests answered with this exception code and not carried out.
@@ -60,9 +62,15 @@ pub struct SimConfig {
     pub rapid_feed: f64,
     /// Acceleration and deceleration of every block, mm/s² (each block starts and ends at rest).
     pub acceleration: f64,
-    /// Pace every exchange as a serial line at this baud would (10 bits per byte, plus the
-    /// 3.5-character silence that ends each RTU frame).
+    /// Pace every exchange as a serial line at this baud would (10 bits per byte, and the
+    /// 3.5-character silence between frames). On RTU the device models the line: a request
+    /// takes its bytes' time from when it arrives (or from 3.5 characters after the last
+    /// frame, if later), the reply starts 3.5 characters after the request ends and is
+    /// delivered when its last byte would have arrived.
     pub line_baud: Option<u32>,
+    /// Answer FC23 (read/write in one request); false answers it Illegal Function, as
+    /// devices that only know FC3, FC6 and FC16 do.
+    pub read_write: bool,
     pub faults: Faults,
 }
 
@@ -77,6 +85,7 @@ impl Default for SimConfig {
             rapid_feed: 5000.0,
             acceleration: 500.0,
             line_baud: None,
+            read_write: true,
             faults: Faults::default(),
         }
     }
@@ -87,6 +96,20 @@ impl Default for SimConfig {
 pub struct Executed {
     pub seq: u32,
     pub block: MotionBlock,
+}
+
+/// What the device did, as its event trace (and `--trace FILE`) records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceEvent {
+    /// A block's sequence number was written into its ring slot (the block sent to the
+    /// device), with the device's consumed sequence at that moment: `seq <= consumed` is
+    /// a block sent again after it had run.
+    Written { seq: u32, consumed: u32 },
+    /// A block executed to its end.
+    Executed { seq: u32, block: MotionBlock },
+    /// A sync command set the consumed sequence to `at` (a job starts there).
+    Synced { at: u32 },
 }
 
 /// What the device has seen, for tests to check that the faults really happened.
@@ -100,12 +123,16 @@ pub struct SimStats {
     pub disconnects: u64,
     /// Bytes of every request and reply frame on the wire (MBAP or address + CRC included).
     pub wire_bytes: u64,
+    /// Frames on the wire (requests and replies): each is followed by 3.5 characters of
+    /// silence on RTU, so a line at B baud is busy (wire_bytes + 3.5 × frames) × 10 / B s.
+    pub frames: u64,
 }
 
 struct Device {
     /// The whole map, from the base address.
     regs: Vec<u16>,
     trace: Vec<Executed>,
+    events: Vec<TraceEvent>,
     /// Bumped by stop and fault: a block in motion under an older epoch is abandoned.
     epoch: u64,
 }
@@ -118,8 +145,8 @@ struct Shared {
     stats: Mutex<SimStats>,
     request_no: AtomicU64,
     fault_fired: AtomicBool,
-    silent_until: Mutex<Option<Instant>>,
-    line_free_at: Mutex<Instant>,
+    /// For each reply sent, in the order sent: the number of the request it answers.
+    replies: Mutex<Vec<u64>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -146,6 +173,21 @@ impl Device {
     }
 }
 
+/// The header registers a write may change, worked on as a whole before any is applied.
+#[derive(Clone, Copy, Debug)]
+struct Header {
+    state: ModbusState,
+    fault: u16,
+    write: u32,
+    consumed: u32,
+    /// The block in motion is abandoned.
+    abandon: bool,
+    /// A sync set the consumed sequence.
+    synced: bool,
+}
+
+type Reply = Result<Response, u8>;
+
 impl Shared {
     fn new(cfg: SimConfig) -> Arc<Shared> {
         let layout = Layout {
@@ -163,57 +205,80 @@ impl Shared {
             dev: Mutex::new(Device {
                 regs,
                 trace: Vec::new(),
+                events: Vec::new(),
                 epoch: 0,
             }),
             wake: Notify::new(),
             stats: Mutex::new(SimStats::default()),
             request_no: AtomicU64::new(0),
             fault_fired: AtomicBool::new(false),
-            silent_until: Mutex::new(None),
-            line_free_at: Mutex::new(Instant::now()),
+            replies: Mutex::new(Vec::new()),
         })
     }
 
     /// Offset of `addr .. addr + n` in the map, or Illegal Data Address.
-    fn offset(&self, addr: u16, n: usize) -> Result<usize, ExceptionCode> {
+    fn offset(&self, addr: u16, n: usize) -> Result<usize, u8> {
         let off = (addr as usize)
             .checked_sub(self.cfg.base_address as usize)
-            .ok_or(ExceptionCode::IllegalDataAddress)?;
+            .ok_or(exception::ILLEGAL_ADDRESS)?;
         if off + n > (self.layout.end() - self.cfg.base_address as u32) as usize {
-            return Err(ExceptionCode::IllegalDataAddress);
+            return Err(exception::ILLEGAL_ADDRESS);
         }
         Ok(off)
     }
 
-    /// Carries out one request on the map.
-    fn apply(&self, req: &Request<'_>) -> Result<Response, ExceptionCode> {
+    fn read(&self, addr: u16, n: u16) -> Result<Vec<u16>, u8> {
+        if !(1..=MAX_READ).contains(&n) {
+            return Err(exception::ILLEGAL_VALUE);
+        }
+        let off = self.offset(addr, n as usize)?;
+        Ok(lock(&self.dev).regs[off..off + n as usize].to_vec())
+    }
+
+    /// Carries out one request on the map: the reply, or the exception code.
+    fn apply(&self, req: &Request) -> Reply {
         match req {
-            Request::ReadHoldingRegisters(addr, n) => {
-                if !(1..=MAX_READ_REGISTERS).contains(n) {
-                    return Err(ExceptionCode::IllegalDataValue);
-                }
-                let off = self.offset(*addr, *n as usize)?;
-                let dev = lock(&self.dev);
-                Ok(Response::ReadHoldingRegisters(
-                    dev.regs[off..off + *n as usize].to_vec(),
-                ))
+            Request::Read { addr, count } => self.read(*addr, *count).map(Response::Read),
+            Request::WriteSingle { addr, value } => {
+                self.write(*addr, &[*value])?;
+                Ok(Response::WriteSingle {
+                    addr: *addr,
+                    value: *value,
+                })
             }
-            Request::WriteSingleRegister(addr, v) => {
-                self.write(*addr, &[*v])?;
-                Ok(Response::WriteSingleRegister(*addr, *v))
-            }
-            Request::WriteMultipleRegisters(addr, words) => {
+            Request::Write { addr, words } => {
                 if words.is_empty() || words.len() > MAX_WRITE_REGISTERS as usize {
-                    return Err(ExceptionCode::IllegalDataValue);
+                    return Err(exception::ILLEGAL_VALUE);
                 }
                 self.write(*addr, words)?;
-                Ok(Response::WriteMultipleRegisters(*addr, words.len() as u16))
+                Ok(Response::Write {
+                    addr: *addr,
+                    count: words.len() as u16,
+                })
             }
-            _ => Err(ExceptionCode::IllegalFunction),
+            Request::ReadWrite {
+                read_addr,
+                read_count,
+                write_addr,
+                words,
+            } if self.cfg.read_write => {
+                if words.is_empty()
+                    || words.len() > MAX_READ_WRITE_WRITE as usize
+                    || !(1..=MAX_READ).contains(read_count)
+                {
+                    return Err(exception::ILLEGAL_VALUE);
+                }
+                self.offset(*read_addr, *read_count as usize)?;
+                // The write first, then the read (application protocol 6.17).
+                self.write(*write_addr, words)?;
+                self.read(*read_addr, *read_count).map(Response::ReadWrite)
+            }
+            _ => Err(exception::ILLEGAL_FUNCTION),
         }
     }
 
-    fn write(&self, addr: u16, words: &[u16]) -> Result<(), ExceptionCode> {
+    /// Writes `words` at `addr`: all of them or, with an exception, none.
+    fn write(&self, addr: u16, words: &[u16]) -> Result<(), u8> {
         let off = self.offset(addr, words.len())?;
         let end = off + words.len();
         let order = self.cfg.word_order;
@@ -227,93 +292,69 @@ impl Shared {
             for seq in consumed + 1..=write.min(consumed + cap) {
                 let s = ring + self.layout.slot(seq) as usize * BLOCK_REGISTERS as usize;
                 if off < s + BLOCK_REGISTERS as usize && s < end {
-                    return Err(ExceptionCode::IllegalDataValue);
+                    return Err(exception::ILLEGAL_VALUE);
                 }
             }
             dev.regs[off..end].copy_from_slice(words);
+            // a write that sets a slot's sequence number sends that block
+            let block = BLOCK_REGISTERS as usize;
+            for slot in (off - ring) / block..=(end - 1 - ring) / block {
+                let at = ring + slot * block;
+                if off <= at && at + 2 <= end {
+                    let seq = dev.get32(order, at as u16);
+                    dev.events.push(TraceEvent::Written { seq, consumed });
+                }
+            }
             return Ok(());
         }
-        if end > ring {
-            return Err(ExceptionCode::IllegalDataAddress);
-        }
-        for a in off..end {
-            match a as u16 {
-                reg::COMMAND => {}
-                x if x == reg::WRITE_SEQ || x == reg::WRITE_SEQ + 1 => {}
-                _ => return Err(ExceptionCode::IllegalDataAddress),
-            }
+        // Only the command and the write sequence may be written, and not together with
+        // anything past the header.
+        if end > ring
+            || (off..end).any(|a| !(reg::COMMAND..reg::CONSUMED_SEQ).contains(&(a as u16)))
+        {
+            return Err(exception::ILLEGAL_ADDRESS);
         }
         let w = reg::WRITE_SEQ as usize;
         let touches_seq = off <= w + 1 && end > w;
         if touches_seq && !(off <= w && end >= w + 2) {
             // A 32-bit value must be written whole.
-            return Err(ExceptionCode::IllegalDataValue);
+            return Err(exception::ILLEGAL_VALUE);
         }
-        let cmd = (off <= reg::COMMAND as usize && end > reg::COMMAND as usize)
-            .then(|| words[reg::COMMAND as usize - off]);
+        let mut h = Header {
+            state: ModbusState::from_register(dev.state()).unwrap_or(ModbusState::Fault),
+            fault: dev.regs[reg::FAULT as usize],
+            write: dev.get32(order, reg::WRITE_SEQ),
+            consumed: dev.get32(order, reg::CONSUMED_SEQ),
+            abandon: false,
+            synced: false,
+        };
+        // The write sequence first, then the command.
         if touches_seq {
             let new = order.join([words[w - off], words[w + 1 - off]]);
-            let consumed = dev.get32(order, reg::CONSUMED_SEQ);
-            let current = dev.get32(order, reg::WRITE_SEQ);
-            let idle = dev.state() == ModbusState::Idle as u16;
-            if new > consumed.saturating_add(self.cfg.capacity as u32) || (!idle && new < current) {
-                return Err(ExceptionCode::IllegalDataValue);
+            let back = h.state != ModbusState::Idle && new < h.write;
+            if new > h.consumed.saturating_add(self.cfg.capacity as u32) || back {
+                return Err(exception::ILLEGAL_VALUE);
             }
-            dev.put32(order, reg::WRITE_SEQ, new);
+            h.write = new;
         }
-        if let Some(c) = cmd {
-            self.command(&mut dev, c)?;
+        if off <= reg::COMMAND as usize {
+            command(&mut h, words[reg::COMMAND as usize - off])?;
+        }
+        dev.set_state(h.state);
+        dev.regs[reg::FAULT as usize] = h.fault;
+        dev.put32(order, reg::WRITE_SEQ, h.write);
+        if h.synced {
+            dev.events.push(TraceEvent::Synced { at: h.consumed });
+        }
+        dev.put32(order, reg::CONSUMED_SEQ, h.consumed);
+        if h.abandon {
+            dev.epoch += 1;
+        }
+        if self.instant() {
+            self.run_instantly(&mut dev);
         }
         drop(dev);
         self.wake.notify_one();
-        Ok(())
-    }
-
-    fn command(&self, dev: &mut Device, c: u16) -> Result<(), ExceptionCode> {
-        let order = self.cfg.word_order;
-        let state = ModbusState::from_register(dev.state());
-        match Command::from_register(c) {
-            None if c == 0 => {}
-            None => return Err(ExceptionCode::IllegalDataValue),
-            Some(Command::Start) => match state {
-                Some(ModbusState::Idle) => dev.set_state(ModbusState::Running),
-                Some(ModbusState::Fault) => return Err(ExceptionCode::ServerDeviceFailure),
-                _ => {}
-            },
-            Some(Command::Hold) => {
-                if state == Some(ModbusState::Running) {
-                    dev.set_state(ModbusState::Hold)
-                }
-            }
-            Some(Command::Resume) => {
-                if state == Some(ModbusState::Hold) {
-                    dev.set_state(ModbusState::Running)
-                }
-            }
-            Some(Command::Stop) => {
-                if state != Some(ModbusState::Fault) {
-                    dev.set_state(ModbusState::Idle);
-                    let consumed = dev.get32(order, reg::CONSUMED_SEQ);
-                    dev.put32(order, reg::WRITE_SEQ, consumed);
-                    dev.epoch += 1;
-                }
-            }
-            Some(Command::ClearFault) => {
-                if state == Some(ModbusState::Fault) {
-                    dev.set_state(ModbusState::Idle);
-                    dev.regs[reg::FAULT as usize] = 0;
-                    let consumed = dev.get32(order, reg::CONSUMED_SEQ);
-                    dev.put32(order, reg::WRITE_SEQ, consumed);
-                }
-            }
-            Some(Command::Sync) => {
-                if state != Some(ModbusState::Idle) {
-                    return Err(ExceptionCode::IllegalDataValue);
-                }
-                let write = dev.get32(order, reg::WRITE_SEQ);
-                dev.put32(order, reg::CONSUMED_SEQ, write);
-            }
-        }
         Ok(())
     }
 
@@ -344,256 +385,145 @@ impl Shared {
             2.0 * (len / acc).sqrt()
         }
     }
+}
 
-    /// Wire time of one RTU exchange at the configured baud (request and reply PDUs).
-    fn line_time(&self, req_pdu: usize, resp_pdu: usize) -> Option<Duration> {
-        let baud = self.cfg.line_baud? as f64;
-        // address + PDU + CRC each way, and 3.5 characters of silence after each frame.
-        let chars = (req_pdu + 3) as f64 + (resp_pdu + 3) as f64 + 7.0;
-        Some(Duration::from_secs_f64(chars * 10.0 / baud))
+/// The command register's effect on the header (docs/modbus.md, the state table): commands
+/// outside their states change nothing; start in fault and sync outside idle are refused.
+fn command(h: &mut Header, c: u16) -> Result<(), u8> {
+    use ModbusState::*;
+    match (Command::from_register(c), h.state) {
+        (None, _) if c == 0 => {}
+        (None, _) => return Err(exception::ILLEGAL_VALUE),
+        (Some(Command::Start), Idle) => h.state = Running,
+        (Some(Command::Start), Fault) => return Err(exception::DEVICE_FAILURE),
+        (Some(Command::Hold), Running) => h.state = Hold,
+        (Some(Command::Resume), Hold) => h.state = Running,
+        (Some(Command::Stop), Idle | Running | Hold) => {
+            h.state = Idle;
+            h.write = h.consumed;
+            h.abandon = true;
+        }
+        (Some(Command::ClearFault), Fault) => {
+            h.state = Idle;
+            h.fault = 0;
+            h.write = h.consumed;
+        }
+        (Some(Command::Sync), Idle) => {
+            h.consumed = h.write;
+            h.synced = true;
+        }
+        (Some(Command::Sync), _) => return Err(exception::ILLEGAL_VALUE),
+        _ => {}
     }
+    Ok(())
+}
 
-    async fn pace(
-        &self,
-        req: &Request<'_>,
-        resp: Option<&Result<Response, ExceptionCode>>,
-        rtu: bool,
-    ) {
-        let req_pdu = match req {
-            Request::ReadHoldingRegisters(..) | Request::WriteSingleRegister(..) => 5,
-            Request::WriteMultipleRegisters(_, w) => 6 + 2 * w.len(),
-            _ => 5,
-        };
-        let resp_pdu = match resp {
-            None => 0,
-            Some(Err(_)) => 2,
-            Some(Ok(Response::ReadHoldingRegisters(v))) => 2 + 2 * v.len(),
-            Some(Ok(_)) => 5,
-        };
-        // RTU: address + CRC; TCP: the 7-byte MBAP header.
-        let frame = |pdu: usize| {
-            if pdu == 0 {
-                0
-            } else if rtu {
-                pdu + 3
-            } else {
-                pdu + 7
-            }
-        };
-        lock(&self.stats).wire_bytes += (frame(req_pdu) + frame(resp_pdu)) as u64;
-        let Some(t) = self.line_time(req_pdu, resp_pdu) else {
-            return;
-        };
-        let until = {
-            let mut free = lock(&self.line_free_at);
-            let start = (*free).max(Instant::now());
-            *free = start + t;
-            *free
-        };
-        tokio::time::sleep_until(until).await;
+/// The block the device executes next: (sequence, block, epoch, start position), or `None`
+/// (not running, nothing committed, or a fault raised here).
+fn next_block(shared: &Shared, dev: &mut Device) -> Option<(u32, MotionBlock, u64, [i32; 3])> {
+    let order = shared.cfg.word_order;
+    let consumed = dev.get32(order, reg::CONSUMED_SEQ);
+    let write = dev.get32(order, reg::WRITE_SEQ);
+    if dev.state() != ModbusState::Running as u16 || consumed >= write {
+        return None;
+    }
+    let seq = consumed + 1;
+    let at = reg::RING as usize + shared.layout.slot(seq) as usize * BLOCK_REGISTERS as usize;
+    match MotionBlock::decode(&dev.regs[at..at + BLOCK_REGISTERS as usize], order) {
+        Err(_) => {
+            dev.set_fault(fault::BAD_BLOCK);
+            None
+        }
+        Ok((s, _)) if s != seq => {
+            dev.set_fault(fault::SEQUENCE);
+            None
+        }
+        Ok(_)
+            if shared.cfg.faults.fault_at_block.is_some_and(|f| f.0 == seq)
+                && !shared.fault_fired.swap(true, Ordering::SeqCst) =>
+        {
+            let code = shared.cfg.faults.fault_at_block.map_or(0, |f| f.1);
+            dev.set_fault(code);
+            None
+        }
+        Ok((_, block)) => {
+            let from = [
+                dev.get32(order, reg::POS_X) as i32,
+                dev.get32(order, reg::POS_Y) as i32,
+                dev.get32(order, reg::POS_Z) as i32,
+            ];
+            Some((seq, block, dev.epoch, from))
+        }
     }
 }
 
-/// The executor: takes committed blocks in sequence and runs them at machine speed.
-async fn execute(shared: Arc<Shared>) {
+/// Completes block `seq` unless it was abandoned (stop, fault) meanwhile.
+fn finish_block(shared: &Shared, dev: &mut Device, seq: u32, block: MotionBlock, epoch: u64) {
     let order = shared.cfg.word_order;
+    let still_running =
+        dev.state() == ModbusState::Running as u16 || dev.state() == ModbusState::Hold as u16;
+    if dev.epoch == epoch && still_running && dev.get32(order, reg::CONSUMED_SEQ) == seq - 1 {
+        dev.put32(order, reg::POS_X, block.target[0] as u32);
+        dev.put32(order, reg::POS_Y, block.target[1] as u32);
+        dev.put32(order, reg::POS_Z, block.target[2] as u32);
+        dev.put32(order, reg::CONSUMED_SEQ, seq);
+        dev.trace.push(Executed { seq, block });
+        dev.events.push(TraceEvent::Executed { seq, block });
+        if block.kind == BlockKind::End {
+            dev.set_state(ModbusState::Idle);
+        }
+    }
+}
+
+impl Shared {
+    /// An infinitely fast machine (time scale 0 or infinite) executes what was committed
+    /// before it answers the write that committed it.
+    fn instant(&self) -> bool {
+        !(self.cfg.time_scale > 0.0 && self.cfg.time_scale.is_finite())
+    }
+    fn run_instantly(&self, dev: &mut Device) {
+        while let Some((seq, block, epoch, _)) = next_block(self, dev) {
+            finish_block(self, dev, seq, block, epoch);
+        }
+    }
+}
+
+/// The executor of a machine with a time scale: takes committed blocks in sequence and
+/// runs them at machine speed.
+async fn execute(shared: Arc<Shared>) {
+    if shared.instant() {
+        return;
+    }
     let mut clock = Instant::now();
-    let mut since_yield = 0u32;
     loop {
-        let next = {
-            let mut dev = lock(&shared.dev);
-            let consumed = dev.get32(order, reg::CONSUMED_SEQ);
-            let write = dev.get32(order, reg::WRITE_SEQ);
-            if dev.state() == ModbusState::Running as u16 && consumed < write {
-                let seq = consumed + 1;
-                let at = reg::RING as usize + shared.layout.slot(seq) as usize * 16;
-                match MotionBlock::decode(&dev.regs[at..at + 16], order) {
-                    Err(_) => {
-                        dev.set_fault(fault::BAD_BLOCK);
-                        None
-                    }
-                    Ok((s, _)) if s != seq => {
-                        dev.set_fault(fault::SEQUENCE);
-                        None
-                    }
-                    Ok(_)
-                        if shared.cfg.faults.fault_at_block.is_some_and(|f| f.0 == seq)
-                            && !shared.fault_fired.swap(true, Ordering::SeqCst) =>
-                    {
-                        let code = shared.cfg.faults.fault_at_block.map_or(0, |f| f.1);
-                        dev.set_fault(code);
-                        None
-                    }
-                    Ok((_, block)) => {
-                        let from = [
-                            dev.get32(order, reg::POS_X) as i32,
-                            dev.get32(order, reg::POS_Y) as i32,
-                            dev.get32(order, reg::POS_Z) as i32,
-                        ];
-                        Some((seq, block, dev.epoch, from))
-                    }
-                }
-            } else {
-                None
-            }
-        };
+        let next = next_block(&shared, &mut lock(&shared.dev));
         let Some((seq, block, epoch, from)) = next else {
             shared.wake.notified().await;
             continue;
         };
-        if shared.cfg.time_scale > 0.0 && shared.cfg.time_scale.is_finite() {
-            let t = shared.motion_time(from, &block) / shared.cfg.time_scale;
-            clock = clock.max(Instant::now()) + Duration::from_secs_f64(t);
-            // Sleep only when a millisecond or more is due: the average pace stays exact.
-            loop {
-                let (state, ep) = {
-                    let dev = lock(&shared.dev);
-                    (dev.state(), dev.epoch)
-                };
-                if ep != epoch {
-                    break;
-                }
-                let now = Instant::now();
-                if state == ModbusState::Hold as u16 {
-                    tokio::time::sleep(Duration::from_millis(2)).await;
-                    clock += Instant::now() - now;
-                    continue;
-                }
-                if clock <= now + Duration::from_millis(1) {
-                    break;
-                }
-                tokio::time::sleep((clock - now).min(Duration::from_millis(5))).await;
+        let t = shared.motion_time(from, &block) / shared.cfg.time_scale;
+        clock = clock.max(Instant::now()) + Duration::from_secs_f64(t);
+        // Sleep only when a millisecond or more is due: the average pace stays exact.
+        loop {
+            let (state, ep) = {
+                let dev = lock(&shared.dev);
+                (dev.state(), dev.epoch)
+            };
+            if ep != epoch {
+                break;
             }
-        } else {
-            since_yield += 1;
-            if since_yield.is_multiple_of(64) {
-                tokio::task::yield_now().await;
+            let now = Instant::now();
+            if state == ModbusState::Hold as u16 {
+                tokio::time::sleep(Duration::from_millis(2)).await;
+                clock += Instant::now() - now;
+                continue;
             }
+            if clock <= now + Duration::from_millis(1) {
+                break;
+            }
+            tokio::time::sleep((clock - now).min(Duration::from_millis(5))).await;
         }
-        let mut dev = lock(&shared.dev);
-        let still_running =
-            dev.state() == ModbusState::Running as u16 || dev.state() == ModbusState::Hold as u16;
-        if dev.epoch == epoch && still_running && dev.get32(order, reg::CONSUMED_SEQ) == seq - 1 {
-            dev.put32(order, reg::POS_X, block.target[0] as u32);
-            dev.put32(order, reg::POS_Y, block.target[1] as u32);
-            dev.put32(order, reg::POS_Z, block.target[2] as u32);
-            dev.put32(order, reg::CONSUMED_SEQ, seq);
-            dev.trace.push(Executed { seq, block });
-            if block.kind == BlockKind::End {
-                dev.set_state(ModbusState::Idle);
-            }
-        }
-    }
-}
-
-/// The Modbus service of one connection (TCP) or of the line (RTU).
-struct DeviceService {
-    shared: Arc<Shared>,
-    /// TCP: set to close this connection after the current request.
-    kill: Option<Arc<AtomicBool>>,
-}
-
-impl Service for DeviceService {
-    type Request = SlaveRequest<'static>;
-    type Response = Option<Response>;
-    type Exception = ExceptionCode;
-    type Future = BoxFuture<'static, Result<Option<Response>, ExceptionCode>>;
-
-    fn call(&self, req: SlaveRequest<'static>) -> Self::Future {
-        let shared = Arc::clone(&self.shared);
-        let kill = self.kill.clone();
-        Box::pin(async move {
-            let n = shared.request_no.fetch_add(1, Ordering::SeqCst) + 1;
-            lock(&shared.stats).requests = n;
-            let rtu = kill.is_none();
-            if lock(&shared.silent_until).is_some_and(|t| Instant::now() < t) {
-                return Ok(None);
-            }
-            // On TCP, unit 255 means "the device behind this address" (no gateway).
-            let for_us = req.slave == shared.cfg.unit_id || (!rtu && req.slave == 255);
-            if !for_us {
-                return if rtu {
-                    Ok(None)
-                } else {
-                    Err(ExceptionCode::GatewayTargetDevice)
-                };
-            }
-            let faults = &shared.cfg.faults;
-            if let Some(&(_, code)) = faults.exceptions.iter().find(|e| e.0 == n) {
-                lock(&shared.stats).exceptions += 1;
-                let r = Err(ExceptionCode::new(code));
-                shared.pace(&req.request, Some(&r), rtu).await;
-                return r.map(Some);
-            }
-            if faults.disconnects.contains(&n) {
-                lock(&shared.stats).disconnects += 1;
-                match &kill {
-                    None => {
-                        *lock(&shared.silent_until) = Some(Instant::now() + faults.silence);
-                        return Ok(None);
-                    }
-                    Some(k) => {
-                        let r = shared.apply(&req.request);
-                        k.store(true, Ordering::SeqCst);
-                        return r.map(Some);
-                    }
-                }
-            }
-            let r = shared.apply(&req.request);
-            if faults.drop_replies.contains(&n) {
-                lock(&shared.stats).dropped += 1;
-                shared.pace(&req.request, None, rtu).await;
-                return Ok(None);
-            }
-            if faults.late_replies.contains(&n) {
-                lock(&shared.stats).late += 1;
-                tokio::time::sleep(faults.late_by).await;
-            }
-            shared.pace(&req.request, Some(&r), rtu).await;
-            r.map(Some)
-        })
-    }
-}
-
-/// A TCP stream that fails its next write once `kill` is set: how the device hangs up.
-#[derive(Debug)]
-struct HangUp {
-    inner: TcpStream,
-    kill: Arc<AtomicBool>,
-}
-
-impl AsyncRead for HangUp {
-    fn poll_read(
-        mut self: Pin<&mut Self>,
-        cx: &mut TaskContext<'_>,
-        buf: &mut ReadBuf<'_>,
-    ) -> Poll<std::io::Result<()>> {
-        Pin::new(&mut self.inner).poll_read(cx, buf)
-    }
-}
-
-impl AsyncWrite for HangUp {
-    fn poll_write(
-        mut self: Pin<&mut Self>,
-        cx: &mut TaskContext<'_>,
-        buf: &[u8],
-    ) -> Poll<std::io::Result<usize>> {
-        if self.kill.load(Ordering::SeqCst) {
-            return Poll::Ready(Err(std::io::ErrorKind::BrokenPipe.into()));
-        }
-        Pin::new(&mut self.inner).poll_write(cx, buf)
-    }
-    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut TaskContext<'_>) -> Poll<std::io::Result<()>> {
-        if self.kill.load(Ordering::SeqCst) {
-            return Poll::Ready(Err(std::io::ErrorKind::BrokenPipe.into()));
-        }
-        Pin::new(&mut self.inner).poll_flush(cx)
-    }
-    fn poll_shutdown(
-        mut self: Pin<&mut Self>,
-        cx: &mut TaskContext<'_>,
-    ) -> Poll<std::io::Result<()>> {
-        Pin::new(&mut self.inner).poll_shutdown(cx)
+        finish_block(&shared, &mut lock(&shared.dev), seq, block, epoch);
     }
 }
 
@@ -603,88 +533,59 @@ pub struct ModbusSim {
     tasks: Vec<JoinHandle<()>>,
     addr: Option<SocketAddr>,
     port: Option<PathBuf>,
-    link: Option<PathBuf>,
-    /// The pty's slave end, held open so the master never sees a hang-up between clients.
-    _slave: Option<tokio_serial::SerialStream>,
+    link: Option<crate::pty::PtyLink>,
 }
 
 impl ModbusSim {
+    fn start(cfg: SimConfig) -> (Arc<Shared>, JoinHandle<()>) {
+        let shared = Shared::new(cfg);
+        let exec = tokio::spawn(execute(Arc::clone(&shared)));
+        (shared, exec)
+    }
+
     /// Serves the device on TCP at `bind` (port 0: any free port; see `addr()`).
     pub async fn spawn_tcp(cfg: SimConfig, bind: SocketAddr) -> std::io::Result<ModbusSim> {
-        let shared = Shared::new(cfg);
         let listener = TcpListener::bind(bind).await?;
         let addr = listener.local_addr()?;
-        let server = tokio_modbus::server::tcp::Server::new(listener);
-        let sh = Arc::clone(&shared);
-        let on_connected = move |stream: TcpStream, _peer: SocketAddr| {
-            let shared = Arc::clone(&sh);
-            async move {
-                stream.set_nodelay(true)?;
-                lock(&shared.stats).connections += 1;
-                let kill = Arc::new(AtomicBool::new(false));
-                let service = DeviceService {
-                    shared,
-                    kill: Some(Arc::clone(&kill)),
-                };
-                Ok(Some((
-                    service,
-                    HangUp {
-                        inner: stream,
-                        kill,
-                    },
-                )))
-            }
-        };
-        let serve = tokio::spawn(async move {
-            if let Err(e) = server.serve(&on_connected, |_e| {}).await {
-                tracing::warn!("Modbus TCP device stopped: {e}");
-            }
-        });
-        let exec = tokio::spawn(execute(Arc::clone(&shared)));
+        let (shared, exec) = Self::start(cfg);
+        let serve = tokio::spawn(serve::tcp(listener, Arc::clone(&shared)));
         Ok(ModbusSim {
             shared,
             tasks: vec![serve, exec],
             addr: Some(addr),
             port: None,
             link: None,
-            _slave: None,
         })
     }
 
     /// Serves the device as an RTU slave on a new pseudo-terminal; clients open `port()`.
     /// With `link`, a symlink of that name points at the pty (replaced if it exists).
     pub async fn spawn_pty(cfg: SimConfig, link: Option<&Path>) -> std::io::Result<ModbusSim> {
-        use tokio_serial::SerialPort;
-        let shared = Shared::new(cfg);
-        let (master, slave) = tokio_serial::SerialStream::pair().map_err(std::io::Error::from)?;
-        let name = slave
-            .name()
-            .ok_or_else(|| std::io::Error::other("the pty has no name"))?;
-        let port = PathBuf::from(name);
-        if let Some(l) = link {
-            let _ = std::fs::remove_file(l);
-            std::os::unix::fs::symlink(&port, l)?;
-        }
+        let pty = crate::pty::PtyPort::open()?;
+        let port = PathBuf::from(&pty.slave_path);
+        let link = crate::pty::PtyLink::optional(&port, link)?;
+        let mut sim = Self::spawn_rtu_on(cfg, pty);
+        sim.port = Some(port);
+        sim.link = link;
+        Ok(sim)
+    }
+
+    /// Serves the device as an RTU slave on any byte stream (an in-memory
+    /// [`crate::line::cable`] in tests; the device models the line at `cfg.line_baud`).
+    pub fn spawn_rtu_on<S>(cfg: SimConfig, io: S) -> ModbusSim
+    where
+        S: AsyncRead + AsyncWrite + Send + Unpin + 'static,
+    {
+        let (shared, exec) = Self::start(cfg);
         lock(&shared.stats).connections = 1;
-        let service = DeviceService {
-            shared: Arc::clone(&shared),
-            kill: None,
-        };
-        let serve = tokio::spawn(async move {
-            let server = tokio_modbus::server::rtu::Server::new(master);
-            if let Err(e) = server.serve_forever(service).await {
-                tracing::warn!("Modbus RTU device stopped: {e}");
-            }
-        });
-        let exec = tokio::spawn(execute(Arc::clone(&shared)));
-        Ok(ModbusSim {
+        let serve = tokio::spawn(serve::rtu(io, Arc::clone(&shared)));
+        ModbusSim {
             shared,
             tasks: vec![serve, exec],
             addr: None,
-            link: link.map(Path::to_path_buf),
-            port: Some(port),
-            _slave: Some(slave),
-        })
+            port: None,
+            link: None,
+        }
     }
 
     /// The TCP address (TCP devices only).
@@ -692,10 +593,11 @@ impl ModbusSim {
         self.addr
             .expect("addr() is for a device spawned with spawn_tcp")
     }
-    /// The pty path clients open (RTU devices only): the symlink if one was asked for.
+    /// The pty path clients open (RTU devices on a pty only): the symlink if one was asked for.
     pub fn port(&self) -> &Path {
         self.link
-            .as_deref()
+            .as_ref()
+            .map(|l| l.path())
             .or(self.port.as_deref())
             .expect("port() is for a device spawned with spawn_pty")
     }
@@ -703,8 +605,21 @@ impl ModbusSim {
     pub fn trace(&self) -> Vec<Executed> {
         lock(&self.shared.dev).trace.clone()
     }
+    /// The events from number `from` on (writes of blocks, executions, syncs), in order.
+    pub fn events_from(&self, from: usize) -> Vec<TraceEvent> {
+        let dev = lock(&self.shared.dev);
+        dev.events
+            .get(from..)
+            .map(<[_]>::to_vec)
+            .unwrap_or_default()
+    }
     pub fn stats(&self) -> SimStats {
         *lock(&self.shared.stats)
+    }
+    /// For every reply the device sent, in the order sent, the number of the request it
+    /// answered (requests count from 1): what a test compares with the link's own account.
+    pub fn replies(&self) -> Vec<u64> {
+        lock(&self.shared.replies).clone()
     }
     /// State word, fault code, consumed and write sequence as the registers hold them.
     pub fn registers(&self) -> (u16, u16, u32, u32) {
@@ -723,9 +638,6 @@ impl Drop for ModbusSim {
     fn drop(&mut self) {
         for t in &self.tasks {
             t.abort();
-        }
-        if let Some(l) = &self.link {
-            let _ = std::fs::remove_file(l);
         }
     }
 }

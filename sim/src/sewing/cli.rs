@@ -34,7 +34,15 @@ pub struct SewingArgs {
     /// The longest stitch or jump of one record, mm.
     #[arg(long, default_value_t = 12.7)]
     pub max_stitch: f64,
-    /// Append every needle drop to this file as a JSON line {"index","x","y"} (0.1 mm).
+    /// Pace the line both ways as a UART at this baud rate would (10 bits a byte).
+    #[arg(long)]
+    pub baud: Option<u32>,
+    /// The upload window INFO reports (chunk frames in flight); 0 behaves as a machine of
+    /// protocol version 1 (no window in INFO, no NAK for a frame that stops short).
+    #[arg(long, default_value_t = 4)]
+    pub window: u8,
+    /// Append every record the machine executes ({"event":"record","index","kind","x","y"},
+    /// 0.1 mm) and every event ({"event":"note","text"}) to this file, one JSON object per line.
     #[arg(long)]
     pub trace: Option<PathBuf>,
 }
@@ -50,6 +58,9 @@ impl SewingArgs {
                 "--time-scale must be a positive number, got {}",
                 self.time_scale
             );
+        }
+        if self.baud == Some(0) {
+            anyhow::bail!("--baud must be at least 1");
         }
         if self.spm == 0 {
             anyhow::bail!("--spm must be at least 1");
@@ -74,6 +85,8 @@ impl SewingArgs {
             power_loss_at: self.power_loss_at.clone(),
             area: [u(a[0]), u(a[1]), u(a[2]), u(a[3])],
             max_stitch: (self.max_stitch * 10.0).round() as u16,
+            baud: self.baud,
+            window: (self.window > 0).then_some(self.window),
         })
     }
 }
@@ -87,13 +100,10 @@ pub fn run(a: SewingArgs) -> anyhow::Result<()> {
         .build()
         .context("cannot start the async runtime")?;
     rt.block_on(async move {
-        let sim = super::spawn_on_pty(cfg).context("cannot open a pty for the sewing machine")?;
-        let port = PathBuf::from(&sim.path);
-        crate::pty::symlink_replacing(&port, &a.pty).with_context(|| {
+        let sim = super::spawn_on_pty_at(cfg, Some(&a.pty)).with_context(|| {
             format!(
-                "cannot link {} to the machine's pty {}",
-                a.pty.display(),
-                sim.path
+                "cannot open a pty for the sewing machine behind {}",
+                a.pty.display()
             )
         })?;
         println!("{}", a.pty.display());
@@ -114,21 +124,21 @@ pub fn run(a: SewingArgs) -> anyhow::Result<()> {
             None => None,
         };
         loop {
-            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-            let drops = {
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            let lines = {
                 let t = sim
                     .trace
                     .lock()
                     .map_err(|_| anyhow::anyhow!("the trace is poisoned"))?;
-                t.drops[written..].to_vec()
+                t.lines[written..].to_vec()
             };
             if let Some(f) = file.as_mut() {
-                for d in &drops {
+                for d in &lines {
                     writeln!(f, "{}", serde_json::to_string(d)?)?;
                 }
                 f.flush()?;
             }
-            written += drops.len();
+            written += lines.len();
             if sim.task.is_finished() {
                 anyhow::bail!("the machine stopped");
             }

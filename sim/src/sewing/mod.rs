@@ -43,6 +43,14 @@ pub struct SewingSimConfig {
     pub area: [i32; 4],
     /// The longest step of one record, 0.1 mm.
     pub max_stitch: u16,
+    /// Pace the line both ways at this baud rate (10 bits a byte); `None`: as fast as the
+    /// pty or stream carries bytes.
+    pub baud: Option<u32>,
+    /// The upload window INFO reports (protocol version 2: chunks acknowledged with the
+    /// records loaded, repeats of loaded chunks acknowledged again, a NAK for a frame whose
+    /// bytes stop short). `None` is a machine of protocol version 1: no window byte in INFO
+    /// (the host sends one chunk at a time), none of those.
+    pub window: Option<u8>,
 }
 
 impl Default for SewingSimConfig {
@@ -56,6 +64,8 @@ impl Default for SewingSimConfig {
             power_loss_at: vec![],
             area: [-1500, -1000, 1500, 1000],
             max_stitch: 127,
+            baud: None,
+            window: Some(4),
         }
     }
 }
@@ -68,10 +78,28 @@ pub struct NeedleDrop {
     pub y: i32,
 }
 
+/// One line of the machine's trace (`--trace FILE`): a record it executed, or an event.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceLine {
+    /// A record executed (stitch, jump, trim, …): its index in the pattern and the frame's
+    /// position after it, 0.1 mm.
+    Record {
+        index: u32,
+        kind: StitchKind,
+        x: i32,
+        y: i32,
+    },
+    /// "thread break at 150", "start at 0", "upload begun (612 records)", …
+    Note { text: String },
+}
+
 /// What the machine did, for tests to read: every needle drop and every notable event.
 #[derive(Clone, Debug, Default)]
 pub struct SewingTrace {
     pub drops: Vec<NeedleDrop>,
+    /// Every record executed and every event, in order (what `--trace FILE` writes).
+    pub lines: Vec<TraceLine>,
     /// e.g. "thread break at 150", "power loss at 300", "pattern verified (612 records)".
     pub events: Vec<String>,
     /// Frames that arrived corrupted (and were NAKed) and repeats recognised by their
@@ -184,6 +212,7 @@ impl Machine {
             max_y,
             max_stitch: self.cfg.max_stitch,
             spm: self.cfg.spm.min(u16::MAX as u32) as u16,
+            window: self.cfg.window,
         }
     }
 
@@ -202,6 +231,7 @@ impl Machine {
 
     fn event(&self, e: String) {
         if let Ok(mut t) = self.trace.lock() {
+            t.lines.push(TraceLine::Note { text: e.clone() });
             t.events.push(e);
         }
     }
@@ -260,32 +290,37 @@ impl Machine {
                     crc: u32at(4)?,
                     records: vec![],
                 });
+                self.event(format!("upload begun ({} records)", u32at(0)?));
                 self.pattern.clear();
                 self.state = SewingState::NoPattern;
                 Ok(vec![])
             }
             req::LOAD_CHUNK => {
-                let offset = u32at(0)?;
+                let offset = u32at(0)? as usize;
                 let count = p
                     .get(4..6)
                     .map(|b| u16::from_le_bytes([b[0], b[1]]) as usize)
                     .ok_or((refusal::BAD_REQUEST, "the chunk has no count".to_string()))?;
+                let v2 = self.cfg.window.is_some();
                 let l = self
                     .loading
                     .as_mut()
                     .ok_or((refusal::NO_PATTERN, "no upload was begun".to_string()))?;
-                if offset as usize != l.records.len() {
-                    return Err((
+                let loaded = l.records.len();
+                let repeat = v2 && offset < loaded && offset + count <= loaded;
+                let wrong_offset = || {
+                    (
                         refusal::WRONG_OFFSET,
                         format!(
-                            "the chunk starts at record {offset}, but {} records are loaded",
-                            l.records.len()
+                            "the chunk starts at record {offset}, but {loaded} records are loaded"
                         ),
-                    ));
+                    )
+                };
+                if !repeat && offset != loaded {
+                    return Err(wrong_offset());
                 }
                 let body = &p[6..];
-                if body.len() != count * StitchRecord::WIRE_LEN
-                    || l.records.len() + count > l.total as usize
+                if body.len() != count * StitchRecord::WIRE_LEN || offset + count > l.total as usize
                 {
                     return Err((refusal::BAD_REQUEST, "the chunk has the wrong size".into()));
                 }
@@ -293,11 +328,24 @@ impl Machine {
                 for (i, b) in body.chunks(StitchRecord::WIRE_LEN).enumerate() {
                     recs.push(StitchRecord::from_wire(b).ok_or((
                         refusal::BAD_REQUEST,
-                        format!("record {} has an unknown kind", offset as usize + i),
+                        format!("record {} has an unknown kind", offset + i),
                     ))?);
                 }
-                l.records.extend(recs);
-                Ok(vec![])
+                if !repeat {
+                    l.records.extend(recs);
+                } else if l.records[offset..offset + count] == recs[..] {
+                    // A chunk sent again (its acknowledgement was lost): acknowledged, not loaded.
+                    if let Ok(mut t) = self.trace.lock() {
+                        t.duplicates += 1;
+                    }
+                } else {
+                    return Err(wrong_offset());
+                }
+                Ok(if v2 {
+                    (l.records.len() as u32).to_le_bytes().to_vec()
+                } else {
+                    vec![]
+                })
             }
             req::LOAD_END => {
                 let l = self
@@ -445,6 +493,19 @@ impl Machine {
             return;
         }
         let r = self.pattern[i as usize];
+        if let Ok(mut t) = self.trace.lock() {
+            let (x, y) = if r.kind.moves() {
+                (r.x, r.y)
+            } else {
+                (self.x, self.y)
+            };
+            t.lines.push(TraceLine::Record {
+                index: i,
+                kind: r.kind,
+                x,
+                y,
+            });
+        }
         match r.kind {
             StitchKind::Stitch => {
                 (self.x, self.y) = (r.x, r.y);
@@ -516,9 +577,16 @@ pub async fn run(
                 }
             }
             _ = tokio::time::sleep_until(last_rx + idle_gap), if pending => {
-                dec.resync_on_idle();
+                let stuck = dec.resync_on_idle();
                 while let Some(d) = dec.next_frame() {
                     out.extend(m.handle(d));
+                }
+                // Version 2: a frame whose bytes stopped short of its length is NAKed.
+                if let (Some(seq), Some(_)) = (stuck, m.cfg.window) {
+                    if let Ok(mut t) = m.trace.lock() {
+                        t.corrupt_frames += 1;
+                    }
+                    out.extend(Frame::new(seq, reply::NAK, vec![]).encode());
                 }
                 last_rx = Instant::now();
             }
@@ -532,9 +600,12 @@ pub async fn run(
 
 /// A machine running on a fresh pty: the path a host opens, and the trace.
 pub struct SewingSim {
+    /// The pty's path (a symbolic link's target when one was asked for).
     pub path: String,
     pub trace: Trace,
     pub task: tokio::task::JoinHandle<std::io::Result<()>>,
+    /// The symbolic link to the pty, when one was asked for; removed on drop.
+    pub link: Option<crate::pty::PtyLink>,
 }
 
 impl Drop for SewingSim {
@@ -545,10 +616,43 @@ impl Drop for SewingSim {
 
 /// Starts a machine on a new pty inside the current tokio runtime.
 pub fn spawn_on_pty(cfg: SewingSimConfig) -> std::io::Result<SewingSim> {
-    let port = pty::PtyPort::open()?;
+    spawn_on_pty_at(cfg, None)
+}
+
+/// As [`spawn_on_pty`], with `link` made a symbolic link to the pty (an old link of that
+/// name is replaced).
+pub fn spawn_on_pty_at(
+    cfg: SewingSimConfig,
+    link: Option<&std::path::Path>,
+) -> std::io::Result<SewingSim> {
+    let port = crate::pty::PtyPort::open()?;
     let path = port.slave_path.clone();
+    let link = crate::pty::PtyLink::optional(std::path::Path::new(&path), link)?;
     let trace: Trace = Arc::default();
-    let t = trace.clone();
-    let task = tokio::spawn(async move { run(port, cfg, t).await });
-    Ok(SewingSim { path, trace, task })
+    let task = spawn_on(port, cfg, trace.clone());
+    Ok(SewingSim {
+        path,
+        trace,
+        task,
+        link,
+    })
+}
+
+/// Starts a machine on any byte stream (an in-memory [`crate::line::cable`] in tests),
+/// behind a line paced at `cfg.baud` when one is set.
+pub fn spawn_on<S>(
+    io: S,
+    cfg: SewingSimConfig,
+    trace: Trace,
+) -> tokio::task::JoinHandle<std::io::Result<()>>
+where
+    S: AsyncRead + AsyncWrite + Send + 'static,
+{
+    match cfg.baud {
+        Some(baud) => {
+            let line = crate::line::paced(io, baud);
+            tokio::spawn(run(line, cfg, trace))
+        }
+        None => tokio::spawn(run(Box::pin(io), cfg, trace)),
+    }
 }

@@ -1,0 +1,267 @@
+//! Roughing (rough3d): z-level clearing of the stock round a mesh, each level a pocket of
+//! the stock outline with the part's section (grown by the stock allowance) as islands.
+//!
+//! Levels run from the stock top down to the floor, no more than the step-down apart, plus
+//! a level on every flat the part shows between them (raised by the allowance). A level
+//! at Z keeps the stock allowance a by taking the part's section at Z - a (the section
+//! just above that plane) grown by a in 2D, with the exact offset kernel: for a part with
+//! no undercut, sections only shrink upward, so every point of the part within a of the
+//! level's plane lies in that grown section, and a flat cutter kept out of it stands at
+//! least a above and a beside the part. (Slicing the mesh offset by multiple normals
+//! instead would keep the allowance exactly on slopes, but that offset is not trimmed
+//! in concave corners, and its folds there make crossing sections.) The levels are
+//! cleared from the top down with the 2D pocket (`ops::pocket`, with its entries and
+//! clean-up), whose outline is the stock's plan view grown by the tool radius so the tool
+//! runs off the stock's edge. Every level starts and ends at the safe height, so levels
+//! are linked by safe retracts.
+//!
+//! A section is all a cutter at that level meets only when no face of the part looks down
+//! above the floor (no undercut): such a face is refused by name, with the height to raise
+//! the floor to.
+
+use super::slice::{flat_heights, slice_at};
+use super::{Mesh, MeshError};
+use crate::geom::{Point, Polyline, Shape};
+use crate::offset::{offset_shape, Join, OffsetOptions};
+use crate::ops::{pass_depths, pocket, Cutting, OpError, PocketParams, Stepover};
+use crate::toolpath::{Move, Tool, Toolpath, P3};
+use serde::{Deserialize, Serialize};
+
+/// Everything a z-level rough needs besides the mesh.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Rough3dParams {
+    /// The roughing cutter (flat end).
+    pub tool: Tool,
+    /// The most each level goes down from the one above, mm.
+    pub stepdown: f64,
+    /// Distance between neighbouring pocket passes within a level.
+    pub stepover: Stepover,
+    /// Material left on the part for finishing, mm (0 or more).
+    pub stock_allowance: f64,
+    /// The stock top, Z in the mesh's frame (None: the mesh's highest Z).
+    #[serde(default)]
+    pub stock_top: Option<f64>,
+    /// The lowest level, Z (None: the mesh's lowest Z).
+    #[serde(default)]
+    pub floor: Option<f64>,
+    /// How far the stock reaches beyond the part's plan-view extents, mm.
+    #[serde(default)]
+    pub stock_margin: f64,
+    /// Cutting feed, mm/min.
+    pub feed: f64,
+    /// Plunge feed, mm/min.
+    pub plunge_feed: f64,
+    /// Height of rapids above the stock top, mm.
+    pub safe_z: f64,
+    /// Climb milling (true) or conventional.
+    pub climb: bool,
+    /// Spindle speed, rpm (0 leaves the spindle alone).
+    pub spindle_rpm: f64,
+    /// Geometric tolerance (mesh offset, slices, pocket), mm.
+    pub tolerance: f64,
+}
+
+impl Default for Rough3dParams {
+    fn default() -> Self {
+        Rough3dParams {
+            tool: Tool::flat(6.0),
+            stepdown: 2.0,
+            stepover: Stepover::Percent(40.0),
+            stock_allowance: 0.3,
+            stock_top: None,
+            floor: None,
+            stock_margin: 0.0,
+            feed: 1000.0,
+            plunge_feed: 300.0,
+            safe_z: 5.0,
+            climb: true,
+            spindle_rpm: 12000.0,
+            tolerance: 0.01,
+        }
+    }
+}
+
+impl Rough3dParams {
+    fn check(&self) -> Result<(), MeshError> {
+        let bad = |what: &str, v: f64| {
+            MeshError::BadParam(format!("{what} must be a positive number, got {v}"))
+        };
+        for (v, what) in [
+            (self.tool.diameter, "the tool diameter"),
+            (self.stepdown, "the step-down"),
+            (self.feed, "the feed"),
+            (self.plunge_feed, "the plunge feed"),
+            (self.safe_z, "the safe Z"),
+            (self.tolerance, "the tolerance"),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad(what, v));
+            }
+        }
+        for (v, what) in [
+            (self.stock_allowance, "the stock allowance"),
+            (self.stock_margin, "the stock margin"),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(MeshError::BadParam(format!(
+                    "{what} must be 0 or more, got {v}"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Plans a z-level rough of the closed mesh in its own frame.
+pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
+    p.check()?;
+    let (solid, _) = mesh.solid()?;
+    let (lo, hi) = solid.bounds().ok_or_else(|| MeshError::Empty {
+        name: mesh.name.clone(),
+    })?;
+    let top = p.stock_top.unwrap_or(hi.z);
+    let floor = p.floor.unwrap_or(lo.z);
+    if !(top.is_finite() && floor.is_finite()) || floor >= top {
+        return Err(MeshError::BadParam(format!(
+            "the floor Z {floor} must lie below the stock top Z {top}"
+        )));
+    }
+    check_undercuts(&solid, floor, p.tolerance)?;
+    let a = p.stock_allowance;
+    let r = p.tool.radius();
+    let m = p.stock_margin + p.stock_allowance;
+    // the stock in plan, grown by the tool radius (and a hair) so the tool runs off it
+    let g = m + r + p.tolerance;
+    let outline = Polyline::rect(
+        Point::new(lo.x - g, lo.y - g),
+        Point::new(hi.x + g, hi.y + g),
+    );
+    let mut levels: Vec<f64> = pass_depths(top - floor, p.stepdown)
+        .into_iter()
+        .map(|d| top + d)
+        .collect();
+    // a level on each flat of the part, the allowance above it, between the top and the floor
+    for z in flat_heights(&solid).into_iter().map(|z| z + a) {
+        if z < top - p.tolerance && z > floor + p.tolerance {
+            levels.push(z);
+        }
+    }
+    levels.sort_by(|a, b| b.total_cmp(a));
+    levels.dedup_by(|a, b| (*a - *b).abs() <= p.tolerance);
+    let safe = top + p.safe_z;
+
+    let mut tp = Toolpath::new("rough3d");
+    tp.tool = Some(p.tool);
+    tp.source = mesh.name.clone();
+    tp.push(Move::Comment {
+        text: format!(
+            "rough3d: flat d{} from Z {top} to Z {floor}, step-down {}, allowance {}",
+            p.tool.diameter, p.stepdown, p.stock_allowance
+        ),
+    });
+    if p.spindle_rpm > 0.0 {
+        tp.push(Move::Spindle { rpm: p.spindle_rpm });
+    }
+    tp.push(Move::Rapid {
+        to: P3::new(lo.x - g, lo.y - g, safe),
+    });
+    for &z in &levels {
+        let mut paths = vec![outline.clone()];
+        paths.extend(section(&solid, (z - a).max(lo.z + p.tolerance), a, p.tolerance)?.paths);
+        let shape = Shape::new(paths);
+        // one pass at the level (depth 0 below a stock top at Z = z); the pocket's other
+        // settings (its entries among them) keep their defaults
+        #[allow(clippy::needless_update)]
+        let level = PocketParams {
+            cut: Cutting {
+                tool: p.tool,
+                depth: 0.0,
+                stepdown: p.stepdown,
+                feed: p.feed,
+                plunge_feed: p.plunge_feed,
+                safe_z: safe - z,
+                climb: p.climb,
+                spindle_rpm: 0.0,
+                tolerance: p.tolerance,
+                ..Cutting::default()
+            },
+            stepover: p.stepover,
+            ..PocketParams::default()
+        };
+        let cut = match pocket(&shape, &level) {
+            Ok(t) => t,
+            // the part fills the stock at this level: nothing to clear
+            Err(OpError::Empty(_)) => continue,
+            Err(e) => {
+                return Err(MeshError::BadParam(format!(
+                    "{}: the level at Z {z} cannot be cleared: {e}",
+                    mesh.name
+                )))
+            }
+        };
+        for mv in cut.moves {
+            tp.push(match mv {
+                Move::Rapid { to } => Move::Rapid {
+                    to: P3::new(to.x, to.y, to.z + z),
+                },
+                Move::Linear { to, feed } => Move::Linear {
+                    to: P3::new(to.x, to.y, to.z + z),
+                    feed,
+                },
+                Move::Arc {
+                    to,
+                    center,
+                    ccw,
+                    feed,
+                } => Move::Arc {
+                    to: P3::new(to.x, to.y, to.z + z),
+                    center,
+                    ccw,
+                    feed,
+                },
+                other => other,
+            });
+        }
+    }
+    if p.spindle_rpm > 0.0 {
+        tp.push(Move::Spindle { rpm: 0.0 });
+    }
+    Ok(tp)
+}
+
+/// The part's section just above `z`, grown by `allowance` in the plane.
+fn section(solid: &Mesh, z: f64, allowance: f64, tol: f64) -> Result<Shape, MeshError> {
+    let cut = Shape::new(slice_at(solid, z)?);
+    if allowance <= 0.0 || cut.paths.is_empty() {
+        return Ok(cut);
+    }
+    let opts = OffsetOptions {
+        join: Join::Round,
+        tolerance: tol,
+        ..OffsetOptions::default()
+    };
+    offset_shape(&cut, allowance, &opts).map_err(|e| {
+        MeshError::BadParam(format!(
+            "{}: the section at Z {z} cannot be grown by the allowance: {e}",
+            solid.name
+        ))
+    })
+}
+
+/// Refuses a face that looks down above the floor (an undercut a 3-axis rough by slices
+/// would cut under).
+fn check_undercuts(m: &Mesh, floor: f64, tol: f64) -> Result<(), MeshError> {
+    for f in 0..m.faces.len() {
+        let n = m.face_normal(f);
+        let [a, b, c] = m.triangle(f);
+        let zmax = a.z.max(b.z).max(c.z);
+        if n.z < -1e-6 && zmax > floor + tol {
+            return Err(MeshError::BadParam(format!(
+                "{}: face {f} looks down at Z {zmax:.4} (an undercut): a 3-axis rough by slices would cut under it; set the floor at or above Z {zmax:.4}",
+                m.name
+            )));
+        }
+    }
+    Ok(())
+}
