@@ -237,8 +237,8 @@ impl From<ModbusError> for LinkError {
 /// A link to a motion-block device over Modbus TCP or RTU.
 pub struct ModbusLink {
     s: ModbusSettings,
-    session: Session,
-    ring: Ring,
+    pub(super) session: Session,
+    pub(super) ring: Ring,
 }
 
 impl ModbusLink {

@@ -41,7 +41,7 @@ pub(crate) struct Ring {
     allow_read_write: bool,
     /// What the device said to FC23: `None` until it was asked.
     read_write: Option<bool>,
-    target: String,
+    pub(super) target: String,
     /// Where the sync that hands the device a program is journaled first (see `attach.rs`).
     pub(crate) journal: Option<Box<dyn crate::link::SendJournal>>,
 }
