@@ -559,7 +559,7 @@ fn run(
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = (opts.tolerance * 0.01).max(eps * 10.0);
-    let chains = prune(raws, splitters, &mut input, o.abs(), eps, valid_eps);
+    let chains = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut out = Vec::with_capacity(chains.len());
     for Chain {
         segs,
