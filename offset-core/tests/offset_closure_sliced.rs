@@ -62,7 +62,11 @@ fn offset_checked(case: &str, region: &Region, d: f64, tol: f64) -> Result<Vec<R
 fn first_pass_region() -> Region {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/closure/cap_level_7_5_first_pass.json");
-    let shape = offset_core::io::read_shape(&std::fs::read(path).unwrap(), "cap_level_7_5_first_pass.json").unwrap();
+    let shape = offset_core::io::read_shape(
+        &std::fs::read(path).unwrap(),
+        "cap_level_7_5_first_pass.json",
+    )
+    .unwrap();
     let regions = shape.regions();
     assert_eq!(regions.len(), 1, "the first pass is one region");
     regions.into_iter().next().unwrap()
@@ -167,7 +171,14 @@ cap_levels! {
 /// A dense blob like a sliced mesh's section: `n` vertices round `c`, the radius wandering
 /// by waves and a jitter of up to `jitter` mm from vertex to vertex (so neighbouring sides
 /// turn a little either way, as the sides of a sliced height field do), counter-clockwise.
-fn blob(c: Point, r0: f64, n: usize, waves: &[(f64, f64, f64)], jitter: f64, seed: u64) -> Polyline {
+fn blob(
+    c: Point,
+    r0: f64,
+    n: usize,
+    waves: &[(f64, f64, f64)],
+    jitter: f64,
+    seed: u64,
+) -> Polyline {
     let mut s = seed | 1;
     let mut rnd = move || {
         // xorshift64*: the jitter is part of the case, reproducible from the seed
