@@ -2,11 +2,12 @@
 //! the daemon's (no store, no jobs, no API).
 //!
 //! Posts turn the Toolpath IR into a `Program` of the units one kind of device takes (G-code
-//! lines, Modbus motion blocks, stitch records); links stream a program to a device over a
-//! transport (serial, TCP) and report each unit the device acknowledged, so the daemon can
+//! lines, Modbus motion blocks, stitch records, moves for CANopen drives); links stream a
+//! program to a device over a transport (serial, TCP, a CAN bus) and report each unit the device acknowledged, so the daemon can
 //! journal progress and resume exactly where it stopped. Each machine kind (`kind`) ties its
 //! settings, posts and link together in one module; [`standard_kinds`] registers them all.
 
+pub mod canopen;
 pub mod gcode;
 pub mod gcode_read;
 pub mod grbl;
@@ -25,7 +26,7 @@ pub use link::{
 pub use post::{AnyPost, Post, PostError};
 pub use program::{Program, Unit};
 
-/// Registers the machine kinds of real devices (grbl, modbus-tcp, modbus-rtu, sewing), their
+/// Registers the machine kinds of real devices (grbl, modbus-tcp, modbus-rtu, sewing, canopen), their
 /// posts, and the posts no kind runs (linuxcnc, generic).
 pub fn standard_kinds(registry: &mut Registry) {
     registry
@@ -33,6 +34,7 @@ pub fn standard_kinds(registry: &mut Registry) {
         .add_kind(modbus::ModbusTcpKind::default())
         .add_kind(modbus::ModbusRtuKind::default())
         .add_kind(sewing::SewingKind)
+        .add_kind(canopen::CanopenKind)
         .add_post(gcode::GcodePost(gcode::Dialect::Linuxcnc))
         .add_post(gcode::GcodePost(gcode::Dialect::Generic));
 }

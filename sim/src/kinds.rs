@@ -1,4 +1,5 @@
-//! The simulated machine kinds (`sim-grbl`, `sim-sewing`, `sim-modbus`): each starts its
+//! The simulated machine kinds (`sim-grbl`, `sim-sewing`, `sim-modbus`, `sim-canopen` in
+//! `crate::canopen::kind`): each starts its
 //! simulator when the daemon starts and opens the real kind's link on it, so a config can
 //! swap `link = "grbl"` for `link = "sim-grbl"` and nothing else changes.
 
@@ -22,7 +23,8 @@ pub fn register(registry: &mut Registry) {
     registry
         .add_kind(SimGrblKind)
         .add_kind(SimSewingKind)
-        .add_kind(SimModbusKind);
+        .add_kind(SimModbusKind)
+        .add_kind(crate::canopen::kind::SimCanopenKind);
 }
 
 fn default_time_scale() -> f64 {

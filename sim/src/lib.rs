@@ -8,6 +8,7 @@
 //! state tables as data and drives a device (these simulators, the reference devices, or a
 //! real one) through every cell. It never imports the daemon.
 
+pub mod canopen;
 pub mod conformance;
 pub mod grbl;
 pub mod kinds;

@@ -24,6 +24,8 @@ enum Device {
     Sewing(machlink_sim::sewing::cli::SewingArgs),
     /// A Modbus motion-block device (PLC or drive) on TCP or on a pty (RTU).
     Modbus(machlink_sim::modbus::cli::ModbusArgs),
+    /// CiA 402 servo drives (CANopen) behind an SLCAN adapter on a pseudo-terminal.
+    Canopen(machlink_sim::canopen::cli::CanopenArgs),
 }
 
 #[derive(Args)]
@@ -108,6 +110,9 @@ fn main() {
         Device::Modbus(a) => tokio::runtime::Runtime::new()
             .context("cannot start the async runtime")
             .and_then(|rt| rt.block_on(machlink_sim::modbus::cli::run(a))),
+        Device::Canopen(a) => tokio::runtime::Runtime::new()
+            .context("cannot start the async runtime")
+            .and_then(|rt| rt.block_on(machlink_sim::canopen::cli::run(a))),
     };
     if let Err(e) = result {
         eprintln!("machlink-sim: {e:#}");
