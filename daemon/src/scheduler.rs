@@ -713,17 +713,27 @@ impl Inner {
         let _ = self.events.send(Event::state_of(j));
     }
 
+    /// Records a job's state and tells the watchers, once per change: a state set again
+    /// as it was (a job that goes on running after a reconnect) is no event.
     fn set_state(&self, id: JobId, state: JobState, error: Option<&str>) {
+        let before = self.store.job(id).ok().flatten();
         if let Err(e) = self.store.set_state(id, state, error) {
             tracing::error!("job {id}: cannot record the state {state}: {e}");
         }
         if let Ok(Some(j)) = self.store.job(id) {
-            self.broadcast_state(&j);
+            let same = before.is_some_and(|b| b.state == j.state && b.error == j.error);
+            if !same {
+                self.broadcast_state(&j);
+            }
         }
     }
 
-    /// Notes why a job waits (or clears the note), and tells the watchers.
+    /// Notes why a job waits (or clears the note), and tells the watchers when it changed.
     fn note(&self, id: JobId, note: Option<&str>) {
+        let before = self.store.job(id).ok().flatten();
+        if before.as_ref().is_some_and(|b| b.note.as_deref() == note) {
+            return;
+        }
         if let Err(e) = self.store.set_note(id, note) {
             tracing::error!("job {id}: cannot record a note: {e}");
         }

@@ -196,12 +196,22 @@ async fn metrics_counters_match_the_jobs_run() {
     assert_eq!(v("machlink_jobs_started_total", &bench), 3.0);
     assert_eq!(v("machlink_units_acked_total", &bench), acked);
     assert_eq!(v("machlink_units_streamed_total", &bench), acked);
-    assert_eq!(
+    // the ghost's port cannot be opened: for its job, and again each time the daemon
+    // tries to learn an idle machine's state (with backoff); the bench's link never failed
+    assert!(
         v(
             "machlink_link_errors_total",
             &[("machine", "ghost"), ("error", "open")]
-        ),
-        1.0
+        ) >= 1.0
+    );
+    assert_eq!(
+        value(
+            &s,
+            "machlink_link_errors_total",
+            &[("machine", "bench"), ("error", "open")]
+        )
+        .unwrap_or(0.0),
+        0.0
     );
     assert_eq!(v("machlink_rx_overflows_total", &bench), 0.0);
     assert_eq!(v("machlink_queue_depth", &bench), 0.0);
