@@ -124,15 +124,19 @@ async fn submit(c: &Client, spec: serde_json::Value) -> JobId {
 /// the running job, cancel last.
 fn order(path: &str, method: &str) -> u8 {
     match (method, path) {
+        // what a resume would do is asked of the paused job
+        ("GET", "/jobs/{id}/resume") => 3,
         ("GET", _) => 0,
         (_, "/jobs") | (_, "/machines/{name}/gcode") => 1,
         (_, "/jobs/{id}/pause") => 2,
-        (_, "/jobs/{id}/resume") => 3,
-        (_, "/machines/{name}/lock") => 4,
-        (_, "/machines/{name}/release") => 5,
-        (_, "/access/reload") => 6,
+        (_, "/jobs/{id}/resume") => 4,
+        (_, "/machines/{name}/lock") => 5,
+        (_, "/machines/{name}/release") => 6,
+        (_, "/access/reload") => 7,
         (_, "/jobs/{id}/cancel") => 9,
-        _ => 7,
+        // unlock, home, jog: on a machine with no job, so after the cancel
+        (_, "/machines/{name}/{op}") => 10,
+        _ => 8,
     }
 }
 
@@ -154,9 +158,18 @@ async fn try_route(
             }
             .to_string(),
         )
-        .replace("{name}", "router");
+        .replace("{name}", "router")
+        .replace("{op}", "unlock");
     match (method, template) {
+        // the stream of every job's events never ends: its head is the answer
+        ("GET", "/events") => match c.follow(None).await {
+            Ok(_) => (200, serde_json::Value::Null),
+            Err(e) => (0, serde_json::Value::String(e.to_string())),
+        },
         ("GET", _) => call(c, "GET", &path, None).await,
+        ("POST", "/jobs/{id}/override") => {
+            post(c, &path, Some(serde_json::json!({ "feed": 110 }))).await
+        }
         ("POST", "/jobs") => post(c, &path, Some(small_job("router"))).await,
         ("POST", "/machines/{name}/gcode") => {
             let (st, bytes) = c
@@ -206,6 +219,20 @@ async fn every_route_as(role: &str) {
             "operator" => r.path != "/access/reload",
             _ => true,
         };
+        if (r.method, r.path) == ("GET", "/jobs/{id}/resume") && role == "viewer" {
+            // a viewer cannot pause: the socket's owner does, so there is a resume to show
+            admin_socket.act(job, "pause").await.unwrap();
+            wait_state(&admin_socket, job, JobState::Paused).await;
+        }
+        if r.path == "/machines/{name}/{op}" {
+            // unlock waits for the machine to have no job: end every job still on it
+            for j in admin_socket.jobs().await.unwrap() {
+                if j.machine == "router" && !j.state.is_final() {
+                    admin_socket.act(j.id, "cancel").await.unwrap();
+                    wait_until(&admin_socket, j.id, |j| j.state.is_final()).await;
+                }
+            }
+        }
         let (st, b) = try_route(&c, r.method, r.path, job, done).await;
         if allowed {
             assert!(
@@ -231,9 +258,7 @@ async fn every_route_as(role: &str) {
             wait_state(&admin_socket, job, JobState::Paused).await;
         }
     }
-    if role == "viewer" {
-        admin_socket.act(job, "cancel").await.unwrap();
-    }
+    // the viewer's job was cancelled by the socket's owner before the machine's unlock
     wait_until(&admin_socket, job, |j| j.state.is_final()).await;
 }
 
