@@ -337,8 +337,12 @@ impl Client {
                 ),
             ),
         };
-        self.call(Method::POST, &format!("/machines/{}/{name}", encode(machine)), body)
-            .await
+        self.call(
+            Method::POST,
+            &format!("/machines/{}/{name}", encode(machine)),
+            body,
+        )
+        .await
     }
 
     /// A text resource such as `GET /metrics`.

@@ -94,6 +94,7 @@ pub async fn gcode(
         Ok(())
     };
     let mut body = req.into_body().into_data_stream();
+    let read = async {
     while let Some(chunk) = body.next().await {
         let chunk = chunk.map_err(|e| bad(format!("{file} could not be received: {e}")))?;
         received += chunk.len() as u64;
@@ -125,6 +126,15 @@ pub async fn gcode(
         let line = std::mem::take(&mut partial);
         take(&line, n, &mut json, &mut count)?;
     }
+    Ok::<(), ApiError>(())
+    }
+    .await;
+    if let Err(e) = read {
+        // the client is still sending: read (and drop) a bounded rest of the file, so it
+        // gets this answer rather than a connection cut while it writes
+        drain(&mut body).await;
+        return Err(e);
+    }
     json.push(b']');
     drop(body);
     let units_json = String::from_utf8(json)
@@ -149,6 +159,29 @@ pub async fn gcode(
     });
     Ok(resp)
 }
+
+/// Reads what is left of a refused upload, up to [`DRAIN_LIMIT`] bytes and
+/// [`DRAIN_TIME`], then gives up (the connection closes on the rest).
+async fn drain<S, E>(body: &mut S)
+where
+    S: futures::Stream<Item = Result<axum::body::Bytes, E>> + Unpin,
+{
+    let mut left = DRAIN_LIMIT;
+    let _ = tokio::time::timeout(DRAIN_TIME, async {
+        while let Some(Ok(chunk)) = body.next().await {
+            left = left.saturating_sub(chunk.len() as u64);
+            if left == 0 {
+                break;
+            }
+        }
+    })
+    .await;
+}
+
+/// The most of a refused upload read to let the client finish sending.
+const DRAIN_LIMIT: u64 = 16 << 20;
+/// The longest a refused upload is read on.
+const DRAIN_TIME: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// A machine whose kind makes its units from the file's moves: the file is taken whole (up
 /// to the JSON body limit) and planned as `POST /jobs` plans it.

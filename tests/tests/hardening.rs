@@ -129,6 +129,18 @@ async fn a_gcode_file_streamed_in_is_stored_as_the_whole_file_is() {
         e.starts_with("part.nc, line 3 `G1 X100`") && e.contains("outside machine `m`'s work area"),
         "{e}"
     );
+    // refused early while the client is still sending megabytes: it still gets the answer
+    let mut long = String::from("G21\nG1 X10 F500\nG1 X100\n");
+    for _ in 0..200_000 {
+        long.push_str("G1 X1 Y1\n");
+    }
+    std::fs::write(&path, &long).unwrap();
+    let e = c
+        .submit_gcode_file("m", &path)
+        .await
+        .unwrap_err()
+        .to_string();
+    assert!(e.starts_with("part.nc, line 3 `G1 X100`"), "{e}");
     std::fs::write(&path, format!("G1 X1 F100\n({})\n", "x".repeat(5000))).unwrap();
     let e = c
         .submit_gcode_file("m", &path)

@@ -52,15 +52,14 @@ impl ClientArgs {
             },
             (None, _) => {
                 // an unreadable config is named, and the default tried
-                let path = machlink::locate::socket(
-                    self.socket.as_deref(),
-                    self.config.as_deref(),
-                    |k| std::env::var(k).ok(),
-                )
-                .unwrap_or_else(|e| {
-                    eprintln!("machlink: warning: {e}");
-                    machlink::config::default_socket()
-                });
+                let path =
+                    machlink::locate::socket(self.socket.as_deref(), self.config.as_deref(), |k| {
+                        std::env::var(k).ok()
+                    })
+                    .unwrap_or_else(|e| {
+                        eprintln!("machlink: warning: {e}");
+                        machlink::config::default_socket()
+                    });
                 match &self.token {
                     Some(t) => Endpoint::UnixToken {
                         path,

@@ -1,10 +1,10 @@
 //! The subcommands, one module each, and the job options they share (`job`).
 
+pub mod access;
+pub mod at_machine;
 pub mod check_config;
 pub mod completions;
-pub mod access;
 pub mod connect;
-pub mod at_machine;
 pub mod demo;
 pub mod events;
 pub mod fleet;

@@ -33,7 +33,9 @@ pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
         if a.watch {
             anyhow::bail!("--watch follows a job of one daemon; follow a fleet job with `machlink jobs --fleet {url}`");
         }
-        let spec = a.job.spec(&a.file, Some(a.machine.clone()), a.post.clone())?;
+        let spec = a
+            .job
+            .spec(&a.file, Some(a.machine.clone()), a.post.clone())?;
         return super::fleet::submit(&a.fleet, url, &spec);
     }
     let client = a.client.client();
