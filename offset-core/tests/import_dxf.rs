@@ -170,7 +170,7 @@ fn the_fuzz_bases_read_cleanly() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(300))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(300)))]
     #[test]
     fn dxf_reader_never_panics(edits in prop::collection::vec((any::<usize>(), any::<u8>()), 0..12), cut in any::<usize>()) {
         let b = mutate(SMALL_DXF.as_bytes(), &edits, cut);
