@@ -6,6 +6,9 @@
 //! | `GET /jobs`, `GET /jobs/{id}` | jobs as the store holds them |
 //! | `POST /jobs` | plan a job and queue it on its machine (body: a [`JobSpec`] naming the machine) |
 //! | `POST /jobs/{id}/pause`, `/resume`, `/cancel` | steer a job |
+//! | `GET /jobs/{id}/resume` | what a resume would do (`?from_line=N`), to confirm first |
+//! | `POST /jobs/{id}/override` | feed, spindle and rapid overrides of a running job |
+//! | `POST /machines/{name}/unlock`, `/home`, `/jog` | the operator at the machine, between jobs |
 //! | `GET /jobs/{id}/events` | newline-delimited JSON events until the job ends |
 //!
 //! Refusals are 4xx with `{ "error": "one sentence" }`.
@@ -44,6 +47,7 @@ impl From<SchedError> for ApiError {
             SchedError::NoSuchJob(_) => StatusCode::NOT_FOUND,
             SchedError::NoSuchMachine { .. } => StatusCode::BAD_REQUEST,
             SchedError::Conflict(_) => StatusCode::CONFLICT,
+            SchedError::Refused(_) => StatusCode::UNPROCESSABLE_ENTITY,
             SchedError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
         };
         ApiError(status, e.to_string())
@@ -69,7 +73,9 @@ pub fn router(sched: Scheduler, token: Option<String>) -> Router {
         .route("/jobs", get(jobs).post(submit))
         .route("/jobs/{id}", get(job))
         .route("/jobs/{id}/pause", post(pause))
-        .route("/jobs/{id}/resume", post(resume))
+        .route("/jobs/{id}/resume", post(resume).get(resume_preview))
+        .route("/jobs/{id}/override", post(override_job))
+        .route("/machines/{name}/{op}", post(operate))
         .route("/jobs/{id}/cancel", post(cancel))
         .route("/jobs/{id}/events", get(events))
         .fallback(|| async { bad("no such request: see docs/daemon.md for the API") })
@@ -255,4 +261,91 @@ async fn events(State(st): State<AppState>, Path(id): Path<String>) -> Result<Re
         .header(header::CONTENT_TYPE, "application/x-ndjson")
         .body(Body::from_stream(stream))
         .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))
+}
+
+/// The query of `GET /jobs/{id}/resume`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PreviewQuery {
+    #[serde(default)]
+    pub from_line: Option<usize>,
+}
+
+async fn resume_preview(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+    query: Result<axum::extract::Query<PreviewQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let axum::extract::Query(q) =
+        query.map_err(|e| bad(format!("the resume question is not valid: {e}")))?;
+    Ok(Json(st.sched.resume_preview(job_id(&id)?, q.from_line)?).into_response())
+}
+
+/// The answer to `POST /jobs/{id}/override`: the job and the overrides now in force.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct OverrideAnswer {
+    pub job: crate::store::JobRecord,
+    pub overrides: machlink_protocols::Overrides,
+}
+
+async fn override_job(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+    body: axum::body::Bytes,
+) -> Result<Response, ApiError> {
+    let patch: crate::scheduler::OverridePatch = serde_json::from_slice(&body)
+        .map_err(|e| bad(format!("the override request is not valid: {e}")))?;
+    let (job, overrides) = st.sched.override_job(job_id(&id)?, patch).await?;
+    Ok(Json(OverrideAnswer { job, overrides }).into_response())
+}
+
+/// The answer to `POST /machines/{name}/unlock|home|jog`: what the machine said.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct OperateAnswer {
+    pub machine: String,
+    pub said: String,
+}
+
+async fn operate(
+    State(st): State<AppState>,
+    Path((name, op)): Path<(String, String)>,
+    body: axum::body::Bytes,
+) -> Result<Response, ApiError> {
+    use machlink_protocols::Operation;
+    let op = match op.as_str() {
+        "unlock" => Operation::Unlock,
+        "home" => Operation::Home,
+        "jog" => {
+            #[derive(Deserialize)]
+            #[serde(deny_unknown_fields)]
+            struct Jog {
+                #[serde(default)]
+                x: Option<f64>,
+                #[serde(default)]
+                y: Option<f64>,
+                #[serde(default)]
+                z: Option<f64>,
+                feed: f64,
+            }
+            let j: Jog = serde_json::from_slice(&body)
+                .map_err(|e| bad(format!("the jog request is not valid: {e}")))?;
+            Operation::Jog {
+                x: j.x,
+                y: j.y,
+                z: j.z,
+                feed: j.feed,
+            }
+        }
+        other => {
+            return Err(bad(format!(
+                "no such operation `{other}` (a machine takes unlock, home and jog)"
+            )))
+        }
+    };
+    let said = st.sched.operate(&name, op).await?;
+    Ok(Json(OperateAnswer {
+        machine: name,
+        said,
+    })
+    .into_response())
 }

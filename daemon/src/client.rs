@@ -147,6 +147,50 @@ impl Client {
             .await
     }
 
+    /// What a resume of the job would do (from `from_line`, 1-based, when given).
+    pub async fn resume_preview(
+        &self,
+        id: JobId,
+        from_line: Option<usize>,
+    ) -> Result<crate::resume::ResumePreview, ClientError> {
+        let q = from_line.map_or(String::new(), |l| format!("?from_line={l}"));
+        self.call(Method::GET, &format!("/jobs/{id}/resume{q}"), None)
+            .await
+    }
+
+    /// Changes a running job's overrides; the answer holds those now in force.
+    pub async fn override_job(
+        &self,
+        id: JobId,
+        patch: &crate::scheduler::OverridePatch,
+    ) -> Result<crate::api::OverrideAnswer, ClientError> {
+        let body = serde_json::to_vec(patch).map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.call(Method::POST, &format!("/jobs/{id}/override"), Some(body))
+            .await
+    }
+
+    /// An operator's operation on a machine between jobs; the answer is what it said.
+    pub async fn operate(
+        &self,
+        machine: &str,
+        op: &machlink_protocols::Operation,
+    ) -> Result<crate::api::OperateAnswer, ClientError> {
+        use machlink_protocols::Operation;
+        let (name, body) = match op {
+            Operation::Unlock => ("unlock", None),
+            Operation::Home => ("home", None),
+            Operation::Jog { x, y, z, feed } => (
+                "jog",
+                Some(
+                    serde_json::to_vec(&serde_json::json!({"x": x, "y": y, "z": z, "feed": feed}))
+                        .map_err(|e| ClientError::Protocol(e.to_string()))?,
+                ),
+            ),
+        };
+        self.call(Method::POST, &format!("/machines/{machine}/{name}"), body)
+            .await
+    }
+
     /// The job's events, from its current state until it ends.
     pub async fn events(&self, id: JobId) -> Result<EventStream, ClientError> {
         let (status, mut body) = self

@@ -58,7 +58,8 @@ pub struct DaemonConfig {
     pub store: PathBuf,
     /// The Unix socket the API listens on.
     pub socket: PathBuf,
-    /// Flush the journal after this many acknowledged units (and at least every second).
+    /// Flush the journal after this many acknowledged units (1, the default: every one;
+    /// and at least every `journal_max_lag`).
     pub journal_every: usize,
     /// The longest the journal may lag the device's acknowledgements.
     pub journal_max_lag: Duration,
@@ -205,7 +206,7 @@ impl Config {
             daemon: DaemonConfig {
                 store: PathBuf::from("machlink.db"),
                 socket: default_socket(),
-                journal_every: 50,
+                journal_every: 1,
                 journal_max_lag: Duration::from_secs(1),
             },
             machines: Vec::new(),
@@ -621,7 +622,8 @@ time_scale = 20
                 port: "/dev/ttyUSB0".into(),
                 baud: 115_200,
                 check_first: false,
-                auto_unlock: true
+                auto_unlock: false,
+                spindle_dwell_s: 2.0,
             })
         );
         assert_eq!(c.machines[0].max_feed, Some(3000.0));
@@ -629,7 +631,11 @@ time_scale = 20
         assert_eq!(c.machines[1].link, "sim-grbl");
         assert_eq!(
             c.machines[1].settings.get::<SimGrblSettings>(),
-            Some(&SimGrblSettings { time_scale: 20.0 })
+            Some(&SimGrblSettings {
+                time_scale: 20.0,
+                homing: false,
+                spindle_dwell_s: 2.0
+            })
         );
     }
 
@@ -707,7 +713,7 @@ time_scale = 20
         let text = include_str!("../../docs/machlink.example.toml");
         let c = Config::parse(text, Path::new("/srv/cell/machlink.toml")).unwrap();
         assert_eq!(c.daemon.store, PathBuf::from("/srv/cell/machlink.db"));
-        assert_eq!(c.daemon.journal_every, 50);
+        assert_eq!(c.daemon.journal_every, 1);
         let names: Vec<&str> = c.machines.iter().map(|m| m.name.as_str()).collect();
         assert_eq!(names, ["router", "bench"]);
         assert_eq!(c.machines[0].tools.len(), 2);

@@ -125,10 +125,13 @@ impl Daemon {
         }
     }
 
-    /// Stops cleanly: running jobs are cancelled (resumable later with `resume`), the
-    /// socket file is removed; the simulators stop when the daemon is dropped.
+    /// Stops cleanly (SIGTERM): no new jobs, every running machine feed-held and its job
+    /// left interrupted at its exact unit (resumable with `resume`), the socket file
+    /// removed; the simulators stop when the daemon is dropped.
     pub async fn shutdown(mut self) {
-        self.scheduler.cancel_all().await;
+        self.scheduler
+            .shutdown(std::time::Duration::from_secs(10))
+            .await;
         self.crash();
         let _ = std::fs::remove_file(&self.socket);
     }

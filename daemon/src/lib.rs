@@ -11,5 +11,6 @@ pub mod config;
 pub mod daemon;
 pub mod intake;
 pub mod registry;
+pub mod resume;
 pub mod scheduler;
 pub mod store;

@@ -30,14 +30,22 @@ enum Command {
     Jobs(cmd::operate::JobsArgs),
     /// List machines.
     Machines(cmd::operate::MachinesArgs),
-    /// Follow a job's progress until it ends.
-    Watch(cmd::operate::JobArgs),
+    /// Follow a job's progress until it ends (a line per step when not on a terminal).
+    Watch(cmd::operate::WatchArgs),
     /// Hold a running job (feed hold).
     Pause(cmd::operate::JobArgs),
-    /// Continue a held or paused job.
+    /// Continue a held or stopped job (shows what the machine will do and asks first).
     Resume(cmd::operate::ResumeArgs),
     /// Cancel a job.
     Cancel(cmd::operate::JobArgs),
+    /// Clear a machine's alarm lock (GRBL `$X`), once its cause is cleared.
+    Unlock(cmd::at_machine::MachineArgs),
+    /// Run a machine's homing cycle (GRBL `$H`).
+    Home(cmd::at_machine::MachineArgs),
+    /// Move a machine's tool by a distance, between jobs (GRBL `$J=`).
+    Jog(cmd::at_machine::JogArgs),
+    /// Change a running job's feed, spindle or rapid override.
+    Override(cmd::at_machine::OverrideArgs),
     /// Geometry only: offset a shape and write it.
     Offset(cmd::offset::OffsetArgs),
     /// Plan offline and write the program (G-code, DST, …).
@@ -58,6 +66,10 @@ fn main() {
         Command::Pause(a) => cmd::operate::pause(a),
         Command::Resume(a) => cmd::operate::resume(a),
         Command::Cancel(a) => cmd::operate::cancel(a),
+        Command::Unlock(a) => cmd::at_machine::unlock(a),
+        Command::Home(a) => cmd::at_machine::home(a),
+        Command::Jog(a) => cmd::at_machine::jog(a),
+        Command::Override(a) => cmd::at_machine::override_job(a),
         Command::Offset(a) => cmd::offset::run(a),
         Command::Plan(a) => cmd::plan::run(a),
         Command::Preview(a) => cmd::preview::run(a),

@@ -4,16 +4,21 @@
 //!
 //! A job goes queued → running ⇄ paused → completed / failed / cancelled (or interrupted,
 //! when the daemon stopped under it). A failed job keeps the device's message and the
-//! worker goes on with the next job; nothing a device says stops the daemon.
+//! worker goes on with the next job; nothing a device says stops the daemon. A link that
+//! drops pauses its job; a restarted daemon first asks each device what it is doing
+//! (`run.rs`). Between jobs the worker keeps the machine's status fresh and carries out
+//! the operator's operations (unlock, home, jog).
+
+mod run;
 
 use crate::config::MachineConfig;
-use crate::store::{JobId, JobRecord, JobState, Journal, NewJob, Store, StoreError};
+use crate::resume::ResumePreview;
+use crate::store::{JobId, JobRecord, JobState, NewJob, Store, StoreError};
 use machlink_protocols::kind::{Device, MachineLink};
-use machlink_protocols::{
-    Control, DeviceState, LinkError, LinkEvent, MachineStatus, Program, StreamEnd,
-};
+use machlink_protocols::{Control, DeviceState, LinkError, MachineStatus, Operation, Overrides};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{broadcast, mpsc, oneshot, watch};
@@ -91,9 +96,12 @@ pub struct MachineInfo {
     pub job: Option<JobId>,
     /// Jobs waiting in its queue.
     pub queued: usize,
-    /// The device's last report (state unknown before any).
+    /// The device's last report (state unknown before any; offline when its link is down).
     #[serde(flatten)]
     pub status: MachineStatus,
+    /// How long ago the device last reported, ms; None before any report.
+    #[serde(default)]
+    pub age_ms: Option<u64>,
 }
 
 /// Why an operator's request was refused.
@@ -105,6 +113,9 @@ pub enum SchedError {
     NoSuchMachine { name: String, known: String },
     #[error("{0}")]
     Conflict(String),
+    /// The machine cannot do what was asked, or refused it (its own sentence).
+    #[error("{0}")]
+    Refused(String),
     #[error(transparent)]
     Store(#[from] StoreError),
 }
@@ -115,6 +126,9 @@ pub struct JournalPolicy {
     pub every: usize,
     pub max_lag: Duration,
 }
+
+/// How often the workers ask an idle machine for its status.
+const STATUS_POLL: Duration = Duration::from_secs(1);
 
 /// The scheduler; cheap to clone, shared by the API handlers.
 #[derive(Clone)]
@@ -128,20 +142,66 @@ struct Inner {
     machines: BTreeMap<String, Machine>,
     journal: JournalPolicy,
     workers: Mutex<Vec<JoinHandle<()>>>,
+    /// Set by a graceful shutdown: no new jobs, nothing new starts.
+    closing: AtomicBool,
 }
 
 struct Machine {
     config: MachineConfig,
     device: Device,
     queue: mpsc::UnboundedSender<JobId>,
+    /// The operator's operations between jobs, for the worker.
+    ops: mpsc::UnboundedSender<OpRequest>,
     /// The job being streamed; taken under this lock together with the store's claim.
     active: Mutex<Option<Active>>,
-    status: Mutex<MachineStatus>,
+    status: Mutex<Seen>,
+    /// The overrides of the job it runs.
+    overrides: Mutex<Overrides>,
+    /// Its slot in the store's progress file.
+    slot: usize,
+}
+
+/// The device's last report and when it came.
+#[derive(Clone, Debug, Default)]
+struct Seen {
+    status: MachineStatus,
+    at: Option<Instant>,
 }
 
 struct Active {
     job: JobId,
     commands: mpsc::UnboundedSender<Command>,
+    /// Set while the job waits, paused, for the operator after its machine came back: the
+    /// unit it goes on at.
+    waits_at: Option<usize>,
+}
+
+/// The overrides the operator changes; the others stay as they are.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OverridePatch {
+    #[serde(default)]
+    pub feed: Option<u16>,
+    #[serde(default)]
+    pub spindle: Option<u16>,
+    #[serde(default)]
+    pub rapid: Option<u16>,
+}
+
+impl OverridePatch {
+    /// `o` with this patch's changes.
+    pub fn apply(&self, mut o: Overrides) -> Overrides {
+        if let Some(f) = self.feed {
+            o.feed = f;
+        }
+        if let Some(s) = self.spindle {
+            o.spindle = s;
+        }
+        if let Some(r) = self.rapid {
+            o.rapid = r;
+        }
+        o
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -150,6 +210,9 @@ enum Request {
     /// With a 1-based line: restart a stopped job there instead of at its resume point.
     Resume(Option<usize>),
     Cancel,
+    Override(OverridePatch),
+    /// The daemon is stopping: hold the machine and leave the job interrupted.
+    Shutdown,
 }
 
 struct Command {
@@ -157,9 +220,15 @@ struct Command {
     reply: oneshot::Sender<Result<(), SchedError>>,
 }
 
+struct OpRequest {
+    op: Operation,
+    reply: oneshot::Sender<Result<String, SchedError>>,
+}
+
 impl Scheduler {
     /// Recovers the store (jobs left running become interrupted), queues the jobs that
-    /// were waiting, and starts one worker per machine. Must run inside a tokio runtime.
+    /// were waiting, and starts one worker per machine, which first asks its device about
+    /// the interrupted jobs (and follows one it still runs). Must run inside a tokio runtime.
     pub fn start(
         store: Store,
         machines: Vec<MachineSetup>,
@@ -168,28 +237,36 @@ impl Scheduler {
         let interrupted = store.mark_interrupted()?;
         for j in &interrupted {
             tracing::warn!(
-                "job {} on {} was interrupted at unit {} of {}; `machlink resume {}` continues it",
+                "job {} on {} was interrupted at unit {} of {}; asking the machine what it is doing",
                 j.id,
                 j.machine,
                 j.acked_units,
                 j.total_units,
-                j.id
             );
         }
         let (events, _) = broadcast::channel(4096);
         let mut receivers = Vec::new();
         let mut map = BTreeMap::new();
-        for MachineSetup { config, device } in machines {
+        for (slot, MachineSetup { config, device }) in machines.into_iter().enumerate() {
             let (tx, rx) = mpsc::unbounded_channel();
-            receivers.push((config.name.clone(), rx));
+            let (otx, orx) = mpsc::unbounded_channel();
+            let follow: Vec<JobId> = interrupted
+                .iter()
+                .filter(|j| j.machine == config.name)
+                .map(|j| j.id)
+                .collect();
+            receivers.push((config.name.clone(), rx, orx, follow));
             map.insert(
                 config.name.clone(),
                 Machine {
                     config,
                     device,
                     queue: tx,
+                    ops: otx,
                     active: Mutex::new(None),
-                    status: Mutex::new(MachineStatus::default()),
+                    status: Mutex::new(Seen::default()),
+                    overrides: Mutex::new(Overrides::default()),
+                    slot,
                 },
             );
         }
@@ -199,6 +276,7 @@ impl Scheduler {
             machines: map,
             journal,
             workers: Mutex::new(Vec::new()),
+            closing: AtomicBool::new(false),
         });
         for job in inner.store.jobs_in(JobState::Queued)? {
             match inner.machines.get(&job.machine) {
@@ -216,9 +294,11 @@ impl Scheduler {
             }
         }
         let mut handles = Vec::new();
-        for (name, rx) in receivers {
+        for (name, rx, orx, follow) in receivers {
             let inner2 = inner.clone();
-            handles.push(tokio::spawn(async move { worker(inner2, name, rx).await }));
+            handles.push(tokio::spawn(async move {
+                worker(inner2, name, rx, orx, follow).await
+            }));
         }
         *lock(&inner.workers) = handles;
         Ok(Scheduler { inner })
@@ -267,15 +347,25 @@ impl Scheduler {
         self.inner.machines.get(name)?.device.downcast_ref()
     }
 
-    /// Stores the job with its program and queues it on its machine.
+    /// Stores the job with its program (and the machining time its kind estimates) and
+    /// queues it on its machine.
     pub fn submit(&self, job: NewJob) -> Result<JobRecord, SchedError> {
         let m = self.machine(&job.machine)?;
+        if self.inner.closing.load(Ordering::SeqCst) {
+            return Err(SchedError::Conflict(
+                "the daemon is shutting down and takes no new jobs".into(),
+            ));
+        }
         if job.program.is_empty() {
             return Err(SchedError::Conflict(
                 "the program is empty: there is nothing to send".into(),
             ));
         }
+        let estimate = m.config.kind.estimate(&m.config.settings, &job.program);
         let id = self.inner.store.insert_job(&job)?;
+        if let Some(t) = estimate {
+            self.inner.store.set_estimate(id, t)?;
+        }
         let rec = self.job(id)?;
         self.inner.broadcast_state(&rec);
         let _ = m.queue.send(id);
@@ -297,13 +387,14 @@ impl Scheduler {
             .machines
             .values()
             .map(|m| {
-                let st = lock(&m.status).clone();
+                let seen = lock(&m.status).clone();
                 MachineInfo {
                     name: m.config.name.clone(),
                     link: m.config.link.clone(),
                     job: lock(&m.active).as_ref().map(|a| a.job),
                     queued: jobs.iter().filter(|j| j.machine == m.config.name).count(),
-                    status: st,
+                    status: seen.status,
+                    age_ms: seen.at.map(|t| t.elapsed().as_millis() as u64),
                 }
             })
             .collect())
@@ -327,9 +418,63 @@ impl Scheduler {
         self.request(id, Request::Resume(Some(line))).await
     }
 
-    /// Cancels a queued, running or held job.
+    /// Cancels a queued, running or held job; returns once the machine has stopped.
     pub async fn cancel(&self, id: JobId) -> Result<JobRecord, SchedError> {
         self.request(id, Request::Cancel).await
+    }
+
+    /// Changes the overrides of a running or held job (feed and spindle 50 to 200 %, rapids
+    /// 25, 50 or 100 %); refused with the machine's reason when its kind takes none.
+    /// Returns the job and the overrides now in force.
+    pub async fn override_job(
+        &self,
+        id: JobId,
+        patch: OverridePatch,
+    ) -> Result<(JobRecord, Overrides), SchedError> {
+        patch
+            .apply(Overrides::default())
+            .check()
+            .map_err(SchedError::Conflict)?;
+        let job = self.request(id, Request::Override(patch)).await?;
+        let o = *lock(&self.machine(&job.machine)?.overrides);
+        Ok((job, o))
+    }
+
+    /// What `resume` would do for job `id` (from program line `from_line`, 1-based, when
+    /// given), for the operator to confirm: nothing is sent.
+    pub fn resume_preview(
+        &self,
+        id: JobId,
+        from_line: Option<usize>,
+    ) -> Result<ResumePreview, SchedError> {
+        let job = self.job(id)?;
+        let m = self.machine(&job.machine)?;
+        let active = match lock(&m.active).as_ref() {
+            Some(a) if a.job == id => Some(a.waits_at),
+            _ => None,
+        };
+        crate::resume::preview(&self.inner.store, &m.config, &job, from_line, active)
+    }
+
+    /// Carries out an operator's operation on a machine between jobs (unlock, home, jog);
+    /// returns what the machine said. Refused while a job runs or holds on it, and with
+    /// the machine's reason when its kind cannot do it.
+    pub async fn operate(&self, machine: &str, op: Operation) -> Result<String, SchedError> {
+        let m = self.machine(machine)?;
+        op.check().map_err(SchedError::Conflict)?;
+        if let Some(a) = lock(&m.active).as_ref() {
+            return Err(SchedError::Conflict(format!(
+                "job {} is on machine `{machine}`; {} waits until it has ended (or is cancelled)",
+                a.job,
+                op.name()
+            )));
+        }
+        let (tx, rx) = oneshot::channel();
+        m.ops
+            .send(OpRequest { op, reply: tx })
+            .map_err(|_| SchedError::Conflict("the machine's worker has stopped".into()))?;
+        rx.await
+            .map_err(|_| SchedError::Conflict("the machine's worker has stopped".into()))?
     }
 
     async fn request(&self, id: JobId, request: Request) -> Result<JobRecord, SchedError> {
@@ -357,6 +502,14 @@ impl Scheduler {
                 r?
             }
         }
+        if request == Request::Cancel {
+            // answer with the state the cancel leaves the job in, once the machine stopped
+            let mut rx = self.subscribe();
+            let give_up = Instant::now() + Duration::from_secs(30);
+            while !self.job(id)?.state.is_final() && Instant::now() < give_up {
+                let _ = tokio::time::timeout(Duration::from_millis(100), rx.recv()).await;
+            }
+        }
         self.job(id)
     }
 
@@ -380,6 +533,11 @@ impl Scheduler {
                 Request::Resume(from),
                 JobState::Interrupted | JobState::Failed | JobState::Cancelled,
             ) => {
+                if self.inner.closing.load(Ordering::SeqCst) {
+                    return Err(SchedError::Conflict(
+                        "the daemon is shutting down; resume the job once it is back".into(),
+                    ));
+                }
                 if let Some(line) = from {
                     if line == 0 || line > job.total_units {
                         return Err(SchedError::Conflict(format!(
@@ -388,6 +546,9 @@ impl Scheduler {
                         )));
                     }
                     store.set_resume_point(job.id, line - 1)?;
+                    store.set_restart_at(job.id, Some(line - 1))?;
+                } else {
+                    store.set_restart_at(job.id, None)?;
                 }
                 store.set_state(job.id, JobState::Queued, None)?;
                 let _ = m.queue.send(job.id);
@@ -408,6 +569,8 @@ impl Scheduler {
                     Request::Resume(None) => "resumed",
                     Request::Resume(Some(_)) => "restarted from a line",
                     Request::Cancel => "cancelled",
+                    Request::Override(_) => "overridden (only a running or held job is)",
+                    Request::Shutdown => "held for the shutdown",
                 };
                 return Err(SchedError::Conflict(format!(
                     "job {} is {s} and cannot be {what}",
@@ -422,17 +585,55 @@ impl Scheduler {
 
     /// Cancels every job that is streaming and waits for each to stop.
     pub async fn cancel_all(&self) {
-        let active: Vec<JobId> = self
-            .inner
+        for id in self.active_jobs() {
+            let _ = self.cancel(id).await;
+        }
+    }
+
+    fn active_jobs(&self) -> Vec<JobId> {
+        self.inner
             .machines
             .values()
             .filter_map(|m| lock(&m.active).as_ref().map(|a| a.job))
-            .collect();
+            .collect()
+    }
+
+    /// A graceful stop (SIGTERM): takes no new jobs, feed-holds every running machine,
+    /// waits (up to `wait`) for each to stand still, leaves its job interrupted at its exact
+    /// unit with the machine held, and stops the workers. The next start shows those jobs
+    /// interrupted; `resume` lets the machine go on.
+    pub async fn shutdown(&self, wait: Duration) {
+        self.inner.closing.store(true, Ordering::SeqCst);
+        let active = self.active_jobs();
+        let mut replies = Vec::new();
+        for id in &active {
+            if let Ok(job) = self.job(*id) {
+                if let Some(m) = self.inner.machines.get(&job.machine) {
+                    if let Some(a) = lock(&m.active).as_ref() {
+                        let (tx, rx) = oneshot::channel();
+                        let _ = a.commands.send(Command {
+                            request: Request::Shutdown,
+                            reply: tx,
+                        });
+                        replies.push(rx);
+                    }
+                }
+            }
+        }
+        let _ = tokio::time::timeout(wait, futures::future::join_all(replies)).await;
+        self.abort();
         for id in active {
-            let _ = self.cancel(id).await;
-            let mut rx = self.subscribe();
-            while self.job(id).map(|j| !j.state.is_final()).unwrap_or(false) {
-                let _ = tokio::time::timeout(Duration::from_millis(100), rx.recv()).await;
+            if let Ok(j) = self.job(id) {
+                if !j.state.is_final() {
+                    self.inner.set_state(
+                        id,
+                        JobState::Interrupted,
+                        Some(&format!(
+                            "the daemon was stopped with {} of {} units acknowledged",
+                            j.acked_units, j.total_units
+                        )),
+                    );
+                }
             }
         }
     }
@@ -471,270 +672,75 @@ impl Inner {
             self.broadcast_state(&j);
         }
     }
-}
 
-/// One machine's worker: takes job ids off the queue, one at a time.
-async fn worker(inner: Arc<Inner>, name: String, mut queue: mpsc::UnboundedReceiver<JobId>) {
-    let mut link: Option<Box<dyn MachineLink>> = None;
-    while let Some(id) = queue.recv().await {
-        let Some(m) = inner.machines.get(&name) else {
-            return;
+    /// Notes why a job waits (or clears the note), and tells the watchers.
+    fn note(&self, id: JobId, note: Option<&str>) {
+        if let Err(e) = self.store.set_note(id, note) {
+            tracing::error!("job {id}: cannot record a note: {e}");
+        }
+        if let Ok(Some(j)) = self.store.job(id) {
+            self.broadcast_state(&j);
+        }
+    }
+
+    /// Records the device's status (now).
+    fn saw(&self, m: &Machine, status: MachineStatus) {
+        *lock(&m.status) = Seen {
+            status,
+            at: Some(Instant::now()),
         };
-        run_job(&inner, m, &mut link, id).await;
+    }
+
+    /// Records that the machine's link is down, saying why in the status's detail.
+    fn offline(&self, m: &Machine, why: &str) {
+        let mut s = lock(&m.status);
+        s.status.state = DeviceState::Offline;
+        s.status.detail = why.to_string();
+        s.status.feed = 0.0;
+        s.at = Some(Instant::now());
     }
 }
 
-/// Runs one job to its end; every outcome lands in the store, none escapes.
-async fn run_job(inner: &Inner, m: &Machine, link: &mut Option<Box<dyn MachineLink>>, id: JobId) {
-    // claim the job under the machine's lock, so a cancel cannot slip in between
-    let (cmd_tx, mut cmd_rx) = mpsc::unbounded_channel();
-    let job = {
-        let mut active = lock(&m.active);
-        match inner.store.job(id) {
-            Ok(Some(j)) if j.state == JobState::Queued => {
-                *active = Some(Active {
-                    job: id,
-                    commands: cmd_tx,
-                });
-                j
-            }
-            Ok(_) => return, // cancelled while queued, or resumed twice
-            Err(e) => {
-                tracing::error!("job {id}: {e}");
-                return;
-            }
-        }
-    };
-    let outcome = stream_job(inner, m, link, &job, &mut cmd_rx).await;
-    // refuse late commands with the final state
-    *lock(&m.active) = None;
-    while let Ok(c) = cmd_rx.try_recv() {
-        let _ = c.reply.send(Ok(()));
-    }
-    let (state, error) = outcome;
-    if let Some(e) = &error {
-        tracing::warn!("job {id} on {}: {e}", m.config.name);
-    }
-    inner.set_state(id, state, error.as_deref());
-}
-
-/// Streams a claimed job; returns its final state and error message.
-async fn stream_job(
-    inner: &Inner,
-    m: &Machine,
-    link: &mut Option<Box<dyn MachineLink>>,
-    job: &JobRecord,
-    commands: &mut mpsc::UnboundedReceiver<Command>,
-) -> (JobState, Option<String>) {
-    let id = job.id;
-    let program = match inner
-        .store
-        .program(id)
-        .and_then(|p| p.decode(m.config.kind.as_ref()))
-    {
-        Ok(p) => p,
-        Err(e) => return (JobState::Failed, Some(e.to_string())),
-    };
-    inner.set_state(id, JobState::Running, None);
-    if link.is_none() {
-        match open_link(m).await {
-            Ok(l) => *link = Some(l),
-            Err(e) => {
-                return (
-                    JobState::Failed,
-                    Some(format!("cannot reach machine `{}`: {e}", m.config.name)),
-                )
-            }
-        }
-    }
-    let Some(l) = link.as_mut() else {
-        return (JobState::Failed, Some("no link".into()));
-    };
-    let total = program.len();
-    let from = job.acked_units.min(total);
-    let (ev_tx, mut ev_rx) = mpsc::unbounded_channel();
-    let (ctl_tx, ctl_rx) = watch::channel(Control::Run);
-    let mut journal = Journal::new(from, inner.journal.every, inner.journal.max_lag);
-    let mut cancel_requested = false;
-    let result = {
-        let mut stream = l.stream(&program, from, ev_tx, ctl_rx);
-        loop {
-            tokio::select! {
-                biased;
-                Some(ev) = ev_rx.recv() => {
-                    // a machine that stopped itself for the operator (a thread break, a
-                    // program stop, an open door) pauses the job: `machlink resume JOB`
-                    // continues it
-                    if let LinkEvent::Status(MachineStatus {
-                        state: DeviceState::NeedsOperator { .. },
-                        ..
-                    }) = &ev
-                    {
-                        let _ = on_command(inner, id, &ctl_tx, Request::Pause);
-                    }
-                    on_link_event(inner, m, id, total, &mut journal, ev)
-                }
-                Some(cmd) = commands.recv() => {
-                    let r = on_command(inner, id, &ctl_tx, cmd.request);
-                    cancel_requested |= cmd.request == Request::Cancel;
-                    let _ = cmd.reply.send(r);
-                }
-                _ = sleep_until(journal.deadline()) => flush(inner, id, &mut journal),
-                r = &mut stream => break r,
-            }
-        }
-    };
-    while let Ok(ev) = ev_rx.try_recv() {
-        on_link_event(inner, m, id, total, &mut journal, ev);
-    }
-    flush(inner, id, &mut journal);
-    let outcome = match result {
-        Ok(StreamEnd::Completed) => (JobState::Completed, None),
-        Ok(StreamEnd::Cancelled { acked }) => {
-            if acked > journal.acked() {
-                journal.ack(acked - 1, Instant::now());
-                flush(inner, id, &mut journal);
-            }
-            (JobState::Cancelled, None)
-        }
-        Err(e) => {
-            let msg = describe_failure(&e, &program, journal.acked());
-            // a device that refused a line or raised an alarm is still talking (the link
-            // resets it); a link that broke is opened afresh for the next job
-            if !e.keeps_link() {
-                *link = None;
-            }
-            if cancel_requested {
-                (JobState::Cancelled, Some(msg))
-            } else {
-                (JobState::Failed, Some(msg))
-            }
-        }
-    };
-    if outcome.0 == JobState::Completed && journal.acked() < total {
-        // a link that says completed has had every unit acknowledged
-        journal.ack(total - 1, Instant::now());
-        flush(inner, id, &mut journal);
-    }
-    outcome
-}
-
-/// Opens the machine's link through its kind; a port still held by the link just closed
-/// (its lock is released a moment later) is tried again for up to two seconds.
-async fn open_link(m: &Machine) -> Result<Box<dyn MachineLink>, LinkError> {
-    let give_up = Instant::now() + Duration::from_secs(2);
-    loop {
-        let c = &m.config;
-        match c.kind.open(&c.name, &c.settings, &m.device).await {
-            Err(LinkError::PortBusy { .. }) if Instant::now() < give_up => {
-                tokio::time::sleep(Duration::from_millis(50)).await;
-            }
-            r => return r,
-        }
-    }
-}
-
-async fn sleep_until(deadline: Option<Instant>) {
-    match deadline {
-        Some(d) => tokio::time::sleep_until(d.into()).await,
-        None => std::future::pending().await,
-    }
-}
-
-fn flush(inner: &Inner, id: JobId, journal: &mut Journal) {
-    if let Some((a, b)) = journal.take() {
-        if let Err(e) = inner.store.record_acks(id, a, b) {
-            tracing::error!("job {id}: cannot journal units {a}..{b}: {e}");
-        }
-    }
-}
-
-fn on_link_event(
-    inner: &Inner,
-    m: &Machine,
-    id: JobId,
-    total: usize,
-    journal: &mut Journal,
-    ev: LinkEvent,
+/// One machine's worker: first asks the device about the jobs a crash interrupted on it
+/// (following one it still runs), then takes job ids off the queue one at a time, carries
+/// out the operator's operations between jobs, and keeps the machine's status fresh.
+async fn worker(
+    inner: Arc<Inner>,
+    name: String,
+    mut queue: mpsc::UnboundedReceiver<JobId>,
+    mut ops: mpsc::UnboundedReceiver<OpRequest>,
+    follow: Vec<JobId>,
 ) {
-    match ev {
-        LinkEvent::Acked { unit } => {
-            if journal.ack(unit, Instant::now()) {
-                flush(inner, id, journal);
+    let Some(m) = inner.machines.get(&name) else {
+        return;
+    };
+    let mut link: Option<Box<dyn MachineLink>> = None;
+    let mut status = run::StatusKeeper::default();
+    for id in follow {
+        run::run_job(&inner, m, &mut link, id, run::Mode::Follow).await;
+    }
+    let mut poll = tokio::time::interval(STATUS_POLL);
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            biased;
+            id = queue.recv() => match id {
+                Some(id) => run::run_job(&inner, m, &mut link, id, run::Mode::Run).await,
+                None => return,
+            },
+            op = ops.recv() => {
+                let Some(op) = op else { return };
+                let r = run::operate(&inner, m, &mut link, &op.op).await;
+                let _ = op.reply.send(r);
             }
-            let _ = inner.events.send(Event::Progress {
-                job: id,
-                acked: journal.acked(),
-                total,
-            });
-        }
-        LinkEvent::Status(s) => {
-            let _ = inner.events.send(Event::Status {
-                machine: m.config.name.clone(),
-                job: Some(id),
-                status: s.clone(),
-            });
-            *lock(&m.status) = s;
-        }
-        LinkEvent::Message(text) => {
-            let _ = inner.events.send(Event::Message {
-                machine: m.config.name.clone(),
-                job: Some(id),
-                text,
-            });
+            _ = poll.tick() => status.keep(&inner, m, &mut link).await,
         }
     }
 }
 
-fn on_command(
-    inner: &Inner,
-    id: JobId,
-    control: &watch::Sender<Control>,
-    request: Request,
-) -> Result<(), SchedError> {
-    let current = *control.borrow();
-    match (request, current) {
-        (Request::Pause, Control::Run) => {
-            let _ = control.send(Control::Hold);
-            inner.set_state(id, JobState::Paused, None);
-        }
-        (Request::Resume(Some(_)), _) => {
-            return Err(SchedError::Conflict(format!(
-                "job {id} is still streaming; only a stopped job restarts from a line (cancel it first)"
-            )))
-        }
-        (Request::Resume(None), Control::Hold) => {
-            let _ = control.send(Control::Run);
-            inner.set_state(id, JobState::Running, None);
-        }
-        (Request::Pause, Control::Hold) | (Request::Resume(None), Control::Run) => {}
-        (Request::Cancel, _) => {
-            let _ = control.send(Control::Cancel);
-        }
-        (_, Control::Cancel) => {
-            return Err(SchedError::Conflict(format!("job {id} is being cancelled")))
-        }
-    }
-    Ok(())
-}
-
-/// The operator's sentence for a failed stream, naming the program line (1-based, as in
-/// the program file `machlink plan` writes).
-fn describe_failure(e: &LinkError, program: &Program, acked: usize) -> String {
-    match e {
-        LinkError::Rejected { unit, text, reason } => {
-            format!("the machine refused line {} `{text}`: {reason}", unit + 1)
-        }
-        // the GRBL link names the line that was running when the alarm came
-        LinkError::Alarm { text, .. } => format!(
-            "the machine raised {text} ({acked} of {} lines had been acknowledged)",
-            program.len()
-        ),
-        other => format!(
-            "{other} (after {acked} of {} lines were acknowledged)",
-            program.len()
-        ),
-    }
+/// The operator's sentence for a link error, for messages that are not about a line.
+fn say(e: &LinkError) -> String {
+    e.to_string()
 }
 
 #[cfg(test)]

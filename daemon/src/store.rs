@@ -1,8 +1,16 @@
 //! The job store: jobs, their programs and the journal of acknowledged units, in SQLite (WAL).
 //!
 //! A job's row and its program are committed before the first byte goes to the machine;
-//! the units the machine acknowledges are journaled in batches (`Journal`), never more than
-//! `journal_max_lag` behind, so after a crash `acked_units` is where the job resumes.
+//! every unit the machine acknowledges is journaled (`Journal`, one unit at a time by
+//! default), and links whose devices cannot be asked afterwards (GRBL) journal each write
+//! before its bytes leave (`sending_units`) and after (`sent_units`), so after a crash the
+//! store says exactly which units the device may hold. Those per-write records go to a
+//! small progress file beside the database (one fixed-size slot per machine, written with
+//! one `pwrite`: it reaches the page cache at once and survives a crash of the process,
+//! like a `synchronous = NORMAL` commit, at a twentieth of its cost); they are copied into
+//! SQLite when the stream ends, and at the next start after a crash. Commits do not wait
+//! for the disk; a thread of its own checkpoints the write-ahead log, so no fsync stalls a
+//! stream.
 
 use machlink_protocols::Program;
 use rusqlite::{params, Connection, OptionalExtension};
@@ -103,6 +111,21 @@ pub struct JobRecord {
     pub total_units: usize,
     /// Units acknowledged by the machine; a resume starts at this unit.
     pub acked_units: usize,
+    /// Units handed to the machine (for links that journal their writes, else 0).
+    #[serde(default)]
+    pub sent_units: usize,
+    /// Why a paused or interrupted job waits, and what the daemon found on the machine.
+    #[serde(default)]
+    pub note: Option<String>,
+    /// How long the program takes on the machine, as its kind estimates it, ms.
+    #[serde(default)]
+    pub estimate_ms: Option<i64>,
+    /// Time since the job started (to its end, once it ended), ms.
+    #[serde(default)]
+    pub elapsed_ms: Option<i64>,
+    /// The machining time left, from the estimate and the units still to run, ms.
+    #[serde(default)]
+    pub eta_ms: Option<i64>,
 }
 
 /// What a new job is made of.
@@ -138,6 +161,183 @@ pub struct Store {
     conn: Arc<Mutex<Connection>>,
     /// Journal flushes so far (tests count them).
     flushes: Arc<std::sync::atomic::AtomicU64>,
+    /// Journal writes so far (acknowledgements committed, writes recorded in the progress
+    /// file), for the benchmark.
+    commits: Arc<std::sync::atomic::AtomicU64>,
+    progress: Arc<ProgressFile>,
+    _checkpoints: Arc<Checkpointer>,
+}
+
+/// The progress file: one slot of [`SLOT_BYTES`] per machine, each the job id and its
+/// acknowledged, sent and sending units (little-endian 64-bit), written whole with one
+/// `pwrite`; a slot of job 0 is empty.
+struct ProgressFile {
+    file: std::fs::File,
+}
+
+const SLOT_BYTES: usize = 32;
+/// Slots in the file (machines per daemon).
+pub const PROGRESS_SLOTS: usize = 1024;
+
+/// One slot's record.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Slot {
+    job: JobId,
+    acked: u64,
+    sent: u64,
+    sending: u64,
+}
+
+impl ProgressFile {
+    fn open(db: &Path) -> std::io::Result<ProgressFile> {
+        let mut name = db.as_os_str().to_owned();
+        name.push("-progress");
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(std::path::PathBuf::from(name))?;
+        Ok(ProgressFile { file })
+    }
+
+    fn write(&self, slot: usize, s: Slot) -> std::io::Result<()> {
+        use std::os::unix::fs::FileExt;
+        let mut b = [0u8; SLOT_BYTES];
+        b[0..8].copy_from_slice(&s.job.to_le_bytes());
+        b[8..16].copy_from_slice(&s.acked.to_le_bytes());
+        b[16..24].copy_from_slice(&s.sent.to_le_bytes());
+        b[24..32].copy_from_slice(&s.sending.to_le_bytes());
+        self.file.write_all_at(&b, (slot * SLOT_BYTES) as u64)
+    }
+
+    /// Every slot that holds a job, with its number.
+    fn read(&self) -> Vec<(usize, Slot)> {
+        use std::io::Read;
+        let mut all = Vec::new();
+        let mut f = &self.file;
+        use std::io::Seek;
+        if f.seek(std::io::SeekFrom::Start(0)).is_err() || f.read_to_end(&mut all).is_err() {
+            return Vec::new();
+        }
+        let u = |c: &[u8]| u64::from_le_bytes(c.try_into().unwrap_or([0; 8]));
+        all.chunks_exact(SLOT_BYTES)
+            .enumerate()
+            .map(|(k, c)| {
+                (
+                    k,
+                    Slot {
+                        job: u(&c[0..8]) as i64,
+                        acked: u(&c[8..16]),
+                        sent: u(&c[16..24]),
+                        sending: u(&c[24..32]),
+                    },
+                )
+            })
+            .filter(|(_, s)| s.job > 0)
+            .collect()
+    }
+}
+
+/// The journal of one stream's writes, in its machine's slot of the progress file (see the
+/// module's paragraph); cheap to clone, every clone writes the same slot.
+#[derive(Clone)]
+pub struct SendRecord {
+    store: Store,
+    slot: usize,
+    state: Arc<Mutex<Slot>>,
+}
+
+impl SendRecord {
+    /// Units `..upto` are about to be handed to the device, `acked` acknowledged so far.
+    pub fn sending(&self, acked: usize, upto: usize) -> Result<(), StoreError> {
+        let mut s = lock(&self.state);
+        s.acked = s.acked.max(acked as u64);
+        s.sending = upto as u64;
+        self.store
+            .progress
+            .write(self.slot, *s)
+            .map_err(progress_err)?;
+        self.store.count_commit();
+        Ok(())
+    }
+
+    /// The device holds units `..upto`.
+    pub fn sent(&self, upto: usize) -> Result<(), StoreError> {
+        let mut s = lock(&self.state);
+        s.sent = upto as u64;
+        s.sending = upto as u64;
+        self.store
+            .progress
+            .write(self.slot, *s)
+            .map_err(progress_err)?;
+        self.store.count_commit();
+        Ok(())
+    }
+
+    /// Copies the record into the job's row and empties the slot (when the stream ends).
+    pub fn persist(&self) -> Result<(), StoreError> {
+        let s = *lock(&self.state);
+        self.store.absorb(s)?;
+        self.store
+            .progress
+            .write(self.slot, Slot::default())
+            .map_err(progress_err)
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn progress_err(e: std::io::Error) -> StoreError {
+    StoreError::Corrupt(format!("the progress file cannot be written: {e}"))
+}
+
+/// The thread that checkpoints the write-ahead log into the database file (the only writes
+/// that wait for the disk), so commits on the streaming path never do; it stops with the
+/// last clone of the store.
+struct Checkpointer {
+    stop: Arc<(Mutex<bool>, std::sync::Condvar)>,
+}
+
+impl Checkpointer {
+    fn start(path: &Path) -> Checkpointer {
+        let stop = Arc::new((Mutex::new(false), std::sync::Condvar::new()));
+        let s = stop.clone();
+        let path = path.to_path_buf();
+        let _ = std::thread::Builder::new()
+            .name("store-checkpoint".into())
+            .spawn(move || {
+                let Ok(conn) = Connection::open(&path) else {
+                    return;
+                };
+                let _ = conn.busy_timeout(Duration::from_millis(100));
+                let (lock, cv) = &*s;
+                let mut stopped = lock.lock().unwrap_or_else(|p| p.into_inner());
+                while !*stopped {
+                    let (g, _) = cv
+                        .wait_timeout(stopped, Duration::from_millis(500))
+                        .unwrap_or_else(|p| p.into_inner());
+                    stopped = g;
+                    if *stopped {
+                        break;
+                    }
+                    drop(stopped);
+                    let _ = conn.query_row("PRAGMA wal_checkpoint(PASSIVE)", [], |_| Ok(()));
+                    stopped = lock.lock().unwrap_or_else(|p| p.into_inner());
+                }
+            });
+        Checkpointer { stop }
+    }
+}
+
+impl Drop for Checkpointer {
+    fn drop(&mut self) {
+        let (lock, cv) = &*self.stop;
+        *lock.lock().unwrap_or_else(|p| p.into_inner()) = true;
+        cv.notify_all();
+    }
 }
 
 const SCHEMA: &str = "
@@ -153,7 +353,12 @@ CREATE TABLE IF NOT EXISTS jobs (
     finished_ms INTEGER,
     error       TEXT,
     total_units INTEGER NOT NULL,
-    acked_units INTEGER NOT NULL DEFAULT 0
+    acked_units INTEGER NOT NULL DEFAULT 0,
+    sent_units  INTEGER NOT NULL DEFAULT 0,
+    sending_units INTEGER NOT NULL DEFAULT 0,
+    estimate_ms INTEGER,
+    note        TEXT,
+    restart_at  INTEGER
 );
 CREATE TABLE IF NOT EXISTS programs (
     job_id INTEGER PRIMARY KEY REFERENCES jobs(id),
@@ -196,11 +401,91 @@ impl Store {
             .map_err(open_err)?;
         conn.busy_timeout(Duration::from_secs(5))
             .map_err(open_err)?;
+        // the checkpoint thread does what the commits would otherwise stop for
+        conn.pragma_update(None, "wal_autocheckpoint", 0)
+            .map_err(open_err)?;
         conn.execute_batch(SCHEMA).map_err(open_err)?;
+        migrate(&conn).map_err(open_err)?;
+        let progress = ProgressFile::open(path).map_err(|e| StoreError::Open {
+            path: path.display().to_string(),
+            source: rusqlite::Error::ToSqlConversionFailure(Box::new(e)),
+        })?;
         Ok(Store {
             conn: Arc::new(Mutex::new(conn)),
             flushes: Arc::default(),
+            commits: Arc::default(),
+            progress: Arc::new(progress),
+            _checkpoints: Arc::new(Checkpointer::start(path)),
         })
+    }
+
+    /// The journal of a stream of job `id` from unit `from` on machine slot `slot` (the
+    /// machine's place in the daemon's list).
+    pub fn send_record(
+        &self,
+        slot: usize,
+        id: JobId,
+        from: usize,
+    ) -> Result<SendRecord, StoreError> {
+        if slot >= PROGRESS_SLOTS {
+            return Err(StoreError::Corrupt(format!(
+                "machine slot {slot} is beyond the progress file's {PROGRESS_SLOTS}"
+            )));
+        }
+        let s = Slot {
+            job: id,
+            acked: from as u64,
+            sent: from as u64,
+            sending: from as u64,
+        };
+        self.progress.write(slot, s).map_err(progress_err)?;
+        Ok(SendRecord {
+            store: self.clone(),
+            slot,
+            state: Arc::new(Mutex::new(s)),
+        })
+    }
+
+    /// Copies a slot's record into its job's row.
+    fn absorb(&self, s: Slot) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET acked_units = MAX(acked_units, ?2), sent_units = ?3, sending_units = ?4
+             WHERE id = ?1",
+            params![s.job, s.acked as i64, s.sent as i64, s.sending as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Empties the slots that hold job `id` (its journal starts afresh).
+    fn forget_progress(&self, id: JobId) -> Result<(), StoreError> {
+        for (k, s) in self.progress.read() {
+            if s.job == id {
+                self.progress
+                    .write(k, Slot::default())
+                    .map_err(progress_err)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// A job's row with what the progress file knows beyond it.
+    fn overlay(&self, jobs: &mut [JobRecord]) {
+        let slots = self.progress.read();
+        if slots.is_empty() {
+            return;
+        }
+        for j in jobs.iter_mut() {
+            if let Some((_, s)) = slots.iter().find(|(_, s)| s.job == j.id) {
+                j.acked_units = j.acked_units.max(s.acked as usize);
+                j.sent_units = s.sent as usize;
+                if let (Some(e), true) = (j.estimate_ms, j.total_units > 0) {
+                    let left = j.total_units.saturating_sub(j.acked_units) as f64;
+                    j.eta_ms = j
+                        .eta_ms
+                        .map(|_| (e as f64 * left / j.total_units as f64).round() as i64);
+                }
+            }
+        }
     }
 
     fn conn(&self) -> std::sync::MutexGuard<'_, Connection> {
@@ -243,25 +528,35 @@ impl Store {
     }
 
     pub fn job(&self, id: JobId) -> Result<Option<JobRecord>, StoreError> {
-        self.conn()
+        let j = self
+            .conn()
             .query_row(
                 &format!("SELECT {JOB_COLUMNS} FROM jobs WHERE id = ?1"),
                 [id],
                 row_to_job,
             )
             .optional()?
-            .transpose()
+            .transpose()?;
+        Ok(j.map(|j| {
+            let mut one = [j];
+            self.overlay(&mut one);
+            let [j] = one;
+            j
+        }))
     }
 
     /// Every job, oldest first.
     pub fn jobs(&self) -> Result<Vec<JobRecord>, StoreError> {
-        let conn = self.conn();
-        let mut st = conn.prepare(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id"))?;
-        let rows = st.query_map([], row_to_job)?;
         let mut out = Vec::new();
-        for r in rows {
-            out.push(r??);
+        {
+            let conn = self.conn();
+            let mut st = conn.prepare(&format!("SELECT {JOB_COLUMNS} FROM jobs ORDER BY id"))?;
+            let rows = st.query_map([], row_to_job)?;
+            for r in rows {
+                out.push(r??);
+            }
         }
+        self.overlay(&mut out);
         Ok(out)
     }
 
@@ -323,27 +618,116 @@ impl Store {
         Ok(())
     }
 
-    /// Records that units up to `acked_units` (exclusive) are acknowledged: one journal row
-    /// for the batch and the job's resume point, in one transaction.
+    /// Records that units up to `acked_units` (exclusive) are acknowledged: the job's resume
+    /// point, and a journal row when the count passes a hundred (the history; every
+    /// acknowledgement would make the table grow by one row a line).
     pub fn record_acks(
         &self,
         id: JobId,
         from_units: usize,
         acked_units: usize,
     ) -> Result<(), StoreError> {
-        self.move_resume_point(
-            id,
-            acked_units,
-            "acked",
-            &format!("units {from_units}..{acked_units}"),
-        )?;
+        if from_units / 100 != acked_units / 100 {
+            self.move_resume_point(
+                id,
+                acked_units,
+                "acked",
+                &format!("units {from_units}..{acked_units}"),
+            )?;
+        } else {
+            self.conn()
+                .prepare_cached("UPDATE jobs SET acked_units = ?2 WHERE id = ?1")?
+                .execute(params![id, acked_units as i64])?;
+        }
         self.flushes
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.count_commit();
         Ok(())
+    }
+
+    fn count_commit(&self) {
+        self.commits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// How many journal writes (acknowledgements committed, writes recorded in the progress
+    /// file) the store made.
+    pub fn commit_count(&self) -> u64 {
+        self.commits.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// How far the job's program went towards the device, as the journal knows it.
+    pub fn handed(&self, id: JobId) -> Result<machlink_protocols::Handed, StoreError> {
+        let (acked, sent, sending): (i64, i64, i64) = self.conn().query_row(
+            "SELECT acked_units, sent_units, sending_units FROM jobs WHERE id = ?1",
+            [id],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+        )?;
+        let mut h = machlink_protocols::Handed {
+            acked: acked as usize,
+            sent: sent as usize,
+            sending: sending as usize,
+            cut_off: false,
+        };
+        if let Some((_, s)) = self.progress.read().into_iter().find(|(_, s)| s.job == id) {
+            h.acked = h.acked.max(s.acked as usize);
+            h.sent = s.sent as usize;
+            h.sending = s.sending as usize;
+        }
+        Ok(h)
+    }
+
+    /// Where a stream starts: `from` units done, nothing beyond handed over yet.
+    pub fn start_stream_at(&self, id: JobId, from: usize) -> Result<(), StoreError> {
+        self.forget_progress(id)?;
+        self.conn().execute(
+            "UPDATE jobs SET acked_units = ?2, sent_units = ?2, sending_units = ?2 WHERE id = ?1",
+            params![id, from as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Notes why a job waits (or clears the note).
+    pub fn set_note(&self, id: JobId, note: Option<&str>) -> Result<(), StoreError> {
+        self.conn()
+            .execute("UPDATE jobs SET note = ?2 WHERE id = ?1", params![id, note])?;
+        Ok(())
+    }
+
+    /// The machining time the job's kind estimates, s.
+    pub fn set_estimate(&self, id: JobId, seconds: f64) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET estimate_ms = ?2 WHERE id = ?1",
+            params![id, (seconds * 1000.0).round() as i64],
+        )?;
+        Ok(())
+    }
+
+    /// Where the operator asked a stopped job to restart (0-based unit), until it does.
+    pub fn set_restart_at(&self, id: JobId, unit: Option<usize>) -> Result<(), StoreError> {
+        self.conn().execute(
+            "UPDATE jobs SET restart_at = ?2 WHERE id = ?1",
+            params![id, unit.map(|u| u as i64)],
+        )?;
+        Ok(())
+    }
+
+    /// The restart point the operator chose, taken (it holds for one start).
+    pub fn take_restart_at(&self, id: JobId) -> Result<Option<usize>, StoreError> {
+        let mut conn = self.conn();
+        let tx = conn.transaction()?;
+        let at: Option<i64> =
+            tx.query_row("SELECT restart_at FROM jobs WHERE id = ?1", [id], |r| {
+                r.get(0)
+            })?;
+        tx.execute("UPDATE jobs SET restart_at = NULL WHERE id = ?1", [id])?;
+        tx.commit()?;
+        Ok(at.map(|a| a as usize))
     }
 
     /// Moves a stopped job's resume point to unit `acked_units` (the operator's choice).
     pub fn set_resume_point(&self, id: JobId, acked_units: usize) -> Result<(), StoreError> {
+        self.forget_progress(id)?;
         self.move_resume_point(
             id,
             acked_units,
@@ -362,10 +746,17 @@ impl Store {
     ) -> Result<(), StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
-        tx.execute(
-            "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
-            params![id, acked_units as i64],
-        )?;
+        if event == "acked" {
+            tx.execute(
+                "UPDATE jobs SET acked_units = ?2 WHERE id = ?1",
+                params![id, acked_units as i64],
+            )?;
+        } else {
+            tx.execute(
+                "UPDATE jobs SET acked_units = ?2, sent_units = ?2, sending_units = ?2 WHERE id = ?1",
+                params![id, acked_units as i64],
+            )?;
+        }
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units, detail)
              VALUES (?1, ?2, ?3, ?4, ?5)",
@@ -383,6 +774,14 @@ impl Store {
     /// At start: every job left running or paused by a crash becomes interrupted, keeping
     /// its resume point. Returns the jobs it marked.
     pub fn mark_interrupted(&self) -> Result<Vec<JobRecord>, StoreError> {
+        // what the progress file knows of the streams the crash cut short goes into the
+        // jobs' rows first
+        for (k, s) in self.progress.read() {
+            self.absorb(s)?;
+            self.progress
+                .write(k, Slot::default())
+                .map_err(progress_err)?;
+        }
         let stale: Vec<JobRecord> = self
             .jobs()?
             .into_iter()
@@ -409,7 +808,27 @@ impl Store {
 }
 
 const JOB_COLUMNS: &str = "id, machine, state, op, file_name, params, created_ms, started_ms,
-    finished_ms, error, total_units, acked_units";
+    finished_ms, error, total_units, acked_units, sent_units, note, estimate_ms";
+
+/// Adds the columns a store written by an older daemon lacks.
+fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    let mut st = conn.prepare("PRAGMA table_info(jobs)")?;
+    let have: Vec<String> = st
+        .query_map([], |r| r.get::<_, String>(1))?
+        .collect::<Result<_, _>>()?;
+    for (col, def) in [
+        ("sent_units", "INTEGER NOT NULL DEFAULT 0"),
+        ("sending_units", "INTEGER NOT NULL DEFAULT 0"),
+        ("estimate_ms", "INTEGER"),
+        ("note", "TEXT"),
+        ("restart_at", "INTEGER"),
+    ] {
+        if !have.iter().any(|h| h == col) {
+            conn.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {col} {def}"))?;
+        }
+    }
+    Ok(())
+}
 
 fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreError>> {
     let id: i64 = r.get(0)?;
@@ -428,6 +847,19 @@ fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreErro
             ))))
         }
     };
+    let started_ms: Option<i64> = r.get(7)?;
+    let finished_ms: Option<i64> = r.get(8)?;
+    let total_units = r.get::<_, i64>(10)? as usize;
+    let acked_units = r.get::<_, i64>(11)? as usize;
+    let estimate_ms: Option<i64> = r.get(14)?;
+    let elapsed_ms = started_ms.map(|s| (finished_ms.unwrap_or_else(now_ms) - s).max(0));
+    let eta_ms = match (estimate_ms, state) {
+        (Some(e), JobState::Queued | JobState::Running | JobState::Paused) if total_units > 0 => {
+            let left = total_units.saturating_sub(acked_units) as f64 / total_units as f64;
+            Some((e as f64 * left).round() as i64)
+        }
+        _ => None,
+    };
     Ok(Ok(JobRecord {
         id,
         machine: r.get(1)?,
@@ -436,11 +868,16 @@ fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreErro
         file_name: r.get(4)?,
         params,
         created_ms: r.get(6)?,
-        started_ms: r.get(7)?,
-        finished_ms: r.get(8)?,
+        started_ms,
+        finished_ms,
         error: r.get(9)?,
-        total_units: r.get::<_, i64>(10)? as usize,
-        acked_units: r.get::<_, i64>(11)? as usize,
+        total_units,
+        acked_units,
+        sent_units: r.get::<_, i64>(12)? as usize,
+        note: r.get(13)?,
+        estimate_ms,
+        elapsed_ms,
+        eta_ms,
     }))
 }
 

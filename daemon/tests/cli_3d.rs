@@ -50,20 +50,14 @@ fn read_program(path: &Path) -> Toolpath {
     machlink_protocols::gcode_read::read(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
 
-/// Every point a cutting move passes through, every 0.25 mm.
+/// Every point a cutting move passes through, every 0.25 mm (arcs followed as arcs).
 fn cutting_points(tp: &Toolpath) -> Vec<P3> {
     let mut pts = Vec::new();
-    tp.walk(P3::default(), |from, m, to| {
+    tp.walk(P3::default(), |from, m, _| {
         if matches!(m, Move::Linear { .. } | Move::Arc { .. }) {
-            let n = (from.dist(to) / 0.25).ceil().max(1.0) as usize;
-            for i in 0..=n {
-                let t = i as f64 / n as f64;
-                pts.push(P3::new(
-                    from.x + (to.x - from.x) * t,
-                    from.y + (to.y - from.y) * t,
-                    from.z + (to.z - from.z) * t,
-                ));
-            }
+            let mut one = Toolpath::new("move");
+            one.push(m.clone());
+            pts.extend(one.sample(from, 0.25));
         }
     });
     pts
@@ -151,6 +145,12 @@ fn roughing_an_stl_leaves_the_allowance_everywhere() {
         pts.iter().map(|p| (p.z * 1000.0).round() as i64).collect();
     assert!(levels.len() >= 5, "levels {levels:?}");
     for p in &pts {
+        // the part is the square block |x|, |y| <= 40: a tool of radius 3 whose footprint
+        // misses it has nothing under it
+        let (dx, dy) = ((p.x.abs() - 40.0).max(0.0), (p.y.abs() - 40.0).max(0.0));
+        if dx.hypot(dy) > 3.0 {
+            continue;
+        }
         // a flat end mill of radius 3 stands on the highest point of the part under it
         let rho = p.x.hypot(p.y);
         let under = part_z((rho - 3.0).max(0.0));

@@ -6,7 +6,10 @@
 //! its link opens. The daemon knows kinds only through a [`Registry`], looked up by the
 //! table's `link = "…"`; docs/architecture.md has the recipe for adding one.
 
-use crate::link::{Control, Link, LinkError, LinkEvent, StreamEnd};
+use crate::link::{
+    Control, Handed, Link, LinkError, LinkEvent, MachineStatus, Operation, Overrides, Reattach,
+    ResumePlan, SendJournal, StreamEnd,
+};
 use crate::post::{AnyPost, Post, PostError, PostFor};
 use crate::program::{Program, Unit};
 use futures::future::BoxFuture;
@@ -71,9 +74,39 @@ pub trait MachineKind: Send + Sync + 'static {
         settings: &Self::Settings,
         device: &Self::Device,
     ) -> OpenLink<Self::Unit>;
+    /// What the machine does when a stopped program goes on at unit `from` (a resume after
+    /// any interruption, or from a line the operator names): the steps the operator reads
+    /// and confirms, and that the link then carries out. The default moves nothing: the
+    /// device continues at unit `from` from where it stands. An error says why the program
+    /// cannot go on there.
+    fn resume_plan(
+        &self,
+        _settings: &Self::Settings,
+        units: &[Self::Unit],
+        from: usize,
+    ) -> Result<ResumePlan, String> {
+        Ok(ResumePlan {
+            from,
+            steps: vec![match units.get(from) {
+                Some(u) => format!(
+                    "the machine continues at unit {} ({}) from where it stands",
+                    from + 1,
+                    u.describe()
+                ),
+                None => "nothing is left to run".into(),
+            }],
+            moves: false,
+        })
+    }
+    /// How long the machine takes to run `units`, for the ETA; None when the kind cannot
+    /// tell.
+    fn estimate(&self, _settings: &Self::Settings, _units: &[Self::Unit]) -> Option<f64> {
+        None
+    }
 }
 
-/// A link that streams [`Program`]s, whatever their units: what the daemon holds.
+/// A link that streams [`Program`]s, whatever their units: what the daemon holds. It
+/// carries every operation of [`Link`] with the program's units taken back as their type.
 pub trait MachineLink: Send {
     fn stream<'a>(
         &'a mut self,
@@ -82,11 +115,35 @@ pub trait MachineLink: Send {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>>;
+    /// [`Link::inquire`].
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>>;
+    /// [`Link::reattach`].
+    fn reattach<'a>(
+        &'a mut self,
+        program: &'a Program,
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>>;
+    /// [`Link::operate`].
+    fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>>;
+    /// [`Link::follow_overrides`].
+    fn follow_overrides(&mut self, overrides: watch::Receiver<Overrides>) -> Result<(), LinkError>;
+    /// [`Link::keep_journal`].
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>);
 }
 
 /// A kind's typed link behind [`MachineLink`]: the one place a program's units are taken
 /// back as the type the link streams.
 struct TypedLink<U>(Box<dyn Link<U>>);
+
+fn foreign<T: Send + 'static>(program: &Program) -> BoxFuture<'static, Result<T, LinkError>> {
+    let e = LinkError::Protocol(format!(
+        "this machine cannot run a program made by the {} post",
+        program.post()
+    ));
+    Box::pin(async move { Err(e) })
+}
 
 impl<U: Unit> MachineLink for TypedLink<U> {
     fn stream<'a>(
@@ -98,13 +155,32 @@ impl<U: Unit> MachineLink for TypedLink<U> {
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         match program.units::<U>() {
             Some(units) => self.0.stream(units, from, events, control),
-            None => Box::pin(async move {
-                Err(LinkError::Protocol(format!(
-                    "this machine cannot run a program made by the {} post",
-                    program.post()
-                )))
-            }),
+            None => foreign(program),
         }
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        self.0.inquire()
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        program: &'a Program,
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        match program.units::<U>() {
+            Some(units) => self.0.reattach(units, handed, events, control),
+            None => foreign(program),
+        }
+    }
+    fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
+        self.0.operate(op)
+    }
+    fn follow_overrides(&mut self, overrides: watch::Receiver<Overrides>) -> Result<(), LinkError> {
+        self.0.follow_overrides(overrides)
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.0.keep_journal(journal)
     }
 }
 
@@ -162,6 +238,15 @@ pub trait AnyKind: Send + Sync {
         settings: &KindSettings,
         device: &Device,
     ) -> BoxFuture<'static, Result<Box<dyn MachineLink>, LinkError>>;
+    /// [`MachineKind::resume_plan`] for a stored program.
+    fn resume_plan(
+        &self,
+        settings: &KindSettings,
+        program: &Program,
+        from: usize,
+    ) -> Result<ResumePlan, String>;
+    /// [`MachineKind::estimate`] for a program, seconds.
+    fn estimate(&self, settings: &KindSettings, program: &Program) -> Option<f64>;
 }
 
 /// A start that prepares nothing beyond what `f` does now.
@@ -276,6 +361,31 @@ impl<K: MachineKind> AnyKind for K {
             let link = open.await?;
             Ok(Box::new(TypedLink(link)) as Box<dyn MachineLink>)
         })
+    }
+    fn resume_plan(
+        &self,
+        settings: &KindSettings,
+        program: &Program,
+        from: usize,
+    ) -> Result<ResumePlan, String> {
+        let s = settings.get::<K::Settings>().ok_or_else(|| {
+            format!(
+                "the settings handed to the {} kind are not its own",
+                MachineKind::link(self)
+            )
+        })?;
+        let units = program.units::<K::Unit>().ok_or_else(|| {
+            format!(
+                "this machine cannot run a program made by the {} post",
+                program.post()
+            )
+        })?;
+        MachineKind::resume_plan(self, s, units, from)
+    }
+    fn estimate(&self, settings: &KindSettings, program: &Program) -> Option<f64> {
+        let s = settings.get::<K::Settings>()?;
+        let units = program.units::<K::Unit>()?;
+        MachineKind::estimate(self, s, units).filter(|t| t.is_finite() && *t >= 0.0)
     }
 }
 

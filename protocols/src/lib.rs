@@ -21,7 +21,8 @@ pub mod sewing;
 
 pub use kind::{AnyKind, MachineKind, MachineLink, Registry};
 pub use link::{
-    Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, OperatorReason, StreamEnd,
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Operation,
+    OperatorReason, Overrides, Reattach, ResumePlan, SendJournal, StreamEnd,
 };
 pub use post::{AnyPost, Post, PostError};
 pub use program::{Program, Unit};

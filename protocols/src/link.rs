@@ -149,18 +149,207 @@ pub enum LinkError {
     Timeout(std::time::Duration),
     #[error("the device broke protocol: {0}")]
     Protocol(String),
+    /// The kind of machine cannot do what was asked; the text says what and why.
+    #[error("{0}")]
+    Unsupported(String),
+    /// The journal could not record how far the program went, so streaming stopped rather
+    /// than hand the device units a restart could not account for.
+    #[error("cannot journal the program's progress: {0}")]
+    Journal(String),
 }
 
 impl LinkError {
     /// Whether the device is still talking after this error, so the same link can serve the
     /// next job (a refused line, an alarm); otherwise the link is opened afresh.
     pub fn keeps_link(&self) -> bool {
-        matches!(self, LinkError::Rejected { .. } | LinkError::Alarm { .. })
+        matches!(
+            self,
+            LinkError::Rejected { .. } | LinkError::Alarm { .. } | LinkError::Unsupported(_)
+        )
     }
+
+    /// Whether the link itself went away (a cable out, a port gone, a device that stopped
+    /// answering): the job pauses and the daemon reconnects, rather than failing it.
+    pub fn is_disconnect(&self) -> bool {
+        matches!(
+            self,
+            LinkError::Io(_)
+                | LinkError::Timeout(_)
+                | LinkError::Open { .. }
+                | LinkError::PortBusy { .. }
+        )
+    }
+
+    /// The refusal of an operation a kind does not have.
+    pub fn unsupported(what: &str, why: &str) -> LinkError {
+        LinkError::Unsupported(format!("{what} is not possible on this machine: {why}"))
+    }
+}
+
+/// What the operator asks of a machine between jobs, at the machine.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case")]
+pub enum Operation {
+    /// Clear an alarm lock without homing (GRBL `$X`); the operator has made the machine safe.
+    Unlock,
+    /// Run the machine's homing cycle (GRBL `$H`).
+    Home,
+    /// Move by these distances (mm, relative to where the tool is) at `feed` mm/min
+    /// (GRBL `$J=`).
+    Jog {
+        #[serde(default)]
+        x: Option<f64>,
+        #[serde(default)]
+        y: Option<f64>,
+        #[serde(default)]
+        z: Option<f64>,
+        feed: f64,
+    },
+}
+
+impl Operation {
+    /// The operation in the operator's words ("unlock", "home", "jog X10 F500").
+    pub fn name(&self) -> String {
+        match self {
+            Operation::Unlock => "unlock".into(),
+            Operation::Home => "home".into(),
+            Operation::Jog { x, y, z, feed } => {
+                let mut s = "jog".to_string();
+                for (axis, v) in [('X', x), ('Y', y), ('Z', z)] {
+                    if let Some(v) = v {
+                        s.push_str(&format!(" {axis}{v}"));
+                    }
+                }
+                s.push_str(&format!(" F{feed}"));
+                s
+            }
+        }
+    }
+
+    /// Checks what a device would refuse anyway: a jog needs an axis and a feed above 0.
+    pub fn check(&self) -> Result<(), String> {
+        if let Operation::Jog { x, y, z, feed } = self {
+            if x.is_none() && y.is_none() && z.is_none() {
+                return Err("a jog needs a distance on at least one axis (--x, --y or --z)".into());
+            }
+            for v in [x, y, z].into_iter().flatten() {
+                if !v.is_finite() {
+                    return Err(format!("a jog distance must be a number, got {v}"));
+                }
+            }
+            if !(feed.is_finite() && *feed > 0.0) {
+                return Err(format!("a jog feed must be above 0 mm/min, got {feed}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The operator's overrides of a running program, in percent of what it programs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Overrides {
+    /// Feed of cutting moves, 50 to 200.
+    pub feed: u16,
+    /// Spindle speed, 50 to 200.
+    pub spindle: u16,
+    /// Rapids: 25, 50 or 100.
+    pub rapid: u16,
+}
+
+impl Default for Overrides {
+    fn default() -> Self {
+        Overrides {
+            feed: 100,
+            spindle: 100,
+            rapid: 100,
+        }
+    }
+}
+
+impl Overrides {
+    /// Checks the ranges every kind shares; one sentence naming the bad one.
+    pub fn check(&self) -> Result<(), String> {
+        if !(50..=200).contains(&self.feed) {
+            return Err(format!(
+                "the feed override must be 50 to 200 %, got {} %",
+                self.feed
+            ));
+        }
+        if !(50..=200).contains(&self.spindle) {
+            return Err(format!(
+                "the spindle override must be 50 to 200 %, got {} %",
+                self.spindle
+            ));
+        }
+        if ![25, 50, 100].contains(&self.rapid) {
+            return Err(format!(
+                "the rapid override must be 25, 50 or 100 %, got {} %",
+                self.rapid
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// How far a program went towards the device, as the daemon's journal knows it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Handed {
+    /// Units the device acknowledged.
+    pub acked: usize,
+    /// Units handed to the device (their bytes left), for links that journal their writes.
+    pub sent: usize,
+    /// Units a write was about to hand over: `sent..sending` may or may not have reached the
+    /// device (the daemon stopped between the journal and the write).
+    pub sending: usize,
+    /// The link dropped under a stream (a cable pulled, a port gone): bytes handed to the
+    /// operating system may have been lost on the way, so `acked..sent` is in doubt too.
+    /// False after a restart of the daemon, whose written bytes all reach the device.
+    pub cut_off: bool,
+}
+
+/// Where a program stands on a device the daemon has just (re)connected to.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Reattach {
+    /// The device is running (or holding) this program on its own: streaming from `acked`
+    /// follows it, never restarting it or sending it a unit it has.
+    Running { acked: usize },
+    /// The device is not running it, and every unit before `next` is done: exactly where a
+    /// resume continues.
+    Stopped { next: usize },
+    /// The device ran the whole program.
+    Completed,
+    /// The device cannot tell (it restarted, or holds another program): `next` is the best
+    /// the journal knows, and `why` is for the operator, who decides where to resume.
+    Unsure { next: usize, why: String },
+}
+
+/// Where a link writes, before a unit's bytes leave, how far it handed the program over: the
+/// record a restarted daemon needs for devices that cannot be asked afterwards (GRBL).
+pub trait SendJournal: Send {
+    /// Units `..upto` are about to be handed to the device, `acked` of them acknowledged so
+    /// far. Durable against a crash of the process when it returns.
+    fn sending(&mut self, acked: usize, upto: usize) -> Result<(), String>;
+    /// The device holds units `..upto`: their bytes left, or a reset dropped what was beyond.
+    fn sent(&mut self, upto: usize) -> Result<(), String>;
+}
+
+/// What the daemon shows an operator before a stopped program goes on, and the link then does.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ResumePlan {
+    /// The unit the program continues at (0-based).
+    pub from: usize,
+    /// What the machine will do, in order, in the operator's words.
+    pub steps: Vec<String>,
+    /// Whether the machine moves before the program continues (the operator confirms).
+    pub moves: bool,
 }
 
 /// A connection to one device that streams programs of units `U` (G-code lines, stitch
 /// records, motion blocks, …) to it.
+///
+/// Only `stream` is required. The other operations have defaults that refuse with a reason
+/// (or, for `reattach`, fall back on the journal), so a kind that cannot do one says so and
+/// the daemon passes the sentence on; it never asks which kind it talks to.
 pub trait Link<U>: Send {
     /// Streams `units` from unit `from` on, reporting progress on `events` and obeying
     /// `control`, until every unit is executed, the stream is cancelled, or it fails.
@@ -171,4 +360,64 @@ pub trait Link<U>: Send {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>>;
+
+    /// Asks the device what it is doing, without disturbing it (no reset, no motion): the
+    /// daemon's first question after it (re)connects, and its poll while no job runs.
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        Box::pin(async {
+            Err(LinkError::unsupported(
+                "asking the machine for its state",
+                "its kind reports state only while a job runs",
+            ))
+        })
+    }
+
+    /// After the daemon restarted or the link came back: asks the device how far it got with
+    /// `units` (which the journal says went out as far as `handed`), follows it while it runs
+    /// what it already holds (reporting progress and obeying `control`), and says where the
+    /// program stands. Never restarts the device or sends it a unit again. The default
+    /// cannot ask, and says the journal's acknowledged count is the best it knows.
+    fn reattach<'a>(
+        &'a mut self,
+        units: &'a [U],
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        let _ = (units, events, control);
+        Box::pin(async move {
+            Ok(Reattach::Unsure {
+                next: handed.acked,
+                why: "this kind of machine cannot say how far it got; the journal's last acknowledged unit is used".into(),
+            })
+        })
+    }
+
+    /// Carries out an operator's operation between jobs (unlock, home, jog); returns what
+    /// the device said, for the operator.
+    fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
+        Box::pin(async move {
+            Err(LinkError::unsupported(
+                &op.name(),
+                "its kind has no such operation",
+            ))
+        })
+    }
+
+    /// Follows the operator's overrides in the streams that come: the daemon changes
+    /// `overrides` while a job runs. Refused by kinds whose devices take none.
+    fn follow_overrides(&mut self, overrides: watch::Receiver<Overrides>) -> Result<(), LinkError> {
+        let _ = overrides;
+        Err(LinkError::unsupported(
+            "overriding feed, spindle or rapids",
+            "its kind takes no overrides",
+        ))
+    }
+
+    /// Hands the link the journal of the next stream, for links whose devices cannot be
+    /// asked afterwards how far they got (GRBL); the others keep count on the device and
+    /// drop it.
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        let _ = journal;
+    }
 }

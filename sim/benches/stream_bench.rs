@@ -1,6 +1,8 @@
 //! GRBL streaming throughput: character counting against plain send-and-wait, through the
 //! simulated GRBL on a pty paced at 115200 baud, with motion that finishes at once (the
-//! planner never fills), so the serial line is the only limit. Same run, same program.
+//! planner never fills), so the serial line is the only limit; and the same program as a
+//! job through the daemon's scheduler with its exact journal (every write journaled before
+//! and after, every acknowledgement; SQLite WAL, synchronous NORMAL). Same run, same program.
 //!
 //! `cargo bench -p machlink-sim --bench stream_bench`
 
@@ -108,6 +110,11 @@ async fn main() {
     }
     let saw = start.elapsed();
     assert_eq!(sim.rx_overflows(), 0);
+    drop(link);
+
+    // the same program as a job through the daemon: scheduler, store and exact journal
+    let (journaled, commits) = through_the_daemon(&sim.port(), &lines).await;
+    assert_eq!(sim.rx_overflows(), 0);
 
     let row = |name: &str, t: Duration| {
         let s = t.as_secs_f64();
@@ -126,10 +133,96 @@ async fn main() {
     println!("|---|---|---|---|---|---|");
     row("character counting (to the last ok)", acked);
     row("character counting (to Idle)", done);
+    row(
+        "character counting through the daemon, exact journal (to the last ok)",
+        journaled,
+    );
     row("send and wait", saw);
+    println!(
+        "the daemon's journal: {commits} writes for {} lines ({:.1} a line: each write of lines \
+         recorded before and after in the progress file, acknowledgements carried with them)",
+        lines.len(),
+        commits as f64 / lines.len() as f64
+    );
     println!(
         "counting is {:.2}x send-and-wait",
         saw.as_secs_f64() / acked.as_secs_f64()
     );
     sim.shutdown();
+}
+
+/// Runs `lines` as a job on a `grbl` machine on `port` through the daemon's scheduler, its
+/// SQLite store in a temporary folder; returns the time from the job's start to its last
+/// acknowledged line, and how many journal commits the store made for it.
+async fn through_the_daemon(port: &std::path::Path, lines: &[String]) -> (Duration, u64) {
+    use machlink::config::MachineConfig;
+    use machlink::scheduler::{Event, JournalPolicy, MachineSetup, Scheduler};
+    use machlink::store::{JobState, NewJob, Store};
+    use machlink_protocols::Program;
+    let dir = tempfile::tempdir().expect("a temporary folder");
+    let path = dir.path().join("bench.db");
+    let store = Store::open(&path).expect("the store opens");
+    let registry = machlink::registry::standard();
+    let config = MachineConfig::new(
+        &registry,
+        "bench",
+        "grbl",
+        serde_json::json!({ "port": port.display().to_string(), "baud": BAUD }),
+    )
+    .expect("a grbl machine");
+    let sched = Scheduler::start(
+        store,
+        vec![MachineSetup {
+            config,
+            device: std::sync::Arc::new(()),
+        }],
+        JournalPolicy {
+            every: 1,
+            max_lag: Duration::from_secs(1),
+        },
+    )
+    .expect("the scheduler starts");
+    let job = |name: &str, l: &[String]| NewJob {
+        machine: "bench".into(),
+        op: "bench".into(),
+        file_name: name.into(),
+        params: serde_json::json!({}),
+        program: Program::new("grbl", l.to_vec()),
+    };
+    let mut rx = sched.subscribe();
+    // a short job first opens the link, as a daemon's first job on a machine does
+    let warm = sched.submit(job("warm.nc", &lines[..10])).unwrap().id;
+    loop {
+        if let Ok(Event::State { job, state, .. }) = rx.recv().await {
+            if job == warm && state.is_final() {
+                assert_eq!(state, JobState::Completed);
+                break;
+            }
+        }
+    }
+    let counted = sched.store().commit_count();
+    let id = sched.submit(job("bench.nc", lines)).unwrap().id;
+    let (mut start, mut last) = (None, None);
+    loop {
+        match rx.recv().await {
+            Ok(Event::State { job, state, .. }) if job == id => {
+                if state == JobState::Running && start.is_none() {
+                    start = Some(Instant::now());
+                }
+                if state.is_final() {
+                    assert_eq!(state, JobState::Completed);
+                    break;
+                }
+            }
+            Ok(Event::Progress {
+                job, acked, total, ..
+            }) if job == id && acked == total => last = Some(Instant::now()),
+            _ => {}
+        }
+    }
+    let (first, end) = (start.unwrap(), last.unwrap());
+    assert_eq!(sched.store().handed(id).unwrap().sent, lines.len());
+    let commits = sched.store().commit_count() - counted;
+    sched.abort();
+    (end.duration_since(first), commits)
 }

@@ -7,7 +7,11 @@ use crate::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
 use crate::modbus::{ModbusSim, SimConfig};
 use crate::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
 use futures::future::BoxFuture;
-use machlink_protocols::grbl::kind::{gcode_file_units, grbl_posts, open_machine};
+use machlink_protocols::grbl::kind::{
+    check_dwell, default_spindle_dwell, gcode_file_units, gcode_time, grbl_posts, grbl_resume_plan,
+    open_machine, ESTIMATE_RAPID,
+};
+use machlink_protocols::grbl::resume::ResumeOptions;
 use machlink_protocols::grbl::GrblOptions;
 use machlink_protocols::kind::{MachineKind, OpenLink, Registry};
 use machlink_protocols::modbus::kind::{gcode_file_blocks, modbus_posts, open_ring, RingSettings};
@@ -15,6 +19,7 @@ use machlink_protocols::modbus::{MotionBlock, Transport};
 use machlink_protocols::post::{PostError, PostFor};
 use machlink_protocols::sewing::kind::{open_sewing, stitch_posts};
 use machlink_protocols::sewing::StitchRecord;
+use machlink_protocols::ResumePlan;
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};
 
@@ -49,6 +54,12 @@ pub struct SimGrblSettings {
     /// How many times faster than real time the simulated machine moves.
     #[serde(default = "default_time_scale")]
     pub time_scale: f64,
+    /// Homing enabled: the machine starts locked until `machlink home` (or `unlock`).
+    #[serde(default)]
+    pub homing: bool,
+    /// How long a resume waits for the spindle to reach speed, s.
+    #[serde(default = "default_spindle_dwell")]
+    pub spindle_dwell_s: f64,
 }
 
 impl MachineKind for SimGrblKind {
@@ -66,7 +77,8 @@ impl MachineKind for SimGrblKind {
         grbl_posts()
     }
     fn check(&self, s: &SimGrblSettings) -> Result<(), String> {
-        positive(s.time_scale, "time_scale")
+        positive(s.time_scale, "time_scale")?;
+        check_dwell(s.spindle_dwell_s)
     }
     fn gcode_units(
         &self,
@@ -82,13 +94,32 @@ impl MachineKind for SimGrblKind {
     ) -> BoxFuture<'static, std::io::Result<GrblSimHandle>> {
         let cfg = GrblSimConfig {
             time_scale: s.time_scale,
+            homing: s.homing,
             ..Default::default()
         };
         Box::pin(async move { GrblSim::spawn_pty(cfg) })
     }
-    fn open(&self, _machine: &str, _s: &SimGrblSettings, sim: &GrblSimHandle) -> OpenLink<String> {
+    fn open(&self, _machine: &str, s: &SimGrblSettings, sim: &GrblSimHandle) -> OpenLink<String> {
         let port = sim.port().display().to_string();
-        open_machine(port, GrblOptions::default(), true)
+        let opts = GrblOptions {
+            resume: ResumeOptions {
+                spindle_dwell_s: s.spindle_dwell_s,
+            },
+            ..Default::default()
+        };
+        // a simulator's alarm needs nobody to look at it first
+        open_machine(port, opts, true)
+    }
+    fn resume_plan(
+        &self,
+        s: &SimGrblSettings,
+        lines: &[String],
+        from: usize,
+    ) -> Result<ResumePlan, String> {
+        grbl_resume_plan(lines, from, s.spindle_dwell_s)
+    }
+    fn estimate(&self, s: &SimGrblSettings, lines: &[String]) -> Option<f64> {
+        gcode_time(lines, ESTIMATE_RAPID).map(|t| t / s.time_scale)
     }
 }
 

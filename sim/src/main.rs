@@ -51,6 +51,39 @@ struct GrblArgs {
     /// Planner size in blocks.
     #[arg(long, default_value_t = 15)]
     planner_blocks: usize,
+    /// Homing enabled ($22=1): start locked in alarm until $H (or $X); $H runs the cycle.
+    #[arg(long)]
+    homing: bool,
+    /// A work offset at power-up, e.g. G55=10,20,0 (machine position of its zero, mm).
+    #[arg(long, value_name = "G5x=X,Y,Z", value_parser = parse_offset)]
+    offset: Vec<(usize, [f64; 3])>,
+    /// Append every line received and every move executed to FILE, one JSON object per line.
+    #[arg(long, value_name = "FILE")]
+    trace: Option<PathBuf>,
+}
+
+fn parse_offset(s: &str) -> Result<(usize, [f64; 3]), String> {
+    let (g, v) = s
+        .split_once('=')
+        .ok_or_else(|| format!("{s:?} is not G5x=X,Y,Z, e.g. G55=10,20,0"))?;
+    let k = match g.trim().to_ascii_uppercase().as_str() {
+        "G54" => 0,
+        "G55" => 1,
+        "G56" => 2,
+        "G57" => 3,
+        "G58" => 4,
+        "G59" => 5,
+        other => return Err(format!("{other:?} in {s:?} is not one of G54 to G59")),
+    };
+    let n: Vec<f64> = v
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{v:?} in {s:?} is not three numbers X,Y,Z"))?;
+    match n[..] {
+        [x, y, z] if [x, y, z].iter().all(|v| v.is_finite()) => Ok((k, [x, y, z])),
+        _ => Err(format!("{v:?} in {s:?} is not three numbers X,Y,Z")),
+    }
 }
 
 fn parse_fault(s: &str) -> Result<(u64, u8), String> {
@@ -82,21 +115,33 @@ fn run_grbl(a: GrblArgs) -> anyhow::Result<()> {
             .iter()
             .map(|&(line, code)| GrblFault::AlarmAtLine { line, code }),
     );
+    let mut work_offsets = [[0.0; 3]; 6];
+    for (k, o) in &a.offset {
+        work_offsets[*k] = *o;
+    }
     let cfg = GrblSimConfig {
         time_scale: a.time_scale,
         baud: a.baud,
         rx_buffer: a.rx_buffer,
         planner_blocks: a.planner_blocks,
         faults,
+        homing: a.homing,
+        work_offsets,
+        trace_file: a.trace.clone(),
         ..Default::default()
     };
-    let sim = GrblSim::spawn_pty_at(cfg, Some(&a.pty))
-        .with_context(|| format!("cannot start the simulated GRBL behind {}", a.pty.display()))?;
+    let sim = GrblSim::spawn_linked(cfg, &a.pty).with_context(|| {
+        format!(
+            "cannot start the simulated GRBL with its pty linked at {}",
+            a.pty.display()
+        )
+    })?;
     println!("{}", a.pty.display());
     eprintln!(
         "machlink-sim: GRBL 1.1h on {}; stop with Ctrl-C",
-        sim.port().display()
+        a.pty.display(),
     );
+    let _keep = sim;
     loop {
         std::thread::park();
     }

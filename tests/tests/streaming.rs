@@ -63,7 +63,7 @@ async fn an_error_fails_the_job_naming_the_line_and_the_next_job_completes() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
+async fn an_alarm_fails_the_job_naming_the_line_and_after_unlock_the_next_job_completes() {
     let (sim, _dir, _d, c) = grbl_cell(GrblSimConfig {
         time_scale: 400.0,
         faults: vec![GrblFault::AlarmAtLine { line: 120, code: 1 }],
@@ -79,8 +79,23 @@ async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
         msg.contains("ALARM:1") && msg.contains("line 120") && msg.contains(&first[119]),
         "{msg}"
     );
-    // the daemon goes on: the next job unlocks the machine and completes
+    // a real link does not unlock by itself (auto_unlock is off): the next job is refused
+    // before anything moves, saying what to do
     let second = zigzag(300);
+    let b = submit_gcode(&c, "mill", "second", &second).await;
+    let b = wait_end(&c, b.id).await;
+    assert_eq!(b.state, JobState::Failed);
+    assert!(
+        b.error.as_deref().unwrap().contains("machlink unlock"),
+        "{:?}",
+        b.error
+    );
+    // the operator clears it, and the daemon goes on
+    let said = c
+        .operate("mill", &machlink_protocols::Operation::Unlock)
+        .await
+        .unwrap();
+    assert!(said.said.contains("unlocked"), "{}", said.said);
     let b = submit_gcode(&c, "mill", "second", &second).await;
     let b = wait_end(&c, b.id).await;
     assert_eq!(b.state, JobState::Completed, "{:?}", b.error);
@@ -92,12 +107,13 @@ async fn an_alarm_fails_the_job_naming_the_line_and_the_next_job_completes() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
-    // a dense open polyline (a sine wave of 2,100 vertices), profiled on the line: the
-    // daemon plans and posts it, and the machine must run every line of that program
+    // a dense open zig-zag of 2,100 vertices (sharp corners: no arc fits it, so it stays
+    // 2,100 lines), profiled on the line: the daemon plans and posts it, and the machine
+    // must run every line of that program
     let vertices: Vec<[f64; 3]> = (0..2100)
         .map(|i| {
             let x = i as f64 * 0.05;
-            [x, 20.0 + 8.0 * (x / 6.0).sin(), 0.0]
+            [x, 20.0 + 0.5 * (i % 2) as f64, 0.0]
         })
         .collect();
     let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });

@@ -1,5 +1,6 @@
 //! The subcommands, one module each, and the job options they share (`job`).
 
+pub mod at_machine;
 pub mod demo;
 pub mod job;
 pub mod offset;

@@ -5,6 +5,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use machlink::client::{Client, Endpoint};
 use machlink::scheduler::Event;
 use machlink::store::{JobId, JobRecord, JobState};
+use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -69,13 +70,28 @@ pub struct JobArgs {
 }
 
 #[derive(clap::Args)]
+pub struct WatchArgs {
+    /// The job's number (as `machlink submit` and `machlink jobs` show it).
+    pub job: JobId,
+    /// Print every event as one JSON object per line (and nothing else).
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub client: ClientArgs,
+}
+
+#[derive(clap::Args)]
 pub struct ResumeArgs {
     /// The job's number.
     pub job: JobId,
     /// Restart a stopped job from this program line (1-based) instead of the first line
-    /// the machine had not acknowledged.
+    /// the machine had not run.
     #[arg(long, value_name = "LINE")]
     pub from_line: Option<usize>,
+    /// Do not ask: go on without confirmation (for scripts). Without it, a resume that
+    /// moves the machine shows what it will do and asks first.
+    #[arg(long, short = 'y')]
+    pub yes: bool,
     /// Print the job as JSON.
     #[arg(long)]
     pub json: bool,
@@ -94,6 +110,16 @@ fn progress(j: &JobRecord) -> String {
     format!("{}/{}", j.acked_units, j.total_units)
 }
 
+/// A duration in the operator's words: 42s, 3m05s, 2h14m.
+pub fn span(ms: i64) -> String {
+    let s = (ms.max(0) + 500) / 1000;
+    match s {
+        s if s < 60 => format!("{s}s"),
+        s if s < 3600 => format!("{}m{:02}s", s / 60, s % 60),
+        s => format!("{}h{:02}m", s / 3600, (s % 3600) / 60),
+    }
+}
+
 pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
     let jobs = runtime()?.block_on(a.client.client().jobs())?;
     if a.json {
@@ -101,19 +127,27 @@ pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     println!(
-        "{:>5}  {:<12} {:<11} {:>13}  {:<8} {:<20} ERROR",
-        "JOB", "MACHINE", "STATE", "LINES", "OP", "FILE"
+        "{:>5}  {:<12} {:<11} {:>13}  {:>7} {:>7}  {:<8} {:<20} NOTE",
+        "JOB", "MACHINE", "STATE", "LINES", "ELAPSED", "ETA", "OP", "FILE"
     );
     for j in jobs {
+        let note = match (&j.error, &j.note) {
+            (_, Some(n)) if !j.state.is_final() || j.state == JobState::Interrupted => n.clone(),
+            (Some(e), _) => e.clone(),
+            (None, Some(n)) => n.clone(),
+            (None, None) => String::new(),
+        };
         println!(
-            "{:>5}  {:<12} {:<11} {:>13}  {:<8} {:<20} {}",
+            "{:>5}  {:<12} {:<11} {:>13}  {:>7} {:>7}  {:<8} {:<20} {}",
             j.id,
             j.machine,
             j.state.as_str(),
             progress(&j),
+            j.elapsed_ms.map(span).unwrap_or_else(|| "-".into()),
+            j.eta_ms.map(span).unwrap_or_else(|| "-".into()),
             j.op,
             j.file_name,
-            j.error.unwrap_or_default()
+            note
         );
     }
     Ok(())
@@ -126,38 +160,151 @@ pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     println!(
-        "{:<12} {:<11} {:>5} {:>6}  {:<10} POSITION",
-        "MACHINE", "LINK", "JOB", "QUEUED", "STATUS"
+        "{:<12} {:<11} {:>5} {:>6}  {:<28} {:>8}  POSITION",
+        "MACHINE", "LINK", "JOB", "QUEUED", "STATUS", "REPORTED"
     );
     for m in ms {
         let p = m.status.position;
+        let age = match m.age_ms {
+            Some(ms) => format!("{} ago", span(ms as i64)),
+            None => "never".into(),
+        };
+        let position = match m.status.state {
+            machlink_protocols::DeviceState::Offline | machlink_protocols::DeviceState::Unknown => {
+                m.status.detail.clone()
+            }
+            _ => format!("X{:.3} Y{:.3} Z{:.3}", p[0], p[1], p[2]),
+        };
         println!(
-            "{:<12} {:<11} {:>5} {:>6}  {:<10} X{:.3} Y{:.3} Z{:.3}",
+            "{:<12} {:<11} {:>5} {:>6}  {:<28} {:>8}  {}",
             m.name,
             m.link,
             m.job.map(|j| j.to_string()).unwrap_or_else(|| "-".into()),
             m.queued,
             m.status.state.to_string(),
-            p[0],
-            p[1],
-            p[2]
+            age,
+            position
         )
     }
     Ok(())
 }
 
-pub fn watch(a: JobArgs) -> anyhow::Result<()> {
+pub fn watch(a: WatchArgs) -> anyhow::Result<()> {
     let client = a.client.client();
-    let j = runtime()?.block_on(watch_job(&client, a.job, false))?;
-    if a.json {
-        println!("{}", serde_json::to_string_pretty(&j)?);
-    }
+    let show = if a.json {
+        Show::Json
+    } else if std::io::stdout().is_terminal() {
+        Show::Bar
+    } else {
+        Show::Lines
+    };
+    runtime()?.block_on(watch_with(&client, a.job, show))?;
     Ok(())
 }
 
-/// Follows a job with a progress bar (lines acknowledged / total, machine state, feed,
-/// ETA) until it ends; an error unless it completed.
+/// How `watch` shows a job's progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Show {
+    /// A progress bar on the terminal (stderr).
+    Bar,
+    /// One line on stdout per percent of progress, state change, status change and
+    /// message: for logs and scripts reading a pipe.
+    Lines,
+    /// Every event as one JSON object per line on stdout.
+    Json,
+    /// Nothing until the end.
+    Quiet,
+}
+
+/// Follows a job with a progress bar on stderr (lines acknowledged / total, machine state,
+/// feed, ETA; drawn only on a terminal) until it ends; an error unless it completed.
 pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
+    watch_with(client, id, if quiet { Show::Quiet } else { Show::Bar }).await
+}
+
+/// Follows a job the way `show` says until it ends; an error unless it completed.
+pub async fn watch_with(client: &Client, id: JobId, show: Show) -> anyhow::Result<JobRecord> {
+    if show == Show::Bar || show == Show::Quiet {
+        return watch_bar(client, id, show == Show::Quiet).await;
+    }
+    let first = client.job(id).await?;
+    let mut events = client.events(id).await?;
+    let mut out = std::io::stdout().lock();
+    let mut last_pct: Option<u64> = None;
+    let mut last_state = String::new();
+    let total = first.total_units.max(1) as u64;
+    while let Some(ev) = events.next().await? {
+        if show == Show::Json {
+            writeln!(out, "{}", serde_json::to_string(&ev)?)?;
+            out.flush()?;
+            continue;
+        }
+        let line = match &ev {
+            Event::State {
+                state,
+                acked,
+                total,
+                error,
+                ..
+            } => Some(format!(
+                "job {id} {state} at {acked}/{total}{}",
+                error.as_ref().map(|e| format!(": {e}")).unwrap_or_default()
+            )),
+            Event::Progress {
+                acked, total: t, ..
+            } => {
+                let pct = *acked as u64 * 100 / (*t).max(1) as u64;
+                (last_pct != Some(pct)).then(|| {
+                    last_pct = Some(pct);
+                    format!("job {id} {acked}/{t} ({pct} %)")
+                })
+            }
+            Event::Status { status, .. } => {
+                let s = status.state.to_string();
+                (s != last_state).then(|| {
+                    last_state = s.clone();
+                    let p = status.position;
+                    format!(
+                        "job {id} machine {s} F{:.0} X{:.3} Y{:.3} Z{:.3}",
+                        status.feed, p[0], p[1], p[2]
+                    )
+                })
+            }
+            Event::Message { text, .. } => Some(format!("job {id} machine: {text}")),
+        };
+        if let Some(l) = line {
+            writeln!(out, "{l}")?;
+            out.flush()?;
+        }
+    }
+    let _ = total;
+    let j = client.job(id).await?;
+    end_of(id, j, show == Show::Json)
+}
+
+/// The result of watching: the job when it completed, else its reason.
+fn end_of(id: JobId, j: JobRecord, quiet: bool) -> anyhow::Result<JobRecord> {
+    match j.state {
+        JobState::Completed => {
+            if !quiet {
+                eprintln!("job {id} completed: {} lines", j.total_units);
+            }
+            Ok(j)
+        }
+        s if s.is_final() => anyhow::bail!(
+            "job {id} {s} after {} of {} lines{}",
+            j.acked_units,
+            j.total_units,
+            j.error
+                .or(j.note)
+                .map(|e| format!(": {e}"))
+                .unwrap_or_default()
+        ),
+        s => anyhow::bail!("the daemon stopped sending events while job {id} was {s}"),
+    }
+}
+
+async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
     let first = client.job(id).await?;
     let mut events = client.events(id).await?;
     let bar = if quiet {
@@ -214,21 +361,7 @@ pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Resul
     }
     bar.finish_and_clear();
     let j = client.job(id).await?;
-    match j.state {
-        JobState::Completed => {
-            if !quiet {
-                eprintln!("job {id} completed: {} lines", j.total_units);
-            }
-            Ok(j)
-        }
-        s if s.is_final() => anyhow::bail!(
-            "job {id} {s} after {} of {} lines{}",
-            j.acked_units,
-            j.total_units,
-            j.error.map(|e| format!(": {e}")).unwrap_or_default()
-        ),
-        s => anyhow::bail!("the daemon stopped sending events while job {id} was {s}"),
-    }
+    end_of(id, j, quiet)
 }
 
 fn act(a: JobArgs, action: &str) -> anyhow::Result<()> {
@@ -236,40 +369,79 @@ fn act(a: JobArgs, action: &str) -> anyhow::Result<()> {
     if a.json {
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        eprintln!(
-            "job {} is {} ({} lines acknowledged)",
-            j.id,
-            j.state,
-            progress(&j)
-        );
+        eprintln!("{}", left_in(&j));
     }
     Ok(())
+}
+
+/// The state a request left the job in, in one sentence.
+fn left_in(j: &JobRecord) -> String {
+    format!(
+        "job {} is {} ({} lines acknowledged){}",
+        j.id,
+        j.state,
+        progress(j),
+        j.note
+            .as_ref()
+            .filter(|_| !matches!(j.state, JobState::Running | JobState::Completed))
+            .map(|n| format!(": {n}"))
+            .unwrap_or_default()
+    )
 }
 
 pub fn pause(a: JobArgs) -> anyhow::Result<()> {
     act(a, "pause")
 }
+
+/// Resumes a job; a resume that moves the machine (a stopped job's repositioning) is shown
+/// first and goes on only once the operator confirms (or with `--yes`).
 pub fn resume(a: ResumeArgs) -> anyhow::Result<()> {
-    match a.from_line {
-        None => act(
-            JobArgs {
-                job: a.job,
-                json: a.json,
-                client: a.client,
-            },
-            "resume",
-        ),
-        Some(line) => {
-            let j = runtime()?.block_on(a.client.client().resume_from_line(a.job, line))?;
-            if a.json {
-                println!("{}", serde_json::to_string_pretty(&j)?);
-            } else {
-                eprintln!("job {} is {} from line {line}", j.id, j.state);
+    let client = a.client.client();
+    let rt = runtime()?;
+    let job = rt.block_on(client.job(a.job))?;
+    let needs_plan = matches!(
+        job.state,
+        JobState::Paused | JobState::Interrupted | JobState::Failed | JobState::Cancelled
+    );
+    if needs_plan {
+        let p = rt.block_on(client.resume_preview(a.job, a.from_line))?;
+        eprintln!(
+            "job {} goes on at line {} of {}:",
+            p.job, p.from_line, p.total
+        );
+        for (i, step) in p.steps.iter().enumerate() {
+            eprintln!("  {}. {step}", i + 1);
+        }
+        if let Some(n) = &p.note {
+            eprintln!("  (the daemon found: {n})");
+        }
+        if p.moves && !a.yes {
+            if !std::io::stdin().is_terminal() {
+                anyhow::bail!(
+                    "this resume moves the machine: confirm it at a terminal, or give --yes; nothing was sent"
+                );
             }
-            Ok(())
+            eprint!("Go on? [y/N] ");
+            std::io::stderr().flush()?;
+            let mut answer = String::new();
+            std::io::stdin().read_line(&mut answer)?;
+            if !matches!(answer.trim(), "y" | "Y" | "yes" | "Yes") {
+                anyhow::bail!("resume of job {} not confirmed; nothing was sent", p.job);
+            }
         }
     }
+    let j = match a.from_line {
+        None => rt.block_on(client.act(a.job, "resume"))?,
+        Some(line) => rt.block_on(client.resume_from_line(a.job, line))?,
+    };
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        eprintln!("{}", left_in(&j));
+    }
+    Ok(())
 }
+
 pub fn cancel(a: JobArgs) -> anyhow::Result<()> {
     act(a, "cancel")
 }

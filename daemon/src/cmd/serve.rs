@@ -45,7 +45,9 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
             _ = tokio::signal::ctrl_c() => {}
             _ = term.recv() => {}
         }
-        tracing::info!("stopping: running jobs are cancelled and can be resumed later");
+        tracing::info!(
+            "stopping: running machines are feed-held; their jobs resume with `machlink resume`"
+        );
         d.shutdown().await;
         Ok(())
     })

@@ -4,7 +4,7 @@ use super::*;
 use futures::future::BoxFuture;
 use machlink_protocols::kind::{started, MachineKind, OpenLink, Registry};
 use machlink_protocols::post::PostFor;
-use machlink_protocols::Link;
+use machlink_protocols::{Link, LinkEvent, Program, StreamEnd};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// A device in memory: "executes" a unit every `period`, acknowledges it, obeys hold and

@@ -6,6 +6,7 @@ mod joins;
 mod prune;
 mod raw;
 pub mod seg;
+mod zigzag;
 
 use crate::geom::{Bounds, Point, Polyline, Region, Shape, Vertex};
 use prune::{prune, Chain, InputSet, RawPath};
@@ -82,7 +83,9 @@ pub fn offset_polyline(
         let area: f64 = segs.iter().map(|s| s.area2()).sum();
         let ccw = area >= 0.0;
         let segs = if ccw { segs } else { reverse(&segs) };
-        check_crossings(&[(&segs, true)], eps)?;
+        let mut paths = vec![(segs, true)];
+        check_input(&mut paths, eps, opts.tolerance)?;
+        let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
                 .map(|l| if ccw { l.poly } else { l.poly.reversed() })
@@ -99,7 +102,12 @@ pub fn offset_polyline(
             .map(|l| if ccw { l.poly } else { l.poly.reversed() })
             .collect())
     } else {
-        check_crossings(&[(&segs, false)], eps)?;
+        let mut paths = vec![(segs, false)];
+        check_input(&mut paths, eps, opts.tolerance)?;
+        let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
+        if segs.is_empty() {
+            return Ok(Vec::new());
+        }
         if distance == 0.0 {
             return Ok(build(segs, false, eps)
                 .map(|l| l.poly)
@@ -157,8 +165,7 @@ pub fn offset_region(
         };
         loops.push((segs, true));
     }
-    let views: Vec<(&[Seg], bool)> = loops.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps)?;
+    check_input(&mut loops, eps, opts.tolerance)?;
     if shrinks_away(&loops[0].0, distance) {
         return Ok(Vec::new());
     }
@@ -341,10 +348,85 @@ fn reverse(segs: &[Seg]) -> Vec<Seg> {
     segs.iter().rev().map(|s| s.reversed()).collect()
 }
 
+/// The validity slack: how much nearer than |d| a kept run may come (rounding where curves
+/// meet almost at one point), and the most the kernel moves a point of its result (a
+/// sliver absorbed).
+fn slack(tolerance: f64, eps: f64) -> f64 {
+    (tolerance * 0.01).max(eps * 10.0)
+}
+
+/// The widest zig-zag of the input that is cut off rather than refused: a tenth of the
+/// tolerance, so the offset of the repaired input stays within a tenth of the tolerance of
+/// the exact offset of the input given (see `zigzag`).
+fn zigzag_bound(tolerance: f64, eps: f64) -> f64 {
+    (tolerance * 0.1).max(slack(tolerance, eps))
+}
+
+/// The input check (see `check_crossings`), after cutting off the zig-zags narrower than
+/// `zigzag_bound` where paths cross themselves (see `zigzag`).
+fn check_input(
+    paths: &mut [(Vec<Seg>, bool)],
+    eps: f64,
+    tolerance: f64,
+) -> Result<(), OffsetError> {
+    let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
+    let first = check_crossings(&views, eps);
+    if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
+        return first;
+    }
+    let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
+    check_crossings(&views, eps)
+}
+
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
 /// Neighbouring segments may meet only at their shared vertex (a spike that runs back along
 /// itself is allowed: it offsets as a 180° turn).
 fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError> {
+    // report the crossing met first along the paths
+    let best = std::cell::Cell::new(usize::MAX);
+    let mut first: Option<Crossing> = None;
+    each_crossing(
+        paths,
+        eps,
+        |order, _, _| order < best.get(),
+        |c| {
+            if c.order < best.get() {
+                best.set(c.order);
+                first = Some(c);
+            }
+        },
+    );
+    match first {
+        Some(c) => Err(OffsetError::SelfIntersecting {
+            path: c.a.0,
+            at: c.at,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// A place where input paths cross: segment `a` = (path, index) at parameter `ta` meets
+/// segment `b` at `tb`. `order` numbers the segments one path after another: the smaller of
+/// the two.
+#[derive(Clone, Copy, Debug)]
+struct Crossing {
+    at: Point,
+    a: (usize, usize),
+    ta: f64,
+    b: (usize, usize),
+    tb: f64,
+    order: usize,
+}
+
+/// Calls `found` for the crossings (by the input rule) of every pair of segments `wanted`
+/// asks for (it is given the pair's order and both segments' (path, index)); at most one
+/// crossing per pair.
+fn each_crossing(
+    paths: &[(&[Seg], bool)],
+    eps: f64,
+    mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
+    mut found: impl FnMut(Crossing),
+) {
     let mut all: Vec<Seg> = Vec::new();
     let mut owner: Vec<(usize, usize)> = Vec::new();
     for (pi, (segs, _)) in paths.iter().enumerate() {
@@ -370,9 +452,8 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
         let m = segs.len();
         kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
     };
-    let mut err: Option<(usize, OffsetError)> = None;
     index::overlapping_pairs_in_order(&boxes, |i, j| {
-        if err.as_ref().is_some_and(|(k, _)| *k <= i.min(j)) {
+        if !wanted(i.min(j), owner[i], owner[j]) {
             return;
         }
         let (si, sj) = (&all[i], &all[j]);
@@ -404,21 +485,17 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
             if !adj_ij && !adj_ji && touches(paths, owner[i], t, owner[j], u, p, eps) {
                 continue;
             }
-            // report the crossing met first along the paths
-            err = Some((
-                i.min(j),
-                OffsetError::SelfIntersecting {
-                    path: owner[i].0,
-                    at: p,
-                },
-            ));
+            found(Crossing {
+                at: p,
+                a: owner[i],
+                ta: t,
+                b: owner[j],
+                tb: u,
+                order: i.min(j),
+            });
             return;
         }
     });
-    match err {
-        Some((_, e)) => Err(e),
-        None => Ok(()),
-    }
 }
 
 /// Where the boundary runs on either side of `p`, a point of segment `k` of `path` at
@@ -558,9 +635,9 @@ fn run(
         })
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
-    let valid_eps = (opts.tolerance * 0.01).max(eps * 10.0);
-    let chains = prune(raws, splitters, &mut input, o.abs(), eps, valid_eps);
-    let mut out = Vec::with_capacity(chains.len());
+    let valid_eps = slack(opts.tolerance, eps);
+    let chains = prune(raws, splitters, &mut input, o, eps, valid_eps);
+    let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());
     for Chain {
         segs,
         whole_join,
@@ -573,7 +650,14 @@ fn run(
             continue;
         }
         let segs = joins::apply(segs, &whole_join, opts);
-        let segs = despike(segs, closed, valid_eps);
+        pieces.push((despike(segs, closed, valid_eps), closed));
+    }
+    // what the prune and the joins leave may still zig-zag by less than the bound where
+    // nearly tangent offsets were cut and stitched: cut those lobes off here, so the result
+    // is valid input as it stands (the same repair the input check makes)
+    zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
+    let mut out = Vec::with_capacity(pieces.len());
+    for (segs, closed) in pieces {
         if let Some(p) = build(segs, closed, eps) {
             out.push(p);
         }

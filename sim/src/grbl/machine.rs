@@ -15,23 +15,40 @@ enum BlockKind {
     Motion(Executed),
     Dwell,
     Pause,
+    /// A jog (`$J=`): moves like a feed move, is no program line, and 0x85 cancels it.
+    Jog {
+        from: [f64; 3],
+        to: [f64; 3],
+    },
+    /// The homing cycle's move to the machine's zero (`$H`).
+    Home {
+        from: [f64; 3],
+    },
 }
 
 #[derive(Clone, Debug)]
 struct Block {
     kind: BlockKind,
-    /// Simulated seconds the block takes.
+    /// Simulated seconds the block takes (known once it starts: the overrides in force
+    /// then decide its speed).
     duration: f64,
     elapsed: f64,
     /// Path length, mm, and the peak speed (mm/s) and acceleration of its trapezoid.
     length: f64,
     v: f64,
     a: f64,
+    /// The feed it asks for, mm/min (the rapid rate for rapids), before overrides.
+    feed: f64,
+    rapid: bool,
+    started: bool,
 }
 
 impl Block {
     /// Fraction of the path covered after `t` seconds of the block's trapezoid.
     fn fraction_at(&self, t: f64) -> f64 {
+        if !self.started {
+            return 0.0;
+        }
         if self.length <= 0.0 || self.duration <= 0.0 {
             return 1.0;
         }
@@ -69,6 +86,12 @@ pub struct Machine {
     check: bool,
     holding: bool,
     pub trace: Vec<Executed>,
+    /// Everything the controller did that a trace shows, in order.
+    pub events: Vec<super::TraceEvent>,
+    /// The bytes of the line being received, comments included (for the trace).
+    raw: Vec<u8>,
+    /// The homing cycle runs: no line is taken until it is over.
+    homing: bool,
     pub received: u64,
     pub motion_time: f64,
     last_wall: Instant,
@@ -119,7 +142,7 @@ impl Machine {
         for k in 120..=122 {
             settings.insert(k, format!("{:.3}", cfg.accel));
         }
-        Machine {
+        let mut m = Machine {
             cfg,
             rx: VecDeque::new(),
             overflows: 0,
@@ -135,6 +158,9 @@ impl Machine {
             check: false,
             holding: false,
             trace: Vec::new(),
+            events: Vec::new(),
+            raw: Vec::new(),
+            homing: false,
             received: 0,
             motion_time: 0.0,
             last_wall: now,
@@ -142,7 +168,15 @@ impl Machine {
             settings,
             overrides: [100, 100, 100],
             reports: 0,
+        };
+        m.interp.offsets = m.cfg.work_offsets;
+        if m.cfg.homing {
+            // with homing enabled GRBL starts locked until it is homed (or unlocked)
+            m.settings.insert(22, "1".into());
+            m.alarm = Some(0);
+            m.say("[MSG:'$H'|'$X' to unlock]");
         }
+        m
     }
 
     /// Bytes to send to the client since the last call.
@@ -171,7 +205,11 @@ impl Machine {
         } else {
             wall * self.cfg.time_scale
         };
-        while let Some(front) = self.planner.front_mut() {
+        loop {
+            self.start_front();
+            let Some(front) = self.planner.front_mut() else {
+                break;
+            };
             if let BlockKind::Pause = front.kind {
                 self.planner.pop_front();
                 self.holding = true;
@@ -182,9 +220,26 @@ impl Machine {
                 dt -= left;
                 self.motion_time += left;
                 let done = self.planner.pop_front().expect("front exists");
-                if let BlockKind::Motion(e) = done.kind {
-                    self.pos = e.to;
-                    self.trace.push(e);
+                match done.kind {
+                    BlockKind::Motion(e) => {
+                        self.pos = e.to;
+                        self.events.push(super::TraceEvent::Executed(e.clone()));
+                        self.trace.push(e);
+                    }
+                    BlockKind::Jog { to, .. } => {
+                        self.pos = to;
+                        self.interp.pos = to;
+                        self.events.push(super::TraceEvent::Jogged { to });
+                    }
+                    BlockKind::Home { .. } => {
+                        self.pos = [0.0; 3];
+                        self.interp.pos = [0.0; 3];
+                        self.homing = false;
+                        self.alarm = None;
+                        self.events.push(super::TraceEvent::Homed);
+                        self.say("ok");
+                    }
+                    BlockKind::Dwell | BlockKind::Pause => {}
                 }
             } else {
                 front.elapsed += dt;
@@ -192,6 +247,36 @@ impl Machine {
                 break;
             }
         }
+    }
+
+    /// Gives the block about to run its speed: its feed (or the rapid rate) under the
+    /// overrides in force now.
+    fn start_front(&mut self) {
+        let [feed_ov, rapid_ov, _] = self.overrides;
+        let max_feed = self.cfg.max_feed;
+        let Some(b) = self.planner.front_mut() else {
+            return;
+        };
+        if b.started {
+            return;
+        }
+        b.started = true;
+        let f = if b.rapid {
+            b.feed * rapid_ov as f64 / 100.0
+        } else if matches!(b.kind, BlockKind::Motion(_)) {
+            (b.feed * feed_ov as f64 / 100.0).min(max_feed)
+        } else {
+            b.feed
+        };
+        if let BlockKind::Motion(e) = &mut b.kind {
+            e.feed = f;
+        }
+        if matches!(b.kind, BlockKind::Dwell | BlockKind::Pause) {
+            return;
+        }
+        let (duration, v) = trapezoid(b.length, (f / 60.0).max(1e-6), b.a);
+        b.duration = duration;
+        b.v = v;
     }
 
     /// Wall time until the next block finishes, if motion is under way.
@@ -209,10 +294,16 @@ impl Machine {
         let Some(f) = self.planner.front() else {
             return self.pos;
         };
-        let BlockKind::Motion(e) = &f.kind else {
-            return self.pos;
-        };
         let t = f.fraction_at(f.elapsed);
+        let line = |from: [f64; 3], to: [f64; 3]| -> [f64; 3] {
+            std::array::from_fn(|k| from[k] + (to[k] - from[k]) * t)
+        };
+        let e = match &f.kind {
+            BlockKind::Motion(e) => e,
+            BlockKind::Jog { from, to } => return line(*from, *to),
+            BlockKind::Home { from } => return line(*from, [0.0; 3]),
+            _ => return self.pos,
+        };
         match (e.motion, e.center) {
             (Motion::ArcCw | Motion::ArcCcw, Some(c)) => {
                 let sweep = arc_sweep(e.from, e.to, c, e.motion == Motion::ArcCcw);
@@ -230,12 +321,16 @@ impl Machine {
     }
 
     fn state_word(&self) -> &'static str {
-        if self.alarm.is_some() {
+        if self.homing {
+            "Home"
+        } else if self.alarm.is_some() {
             "Alarm"
         } else if self.check {
             "Check"
         } else if self.holding {
             "Hold:0"
+        } else if self.jogging() {
+            "Jog"
         } else if self.moving() {
             "Run"
         } else {
@@ -243,13 +338,24 @@ impl Machine {
         }
     }
 
+    /// Whether the only motion is a jog.
+    fn jogging(&self) -> bool {
+        !self.planner.is_empty()
+            && self
+                .planner
+                .iter()
+                .all(|b| matches!(b.kind, BlockKind::Jog { .. }))
+    }
+
     fn status_report(&mut self) -> String {
         let p = self.position();
         let feed = match self.planner.front() {
-            Some(Block {
-                kind: BlockKind::Motion(e),
-                ..
-            }) if self.moving() => e.feed,
+            Some(
+                b @ Block {
+                    kind: BlockKind::Motion(_) | BlockKind::Jog { .. },
+                    ..
+                },
+            ) if self.moving() && b.started => b.v * 60.0,
             _ => 0.0,
         };
         let mut s = format!(
@@ -268,7 +374,8 @@ impl Machine {
             }
         );
         if self.reports.is_multiple_of(10) {
-            s.push_str("|WCO:0.000,0.000,0.000");
+            let w = self.interp.wco();
+            s.push_str(&format!("|WCO:{:.3},{:.3},{:.3}", w[0], w[1], w[2]));
         } else if self.reports % 10 == 1 {
             let o = self.overrides;
             s.push_str(&format!("|Ov:{},{},{}", o[0], o[1], o[2]));
@@ -289,9 +396,16 @@ impl Machine {
             }
             b'!' => {
                 self.advance(now);
-                if self.alarm.is_none() && !self.check {
+                if self.jogging() {
+                    // a feed hold during a jog cancels the jog
+                    self.cancel_jog();
+                } else if self.alarm.is_none() && !self.check {
                     self.holding = true;
                 }
+            }
+            0x85 => {
+                self.advance(now);
+                self.cancel_jog();
             }
             b'~' => {
                 self.advance(now);
@@ -315,7 +429,7 @@ impl Machine {
             0x9D => self.overrides[2] = self.overrides[2].saturating_sub(1).max(10),
             b if b >= 0x80 => {}
             b => {
-                if self.rx.len() >= self.cfg.rx_buffer {
+                if self.cfg.rx_buffer <= self.rx.len() {
                     self.overflows += 1;
                 } else {
                     self.rx.push_back(b);
@@ -335,11 +449,13 @@ impl Machine {
         self.interp.reset_modal();
         self.rx.clear();
         self.line.clear();
+        self.raw.clear();
         self.line_overflow = false;
         self.in_comment = false;
         self.waiting.clear();
         self.planner.clear();
         self.holding = false;
+        self.homing = false;
         self.critical = false;
         self.check = false;
         self.overrides = [100, 100, 100];
@@ -360,12 +476,24 @@ impl Machine {
         self.say("[MSG:Reset to continue]");
     }
 
+    /// Stops a jog where the tool is and drops the jog blocks still planned.
+    fn cancel_jog(&mut self) {
+        if !self.jogging() {
+            return;
+        }
+        let at = self.position();
+        self.planner.clear();
+        self.pos = at;
+        self.interp.pos = at;
+        self.events.push(super::TraceEvent::Jogged { to: at });
+    }
+
     /// Runs the main loop until it has to wait: parses buffered lines, plans their
     /// blocks while the planner has room, acknowledges them.
     pub fn process(&mut self, now: Instant) {
         self.advance(now);
         loop {
-            if self.critical {
+            if self.critical || self.homing {
                 return;
             }
             if !self.waiting.is_empty() {
@@ -390,6 +518,7 @@ impl Machine {
                     complete = true;
                     break;
                 }
+                self.raw.push(c);
                 if self.in_comment {
                     if c == b')' {
                         self.in_comment = false;
@@ -413,7 +542,13 @@ impl Machine {
                 return;
             }
             let raw = String::from_utf8_lossy(&std::mem::take(&mut self.line)).into_owned();
+            let received = String::from_utf8_lossy(&std::mem::take(&mut self.raw)).into_owned();
             self.in_comment = false;
+            if !raw.is_empty() {
+                let n = (!raw.starts_with('$')).then_some(self.received + 1);
+                self.events
+                    .push(super::TraceEvent::Received { n, line: received });
+            }
             if std::mem::take(&mut self.line_overflow) {
                 self.say("error:11");
                 continue;
@@ -471,15 +606,9 @@ impl Machine {
                     center,
                     feed,
                 } => {
-                    let f = if motion == Motion::Rapid {
-                        self.cfg.rapid_feed
-                    } else {
-                        feed.min(self.cfg.max_feed)
-                    };
+                    let rapid = motion == Motion::Rapid;
+                    let f = if rapid { self.cfg.rapid_feed } else { feed };
                     let length = path_length(motion, from, to, center);
-                    let v = (f / 60.0).max(1e-6);
-                    let acc = self.cfg.accel.max(1e-6);
-                    let (duration, v) = trapezoid(length, v, acc);
                     Block {
                         kind: BlockKind::Motion(Executed {
                             index: n,
@@ -490,11 +619,14 @@ impl Machine {
                             center,
                             feed: f,
                         }),
-                        duration,
+                        duration: 0.0,
                         elapsed: 0.0,
                         length,
-                        v,
-                        a: acc,
+                        v: 0.0,
+                        a: self.cfg.accel.max(1e-6),
+                        feed: f,
+                        rapid,
+                        started: false,
                     }
                 }
                 Action::Dwell(p) => Block {
@@ -504,6 +636,9 @@ impl Machine {
                     length: 0.0,
                     v: 1.0,
                     a: 1.0,
+                    feed: 0.0,
+                    rapid: false,
+                    started: false,
                 },
                 Action::Pause => Block {
                     kind: BlockKind::Pause,
@@ -512,6 +647,9 @@ impl Machine {
                     length: 0.0,
                     v: 1.0,
                     a: 1.0,
+                    feed: 0.0,
+                    rapid: false,
+                    started: false,
                 },
                 Action::ProgramEnd => continue,
             };
@@ -558,7 +696,8 @@ impl Machine {
                     None => "G80",
                 };
                 let s = format!(
-                    "[GC:{motion} G54 G{} {} {} G94 M{} M9 T{} F{} S{}]",
+                    "[GC:{motion} G{} G{} {} {} G94 M{} M9 T{} F{} S{}]",
+                    54 + m.wcs,
                     m.plane,
                     if m.inches { "G20" } else { "G21" },
                     if m.relative { "G91" } else { "G90" },
@@ -571,9 +710,17 @@ impl Machine {
                 self.say("ok");
             }
             "$#" => {
-                for g in [
-                    "G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92",
-                ] {
+                let o = self.interp.offsets;
+                for (k, w) in o.iter().enumerate() {
+                    self.say(&format!(
+                        "[G{}:{:.3},{:.3},{:.3}]",
+                        54 + k,
+                        w[0],
+                        w[1],
+                        w[2]
+                    ));
+                }
+                for g in ["G28", "G30", "G92"] {
                     self.say(&format!("[{g}:0.000,0.000,0.000]"));
                 }
                 self.say("[TLO:0.000]");
@@ -587,11 +734,40 @@ impl Machine {
             }
             "$X" => {
                 if self.alarm.take().is_some() {
+                    self.critical = false;
                     self.say("[MSG:Caution: Unlocked]");
                 }
+                self.events.push(super::TraceEvent::Unlocked);
                 self.say("ok");
             }
-            "$H" => self.say("error:5"),
+            "$H" if !self.cfg.homing => self.say("error:5"),
+            "$H" if busy => self.say("error:8"),
+            "$H" => {
+                // the cycle runs to the machine's zero; its ok comes when it is over
+                let from = self.position();
+                let length = from.iter().map(|v| v * v).sum::<f64>().sqrt();
+                let feed = self
+                    .settings
+                    .get(&25)
+                    .and_then(|v| v.parse::<f64>().ok())
+                    .unwrap_or(500.0);
+                self.alarm = None;
+                self.critical = false;
+                self.homing = true;
+                self.planner.push_back(Block {
+                    kind: BlockKind::Home { from },
+                    duration: 0.0,
+                    elapsed: 0.0,
+                    length,
+                    v: 0.0,
+                    a: self.cfg.accel.max(1e-6),
+                    feed,
+                    rapid: false,
+                    started: false,
+                });
+                self.advance(now);
+            }
+            l if l.starts_with("$J=") => self.jog(&l[3..], now),
             "$C" if self.check => {
                 self.say("[MSG:Disabled]");
                 self.say("ok");
@@ -631,6 +807,102 @@ impl Machine {
                 }
             }
         }
+    }
+}
+
+impl Machine {
+    /// `$J=…`: a jog in work or machine coordinates, distances absolute or relative, with
+    /// its own feed; only while idle (or jogging), never in alarm.
+    fn jog(&mut self, words: &str, now: Instant) {
+        let idle = self
+            .planner
+            .iter()
+            .all(|b| matches!(b.kind, BlockKind::Jog { .. }))
+            && self.waiting.is_empty()
+            && !self.holding;
+        if self.alarm.is_some() || self.check || !idle {
+            self.say("error:8");
+            return;
+        }
+        let mut relative = self.interp.modal.relative;
+        let mut scale = if self.interp.modal.inches { 25.4 } else { 1.0 };
+        let mut machine = false;
+        let mut feed = None;
+        let mut axis = [None; 3];
+        let b = words.as_bytes();
+        let mut i = 0;
+        while i < b.len() {
+            let letter = b[i];
+            i += 1;
+            let start = i;
+            while i < b.len()
+                && (b[i].is_ascii_digit() || b[i] == b'.' || b[i] == b'-' || b[i] == b'+')
+            {
+                i += 1;
+            }
+            let Some(v) = std::str::from_utf8(&b[start..i])
+                .ok()
+                .and_then(|t| t.parse::<f64>().ok())
+            else {
+                self.say("error:2");
+                return;
+            };
+            match (letter, (v * 10.0).round() as i64) {
+                (b'G', 900) => relative = false,
+                (b'G', 910) => relative = true,
+                (b'G', 200) => scale = 25.4,
+                (b'G', 210) => scale = 1.0,
+                (b'G', 530) => machine = true,
+                (b'X', _) => axis[0] = Some(v),
+                (b'Y', _) => axis[1] = Some(v),
+                (b'Z', _) => axis[2] = Some(v),
+                (b'F', _) => feed = Some(v * scale),
+                _ => {
+                    self.say("error:20");
+                    return;
+                }
+            }
+        }
+        let Some(feed) = feed.filter(|f| *f > 0.0) else {
+            self.say("error:22");
+            return;
+        };
+        if axis.iter().all(Option::is_none) {
+            self.say("error:26");
+            return;
+        }
+        let from = self.position();
+        let wco = self.interp.wco();
+        let mut to = from;
+        for k in 0..3 {
+            if let Some(v) = axis[k] {
+                to[k] = if relative {
+                    from[k] + v * scale
+                } else if machine {
+                    v * scale
+                } else {
+                    v * scale + wco[k]
+                };
+            }
+        }
+        let length = (0..3)
+            .map(|k| (to[k] - from[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        self.planner.push_back(Block {
+            kind: BlockKind::Jog { from, to },
+            duration: 0.0,
+            elapsed: 0.0,
+            length,
+            v: 0.0,
+            a: self.cfg.accel.max(1e-6),
+            feed: feed.min(self.cfg.max_feed),
+            rapid: false,
+            started: false,
+        });
+        self.interp.pos = to;
+        self.advance(now);
+        self.say("ok");
     }
 }
 

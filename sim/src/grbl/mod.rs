@@ -13,14 +13,14 @@ pub mod machine;
 pub use deviation::max_deviation;
 pub use interp::Motion;
 
-use crate::pty::{wait_ready, Pty, PtyLink};
+use crate::pty::{wait_ready, Pty};
 use machine::Machine;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::fs::File;
 use std::io::{self, Read, Write};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -55,6 +55,39 @@ pub struct GrblSimConfig {
     /// Acceleration, mm/s².
     pub accel: f64,
     pub faults: Vec<GrblFault>,
+    /// Homing enabled (`$22=1`): the controller starts locked in alarm until `$H` (or
+    /// `$X`), and `$H` runs the cycle to the machine's zero. Off: `$H` is error:5.
+    pub homing: bool,
+    /// The work offsets of G54 … G59 at power-up (machine position of each work zero), mm.
+    pub work_offsets: [[f64; 3]; 6],
+    /// Append every line received and every move executed to this file, one JSON object
+    /// per line (see [`TraceEvent`]).
+    pub trace_file: Option<PathBuf>,
+}
+
+/// What the simulated controller did, as its trace (and `--trace FILE`) records it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceEvent {
+    /// A line taken from the receive buffer, as it arrived (comments included); `n` counts
+    /// the G-code lines from 1 (`$` lines have none).
+    Received {
+        n: Option<u64>,
+        line: String,
+    },
+    /// A motion line executed to its end (machine coordinates; `feed` as overridden).
+    Executed(Executed),
+    /// A jog ended (or was cancelled) with the tool here, machine coordinates.
+    Jogged {
+        to: [f64; 3],
+    },
+    /// The homing cycle ended at the machine's zero.
+    Homed,
+    /// `$X` cleared the alarm lock.
+    Unlocked,
+    /// The cable was pulled (the pty closed) or put back (a new pty at the same path).
+    Unplugged,
+    Plugged,
 }
 
 impl Default for GrblSimConfig {
@@ -68,6 +101,9 @@ impl Default for GrblSimConfig {
             rapid_feed: 5000.0,
             accel: 500.0,
             faults: Vec::new(),
+            homing: false,
+            work_offsets: [[0.0; 3]; 6],
+            trace_file: None,
         }
     }
 }
@@ -92,6 +128,38 @@ struct Shared {
     machine: Mutex<Machine>,
     wake: Condvar,
     stop: AtomicBool,
+    /// The pty the wire runs on; None while the cable is out.
+    port: Mutex<Option<Plug>>,
+    /// Bumped on every unplug and replug, so the wire threads take the new pty.
+    generation: AtomicU64,
+    /// The path kept pointing at the current pty, when asked for one.
+    link: Option<PathBuf>,
+}
+
+/// One pty the controller is plugged into.
+#[derive(Clone)]
+struct Plug {
+    pty: Arc<Pty>,
+}
+
+impl Plug {
+    fn new() -> io::Result<Plug> {
+        Ok(Plug {
+            pty: Arc::new(Pty::open()?),
+        })
+    }
+    fn file(&self) -> io::Result<File> {
+        Ok(File::from(self.pty.master.try_clone()?))
+    }
+}
+
+impl Shared {
+    /// The current pty's master end (and its generation), or None while unplugged.
+    fn wire(&self) -> Option<(u64, File)> {
+        let g = self.generation.load(Ordering::SeqCst);
+        let port = self.port.lock().unwrap_or_else(|p| p.into_inner());
+        port.as_ref().and_then(|p| p.file().ok()).map(|f| (g, f))
+    }
 }
 
 impl Shared {
@@ -108,9 +176,6 @@ pub struct GrblSim;
 pub struct GrblSimHandle {
     shared: Arc<Shared>,
     threads: Vec<JoinHandle<()>>,
-    port: PathBuf,
-    link: Option<PtyLink>,
-    _pty: Arc<Pty>,
 }
 
 fn check_config(cfg: &GrblSimConfig) -> io::Result<()> {
@@ -136,6 +201,9 @@ fn check_config(cfg: &GrblSimConfig) -> io::Result<()> {
             return bad(format!("{name} {v} must be a positive number"));
         }
     }
+    if cfg.work_offsets.iter().flatten().any(|v| !v.is_finite()) {
+        return bad("work offsets must be numbers".into());
+    }
     Ok(())
 }
 
@@ -143,31 +211,55 @@ impl GrblSim {
     /// Starts a simulated controller on a new pty. Runs on its own threads; it may be
     /// called inside or outside a tokio runtime.
     pub fn spawn_pty(cfg: GrblSimConfig) -> io::Result<GrblSimHandle> {
-        Self::spawn_pty_at(cfg, None)
+        Self::spawn(cfg, None)
     }
 
-    /// As [`GrblSim::spawn_pty`], with `link` made a symbolic link to the pty (an old link
-    /// of that name is replaced; the link goes when the handle is dropped).
-    pub fn spawn_pty_at(cfg: GrblSimConfig, link: Option<&Path>) -> io::Result<GrblSimHandle> {
+    /// Starts a simulated controller on a new pty and keeps `link` a symbolic link to it
+    /// (replacing an old link), also across an unplug and replug: the path a machine's
+    /// `port` names, as `/dev/ttyUSB0` names a real controller.
+    pub fn spawn_linked(cfg: GrblSimConfig, link: &std::path::Path) -> io::Result<GrblSimHandle> {
+        Self::spawn(cfg, Some(link.to_path_buf()))
+    }
+
+    fn spawn(cfg: GrblSimConfig, link: Option<PathBuf>) -> io::Result<GrblSimHandle> {
         check_config(&cfg)?;
-        let pty = Arc::new(Pty::open()?);
-        let port = pty.path.clone();
-        let link = PtyLink::optional(&port, link)?;
+        let plug = Plug::new()?;
+        if let Some(l) = &link {
+            crate::pty::symlink_replacing(&plug.pty.path, l)?;
+        }
         let byte_time = cfg.baud.map(|b| Duration::from_secs_f64(10.0 / b as f64));
+        let trace_file = cfg.trace_file.clone();
+        let trace = match &trace_file {
+            Some(p) => Some(
+                std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(p)
+                    .map_err(|e| {
+                        io::Error::new(
+                            e.kind(),
+                            format!("cannot open the trace file {}: {e}", p.display()),
+                        )
+                    })?,
+            ),
+            None => None,
+        };
         let shared = Arc::new(Shared {
             machine: Mutex::new(Machine::new(cfg, Instant::now())),
             wake: Condvar::new(),
             stop: AtomicBool::new(false),
+            port: Mutex::new(Some(plug)),
+            generation: AtomicU64::new(0),
+            link,
         });
         let (out_tx, out_rx) = mpsc::channel::<Vec<u8>>();
-        let (master_r, master_w) = pty.blocking()?;
         let mut threads = Vec::new();
 
         // the writer: replies back to the client, paced like a UART
         {
             let shared = shared.clone();
             threads.push(std::thread::spawn(move || {
-                writer_loop(master_w, out_rx, &shared, byte_time)
+                writer_loop(out_rx, &shared, byte_time)
             }));
         }
         // the reader: bytes from the client into the controller
@@ -175,7 +267,7 @@ impl GrblSim {
             let shared = shared.clone();
             let out_tx = out_tx.clone();
             threads.push(std::thread::spawn(move || {
-                reader_loop(master_r, &shared, &out_tx, byte_time)
+                reader_loop(&shared, &out_tx, byte_time)
             }));
         }
         // the clock: finishes blocks as simulated time passes
@@ -183,13 +275,39 @@ impl GrblSim {
             let shared = shared.clone();
             threads.push(std::thread::spawn(move || clock_loop(&shared, &out_tx)));
         }
-        Ok(GrblSimHandle {
-            shared,
-            threads,
-            port,
-            link,
-            _pty: pty,
-        })
+        // the trace file, appended as things happen
+        if let Some(file) = trace {
+            let shared = shared.clone();
+            threads.push(std::thread::spawn(move || trace_loop(file, &shared)));
+        }
+        Ok(GrblSimHandle { shared, threads })
+    }
+}
+
+/// Appends the trace's new events to `file` every 20 ms, one JSON object per line.
+fn trace_loop(mut file: File, shared: &Shared) {
+    let mut written = 0usize;
+    loop {
+        let stop = shared.stop.load(Ordering::Relaxed);
+        let new: Vec<TraceEvent> = {
+            let m = shared.lock();
+            m.events[written..].to_vec()
+        };
+        written += new.len();
+        let mut buf = Vec::new();
+        for e in &new {
+            if let Ok(mut l) = serde_json::to_vec(e) {
+                l.push(b'\n');
+                buf.extend(l);
+            }
+        }
+        if !buf.is_empty() && (file.write_all(&buf).is_err() || file.flush().is_err()) {
+            return;
+        }
+        if stop {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -270,17 +388,23 @@ fn flush(m: &mut Machine, out: &mpsc::Sender<Vec<u8>>) {
     }
 }
 
-fn reader_loop(
-    mut master: File,
-    shared: &Shared,
-    out: &mpsc::Sender<Vec<u8>>,
-    byte_time: Option<Duration>,
-) {
+fn reader_loop(shared: &Shared, out: &mpsc::Sender<Vec<u8>>, byte_time: Option<Duration>) {
     let mut buf = [0u8; 512];
     // bytes read from the pty, each with the time its last bit reaches the controller
     let mut wire: VecDeque<(Instant, u8)> = VecDeque::new();
     let mut wire_free = Instant::now();
+    let mut master: Option<(u64, File)> = None;
     while !shared.stop.load(Ordering::Relaxed) {
+        let g = shared.generation.load(Ordering::SeqCst);
+        if master.as_ref().is_none_or(|(mg, _)| *mg != g) {
+            // unplugged or replugged: bytes on the old wire never arrive
+            master = shared.wire();
+            wire.clear();
+        }
+        let Some((_, file)) = master.as_mut() else {
+            std::thread::sleep(Duration::from_millis(10));
+            continue;
+        };
         let wait = match wire.front() {
             Some(&(due, _)) => due
                 .saturating_duration_since(Instant::now())
@@ -294,8 +418,8 @@ fn reader_loop(
         } else {
             wait
         };
-        if wait_ready(&master, false, wait).unwrap_or(false) {
-            match master.read(&mut buf) {
+        if wait_ready(&*file, false, wait).unwrap_or(false) {
+            match file.read(&mut buf) {
                 Ok(n) if n > 0 => {
                     let now = Instant::now();
                     for &b in &buf[..n] {
@@ -349,25 +473,38 @@ fn clock_loop(shared: &Shared, out: &mpsc::Sender<Vec<u8>>) {
     }
 }
 
-fn writer_loop(
-    mut master: File,
-    rx: mpsc::Receiver<Vec<u8>>,
-    shared: &Shared,
-    byte_time: Option<Duration>,
-) {
+fn writer_loop(rx: mpsc::Receiver<Vec<u8>>, shared: &Shared, byte_time: Option<Duration>) {
     let mut free = Instant::now();
+    let mut master: Option<(u64, File)> = None;
     while !shared.stop.load(Ordering::Relaxed) {
         let chunk = match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(c) => c,
-            Err(mpsc::RecvTimeoutError::Timeout) => continue,
+            Err(mpsc::RecvTimeoutError::Timeout) => {
+                if master
+                    .as_ref()
+                    .is_some_and(|(g, _)| *g != shared.generation.load(Ordering::SeqCst))
+                {
+                    master = None;
+                }
+                continue;
+            }
             Err(mpsc::RecvTimeoutError::Disconnected) => return,
+        };
+        let g = shared.generation.load(Ordering::SeqCst);
+        if master.as_ref().is_none_or(|(mg, _)| *mg != g) {
+            master = shared.wire();
+        }
+        // with the cable out, what the controller says is lost
+        let Some((_, file)) = master.as_mut() else {
+            continue;
         };
         // the wire was idle until this chunk came (if it had finished the last one)
         free = free.max(Instant::now());
         let mut sent = 0;
         while sent < chunk.len() {
-            if shared.stop.load(Ordering::Relaxed) {
-                return;
+            if shared.stop.load(Ordering::Relaxed) || shared.generation.load(Ordering::SeqCst) != g
+            {
+                break;
             }
             // bytes whose last bit has left the UART by now
             let upto = match byte_time {
@@ -387,7 +524,7 @@ fn writer_loop(
                     k
                 }
             };
-            match master.write(&chunk[sent..upto]) {
+            match file.write(&chunk[sent..upto]) {
                 Ok(n) => {
                     sent += n;
                     if let Some(bt) = byte_time {
@@ -395,7 +532,7 @@ fn writer_loop(
                     }
                 }
                 Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
-                    let _ = wait_ready(&master, true, Duration::from_millis(20));
+                    let _ = wait_ready(&*file, true, Duration::from_millis(20));
                 }
                 Err(_) => std::thread::sleep(Duration::from_millis(20)),
             }
@@ -404,12 +541,52 @@ fn writer_loop(
 }
 
 impl GrblSimHandle {
-    /// The path a client opens (e.g. with `GrblLink::open`): the link if one was asked
-    /// for, else the pty.
+    /// The path a client opens (e.g. with `GrblLink::open`): the symbolic link when it was
+    /// spawned with one, else the current pty.
     pub fn port(&self) -> PathBuf {
-        self.link
-            .as_ref()
-            .map_or_else(|| self.port.clone(), |l| l.path().to_path_buf())
+        if let Some(l) = &self.shared.link {
+            return l.clone();
+        }
+        let port = self.shared.port.lock().unwrap_or_else(|p| p.into_inner());
+        port.as_ref()
+            .map(|p| p.pty.path.clone())
+            .unwrap_or_else(|| PathBuf::from("/dev/null/unplugged"))
+    }
+    /// Pulls the cable: the pty closes (a client reading it gets end of file or an I/O
+    /// error), the symbolic link (if any) is removed, and what either side sends is lost.
+    /// The controller goes on with what it has, as a controller with its own power does.
+    pub fn unplug(&self) {
+        let old = self
+            .shared
+            .port
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take();
+        self.shared.generation.fetch_add(1, Ordering::SeqCst);
+        if let Some(l) = &self.shared.link {
+            let _ = std::fs::remove_file(l);
+        }
+        drop(old);
+        self.shared.lock().events.push(TraceEvent::Unplugged);
+    }
+    /// Puts the cable back: a new pty, and the symbolic link pointing at it.
+    pub fn replug(&self) -> io::Result<()> {
+        let plug = Plug::new()?;
+        if let Some(l) = &self.shared.link {
+            crate::pty::symlink_replacing(&plug.pty.path, l)?;
+        }
+        *self.shared.port.lock().unwrap_or_else(|p| p.into_inner()) = Some(plug);
+        self.shared.generation.fetch_add(1, Ordering::SeqCst);
+        self.shared.lock().events.push(TraceEvent::Plugged);
+        Ok(())
+    }
+    /// Everything the trace records, in order.
+    pub fn events(&self) -> Vec<TraceEvent> {
+        self.shared.lock().events.clone()
+    }
+    /// Where the tool is, machine coordinates.
+    pub fn position(&self) -> [f64; 3] {
+        self.shared.lock().position()
     }
     /// Every motion line executed to its end, in order.
     pub fn trace(&self) -> Vec<Executed> {
@@ -437,6 +614,9 @@ impl Drop for GrblSimHandle {
         self.shared.wake.notify_all();
         for t in self.threads.drain(..) {
             let _ = t.join();
+        }
+        if let Some(l) = &self.shared.link {
+            let _ = std::fs::remove_file(l);
         }
     }
 }

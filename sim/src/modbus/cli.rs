@@ -64,6 +64,10 @@ pub struct ModbusArgs {
     /// Fault with CODE on reaching block SEQ (SEQ:CODE).
     #[arg(long, value_name = "SEQ:CODE", value_parser = parse_pair::<u32, u16>)]
     pub fault_at_block: Option<(u32, u16)>,
+    /// Append every block written into the ring, every block executed and every sync to
+    /// FILE, one JSON object per line.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
 }
 
 fn parse_pair<A: std::str::FromStr, B: std::str::FromStr>(s: &str) -> Result<(A, B), String> {
@@ -132,7 +136,40 @@ pub async fn run(args: ModbusArgs) -> anyhow::Result<()> {
         }
         (None, None) => anyhow::bail!("give --tcp ADDR or --pty PATH"),
     };
-    tokio::signal::ctrl_c().await?;
+    let mut file = match &args.trace {
+        Some(p) => Some(
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .map_err(|e| anyhow::anyhow!("cannot open the trace file {}: {e}", p.display()))?,
+        ),
+        None => None,
+    };
+    let mut written = 0usize;
+    let ctrl_c = tokio::signal::ctrl_c();
+    tokio::pin!(ctrl_c);
+    loop {
+        tokio::select! {
+            r = &mut ctrl_c => { r?; break; }
+            _ = tokio::time::sleep(Duration::from_millis(20)) => {
+                if let Some(f) = file.as_mut() {
+                    use std::io::Write;
+                    let new = sim.events_from(written);
+                    written += new.len();
+                    let mut buf = Vec::new();
+                    for e in &new {
+                        buf.extend(serde_json::to_vec(e)?);
+                        buf.push(b'\n');
+                    }
+                    if !buf.is_empty() {
+                        f.write_all(&buf)?;
+                        f.flush()?;
+                    }
+                }
+            }
+        }
+    }
     let trace = sim.trace();
     println!("executed {} blocks; {:?}", trace.len(), sim.stats());
     Ok(())

@@ -98,6 +98,20 @@ pub struct Executed {
     pub block: MotionBlock,
 }
 
+/// What the device did, as its event trace (and `--trace FILE`) records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceEvent {
+    /// A block's sequence number was written into its ring slot (the block sent to the
+    /// device), with the device's consumed sequence at that moment: `seq <= consumed` is
+    /// a block sent again after it had run.
+    Written { seq: u32, consumed: u32 },
+    /// A block executed to its end.
+    Executed { seq: u32, block: MotionBlock },
+    /// A sync command set the consumed sequence to `at` (a job starts there).
+    Synced { at: u32 },
+}
+
 /// What the device has seen, for tests to check that the faults really happened.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct SimStats {
@@ -118,6 +132,7 @@ struct Device {
     /// The whole map, from the base address.
     regs: Vec<u16>,
     trace: Vec<Executed>,
+    events: Vec<TraceEvent>,
     /// Bumped by stop and fault: a block in motion under an older epoch is abandoned.
     epoch: u64,
 }
@@ -167,6 +182,8 @@ struct Header {
     consumed: u32,
     /// The block in motion is abandoned.
     abandon: bool,
+    /// A sync set the consumed sequence.
+    synced: bool,
 }
 
 type Reply = Result<Response, u8>;
@@ -188,6 +205,7 @@ impl Shared {
             dev: Mutex::new(Device {
                 regs,
                 trace: Vec::new(),
+                events: Vec::new(),
                 epoch: 0,
             }),
             wake: Notify::new(),
@@ -278,6 +296,15 @@ impl Shared {
                 }
             }
             dev.regs[off..end].copy_from_slice(words);
+            // a write that sets a slot's sequence number sends that block
+            let block = BLOCK_REGISTERS as usize;
+            for slot in (off - ring) / block..=(end - 1 - ring) / block {
+                let at = ring + slot * block;
+                if off <= at && at + 2 <= end {
+                    let seq = dev.get32(order, at as u16);
+                    dev.events.push(TraceEvent::Written { seq, consumed });
+                }
+            }
             return Ok(());
         }
         // Only the command and the write sequence may be written, and not together with
@@ -299,6 +326,7 @@ impl Shared {
             write: dev.get32(order, reg::WRITE_SEQ),
             consumed: dev.get32(order, reg::CONSUMED_SEQ),
             abandon: false,
+            synced: false,
         };
         // The write sequence first, then the command.
         if touches_seq {
@@ -315,6 +343,9 @@ impl Shared {
         dev.set_state(h.state);
         dev.regs[reg::FAULT as usize] = h.fault;
         dev.put32(order, reg::WRITE_SEQ, h.write);
+        if h.synced {
+            dev.events.push(TraceEvent::Synced { at: h.consumed });
+        }
         dev.put32(order, reg::CONSUMED_SEQ, h.consumed);
         if h.abandon {
             dev.epoch += 1;
@@ -377,7 +408,10 @@ fn command(h: &mut Header, c: u16) -> Result<(), u8> {
             h.fault = 0;
             h.write = h.consumed;
         }
-        (Some(Command::Sync), Idle) => h.consumed = h.write,
+        (Some(Command::Sync), Idle) => {
+            h.consumed = h.write;
+            h.synced = true;
+        }
         (Some(Command::Sync), _) => return Err(exception::ILLEGAL_VALUE),
         _ => {}
     }
@@ -434,6 +468,7 @@ fn finish_block(shared: &Shared, dev: &mut Device, seq: u32, block: MotionBlock,
         dev.put32(order, reg::POS_Z, block.target[2] as u32);
         dev.put32(order, reg::CONSUMED_SEQ, seq);
         dev.trace.push(Executed { seq, block });
+        dev.events.push(TraceEvent::Executed { seq, block });
         if block.kind == BlockKind::End {
             dev.set_state(ModbusState::Idle);
         }
@@ -569,6 +604,14 @@ impl ModbusSim {
     /// The blocks executed so far, in execution order.
     pub fn trace(&self) -> Vec<Executed> {
         lock(&self.shared.dev).trace.clone()
+    }
+    /// The events from number `from` on (writes of blocks, executions, syncs), in order.
+    pub fn events_from(&self, from: usize) -> Vec<TraceEvent> {
+        let dev = lock(&self.shared.dev);
+        dev.events
+            .get(from..)
+            .map(<[_]>::to_vec)
+            .unwrap_or_default()
     }
     pub fn stats(&self) -> SimStats {
         *lock(&self.shared.stats)

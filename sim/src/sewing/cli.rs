@@ -41,7 +41,8 @@ pub struct SewingArgs {
     /// protocol version 1 (no window in INFO, no NAK for a frame that stops short).
     #[arg(long, default_value_t = 4)]
     pub window: u8,
-    /// Append every needle drop to this file as a JSON line {"index","x","y"} (0.1 mm).
+    /// Append every record the machine executes ({"event":"record","index","kind","x","y"},
+    /// 0.1 mm) and every event ({"event":"note","text"}) to this file, one JSON object per line.
     #[arg(long)]
     pub trace: Option<PathBuf>,
 }
@@ -123,21 +124,21 @@ pub fn run(a: SewingArgs) -> anyhow::Result<()> {
             None => None,
         };
         loop {
-            tokio::time::sleep(std::time::Duration::from_millis(50)).await;
-            let drops = {
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            let lines = {
                 let t = sim
                     .trace
                     .lock()
                     .map_err(|_| anyhow::anyhow!("the trace is poisoned"))?;
-                t.drops[written..].to_vec()
+                t.lines[written..].to_vec()
             };
             if let Some(f) = file.as_mut() {
-                for d in &drops {
+                for d in &lines {
                     writeln!(f, "{}", serde_json::to_string(d)?)?;
                 }
                 f.flush()?;
             }
-            written += drops.len();
+            written += lines.len();
             if sim.task.is_finished() {
                 anyhow::bail!("the machine stopped");
             }

@@ -78,10 +78,28 @@ pub struct NeedleDrop {
     pub y: i32,
 }
 
+/// One line of the machine's trace (`--trace FILE`): a record it executed, or an event.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum TraceLine {
+    /// A record executed (stitch, jump, trim, …): its index in the pattern and the frame's
+    /// position after it, 0.1 mm.
+    Record {
+        index: u32,
+        kind: StitchKind,
+        x: i32,
+        y: i32,
+    },
+    /// "thread break at 150", "start at 0", "upload begun (612 records)", …
+    Note { text: String },
+}
+
 /// What the machine did, for tests to read: every needle drop and every notable event.
 #[derive(Clone, Debug, Default)]
 pub struct SewingTrace {
     pub drops: Vec<NeedleDrop>,
+    /// Every record executed and every event, in order (what `--trace FILE` writes).
+    pub lines: Vec<TraceLine>,
     /// e.g. "thread break at 150", "power loss at 300", "pattern verified (612 records)".
     pub events: Vec<String>,
     /// Frames that arrived corrupted (and were NAKed) and repeats recognised by their
@@ -213,6 +231,7 @@ impl Machine {
 
     fn event(&self, e: String) {
         if let Ok(mut t) = self.trace.lock() {
+            t.lines.push(TraceLine::Note { text: e.clone() });
             t.events.push(e);
         }
     }
@@ -271,6 +290,7 @@ impl Machine {
                     crc: u32at(4)?,
                     records: vec![],
                 });
+                self.event(format!("upload begun ({} records)", u32at(0)?));
                 self.pattern.clear();
                 self.state = SewingState::NoPattern;
                 Ok(vec![])
@@ -473,6 +493,19 @@ impl Machine {
             return;
         }
         let r = self.pattern[i as usize];
+        if let Ok(mut t) = self.trace.lock() {
+            let (x, y) = if r.kind.moves() {
+                (r.x, r.y)
+            } else {
+                (self.x, self.y)
+            };
+            t.lines.push(TraceLine::Record {
+                index: i,
+                kind: r.kind,
+                x,
+                y,
+            });
+        }
         match r.kind {
             StitchKind::Stitch => {
                 (self.x, self.y) = (r.x, r.y);

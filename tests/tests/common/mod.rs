@@ -201,3 +201,30 @@ pub fn stored<U: machlink_protocols::Unit>(d: &Daemon, id: JobId) -> Vec<U> {
         .expect("its kind reads it");
     program.units::<U>().expect("units of this type").to_vec()
 }
+
+/// The G-code line numbers (as the simulator counts them) of the lines a resume sent to
+/// bring the tool back (they carry the comment `(resume)`).
+pub fn resume_lines(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<u64> {
+    sim.events()
+        .into_iter()
+        .filter_map(|e| match e {
+            machlink_sim::grbl::TraceEvent::Received { n: Some(n), line }
+                if line.contains("(resume)") =>
+            {
+                Some(n)
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// The program's moves the simulator executed: its trace without the moves of resumes.
+pub fn program_motion(
+    sim: &machlink_sim::grbl::GrblSimHandle,
+) -> Vec<machlink_sim::grbl::Executed> {
+    let resume = resume_lines(sim);
+    sim.trace()
+        .into_iter()
+        .filter(|e| !resume.contains(&e.index))
+        .collect()
+}

@@ -1,0 +1,286 @@
+//! Closure on sliced meshes: a section of a mesh grown by a small distance is a dense
+//! polygon of short lines with round joins, and pocketing it offsets the offset again and
+//! again. Every result must be valid kernel input (no back-steps, no neighbours that
+//! overlap, no spikes at joints) and keep its distance, at any tolerance.
+//!
+//! The named cases come from 3D roughing: a spherical cap (radius 40, 10 mm high) on a
+//! plate, as a height field of 1 mm cells, sliced at Z, grown by the stock allowance 0.5
+//! and pocketed with a 6 mm tool inside a rectangle. The pocket's first offset (by -3) of
+//! the level at Z 7.5 once came back with zig-zags of about 0.01 mm (an offset line running
+//! back along itself through a tiny arc), which its second offset (by -2.4) then refused:
+//! `path 1 crosses itself near (-18.5435, -6.9913)`. `closure/cap_level_7_5_first_pass.json`
+//! is that first pass as the kernel gave it.
+
+mod common;
+use common::*;
+use offset_core::check::{check_offset, first_crossing};
+use offset_core::geom::{Point, Polyline, Region, Shape};
+use offset_core::mesh::{shapes, slice_at};
+use offset_core::offset::{offset_region, offset_shape, OffsetError, OffsetOptions};
+use offset_core::ops::{pocket_with, Cutting, PocketParams};
+use offset_core::Tool;
+use proptest::prelude::*;
+use std::f64::consts::TAU;
+
+fn cases(default: u32) -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
+}
+
+fn opts(tol: f64) -> OffsetOptions {
+    OffsetOptions {
+        tolerance: tol,
+        ..Default::default()
+    }
+}
+
+/// Offsets `region` by `d` and holds the result to the closure rule: accepted as input
+/// again (`first_crossing` finds nothing) and within `tol` of the exact offset.
+fn offset_checked(case: &str, region: &Region, d: f64, tol: f64) -> Result<Vec<Region>, String> {
+    let out = offset_region(region, d, &opts(tol))
+        .map_err(|e| format!("{case}: offset by {d} refused its input: {e}"))?;
+    let paths = region_paths(&out);
+    if let Some((path, at)) = first_crossing(&paths, tol) {
+        return Err(format!(
+            "{case}: the offset by {d} is not valid input: path {path} crosses itself at ({:.6}, {:.6})",
+            at.x, at.y
+        ));
+    }
+    let input: Vec<Polyline> = region.boundaries().cloned().collect();
+    let rep = check_offset(&input, &paths, d, tol);
+    if !rep.within(tol) {
+        return Err(format!(
+            "{case}: the offset by {d} strays {:.3e} mm from the exact offset (tolerance {tol}): {rep:?}",
+            rep.worst()
+        ));
+    }
+    Ok(out)
+}
+
+fn first_pass_region() -> Region {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/closure/cap_level_7_5_first_pass.json");
+    let shape = offset_core::io::read_shape(
+        &std::fs::read(path).unwrap(),
+        "cap_level_7_5_first_pass.json",
+    )
+    .unwrap();
+    let regions = shape.regions();
+    assert_eq!(regions.len(), 1, "the first pass is one region");
+    regions.into_iter().next().unwrap()
+}
+
+/// The first pass of the pocket at Z 7.5, offset by the step-over (-2.4) and on until
+/// nothing is left.
+fn first_pass_offsets_again(tol: f64) {
+    let case = format!("cap level 7.5 first pass, tolerance {tol}");
+    let mut cur = vec![first_pass_region()];
+    let mut made = 0;
+    while !cur.is_empty() {
+        let mut next = Vec::new();
+        for r in &cur {
+            next.extend(offset_checked(&case, r, -2.4, tol).unwrap());
+            made += 1;
+        }
+        cur = next;
+    }
+    assert!(made >= 3, "{case}: only {made} offsets before it vanished");
+}
+
+#[test]
+fn the_cap_level_7_5_first_pass_offsets_by_2_4_at_tolerance_0_01() {
+    first_pass_offsets_again(0.01);
+}
+
+#[test]
+fn the_cap_level_7_5_first_pass_offsets_by_2_4_at_tolerance_0_001() {
+    first_pass_offsets_again(0.001);
+}
+
+/// The cap's section at `z` grown by the allowance 0.5, as roughing makes it.
+fn cap_section(z: f64, tol: f64) -> Shape {
+    let (r, sink) = (40.0f64, 30.0);
+    let m = shapes::height_field_solid((-40.0, 40.0), (-40.0, 40.0), 80, 80, -10.0, |x, y| {
+        let rho = x.hypot(y);
+        if rho < r {
+            ((r * r - rho * rho).sqrt() - sink).max(0.0)
+        } else {
+            0.0
+        }
+    });
+    let cut = Shape::new(slice_at(&m, z).unwrap());
+    let grown = offset_shape(&cut, 0.5, &opts(tol)).unwrap();
+    if let Some((path, at)) = first_crossing(&grown.paths, tol) {
+        panic!("cap level {z}, tolerance {tol}: the grown section is not valid input: path {path} crosses itself at {at:?}");
+    }
+    grown
+}
+
+/// Pockets the cap's level `z` inside a rectangle with a 6 mm tool, every offset the pocket
+/// asks for held to the closure rule.
+fn cap_level_pockets(z: f64, tol: f64) {
+    let case = format!("cap level {z}, tolerance {tol}");
+    let mut paths = vec![Polyline::rect(Point::new(-48., -48.), Point::new(48., 48.))];
+    paths.extend(cap_section(z, tol).paths);
+    let shape = Shape::new(paths);
+    let p = PocketParams {
+        cut: Cutting {
+            tool: Tool::flat(6.0),
+            depth: 0.0,
+            tolerance: tol,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let failure = std::cell::RefCell::new(None);
+    let res = pocket_with(&shape, &p, &|r: &Region, d: f64| {
+        offset_checked(&case, r, d, tol).map_err(|e| {
+            failure.borrow_mut().get_or_insert(e);
+            OffsetError::NotImplemented
+        })
+    });
+    if let Some(e) = failure.into_inner() {
+        panic!("{e}");
+    }
+    let tp = res.unwrap_or_else(|e| panic!("{case}: the pocket failed: {e}"));
+    assert!(tp.moves.len() > 10, "{case}: {} moves", tp.moves.len());
+}
+
+macro_rules! cap_levels {
+    ($($name:ident: $z:expr, $tol:expr;)*) => {$(
+        #[test]
+        fn $name() {
+            cap_level_pockets($z, $tol);
+        }
+    )*};
+}
+
+cap_levels! {
+    the_cap_level_1_5_pockets_at_tolerance_0_01: 1.5, 0.01;
+    the_cap_level_1_5_pockets_at_tolerance_0_001: 1.5, 0.001;
+    the_cap_level_3_5_pockets_at_tolerance_0_01: 3.5, 0.01;
+    the_cap_level_3_5_pockets_at_tolerance_0_001: 3.5, 0.001;
+    the_cap_level_5_5_pockets_at_tolerance_0_01: 5.5, 0.01;
+    the_cap_level_5_5_pockets_at_tolerance_0_001: 5.5, 0.001;
+    the_cap_level_7_5_pockets_at_tolerance_0_01: 7.5, 0.01;
+    the_cap_level_7_5_pockets_at_tolerance_0_001: 7.5, 0.001;
+}
+
+/// A dense blob like a sliced mesh's section: `n` vertices round `c`, the radius wandering
+/// by waves and a jitter of up to `jitter` mm from vertex to vertex (so neighbouring sides
+/// turn a little either way, as the sides of a sliced height field do), counter-clockwise.
+fn blob(
+    c: Point,
+    r0: f64,
+    n: usize,
+    waves: &[(f64, f64, f64)],
+    jitter: f64,
+    seed: u64,
+) -> Polyline {
+    let mut s = seed | 1;
+    let mut rnd = move || {
+        // xorshift64*: the jitter is part of the case, reproducible from the seed
+        s ^= s >> 12;
+        s ^= s << 25;
+        s ^= s >> 27;
+        (s.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = TAU * (i as f64 + 0.3 * (rnd() - 0.5)) / n as f64;
+            let r = r0
+                + waves
+                    .iter()
+                    .map(|(amp, f, ph)| amp * (f * a + ph).sin())
+                    .sum::<f64>()
+                + jitter * (2.0 * rnd() - 1.0);
+            c + Point::new(a.cos(), a.sin()) * r
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+/// Offsets `start` by each distance in turn (every piece of every result), each result
+/// held to the closure rule; returns how many offsets were made.
+fn offsets_again(case: &str, start: Region, ds: &[f64], tol: f64) -> Result<usize, String> {
+    let mut cur = vec![start];
+    let mut made = 0;
+    for (k, &d) in ds.iter().enumerate() {
+        let mut next = Vec::new();
+        for r in &cur {
+            next.extend(offset_checked(&format!("{case}, offset {k}"), r, d, tol)?);
+            made += 1;
+        }
+        if next.is_empty() {
+            break;
+        }
+        cur = next;
+    }
+    Ok(made)
+}
+
+fn blob_params() -> impl Strategy<Value = (usize, Vec<(f64, f64, f64)>, f64, u64)> {
+    (
+        60usize..400,
+        proptest::collection::vec((0.2f64..2.5, 2.0f64..12.0, 0.0f64..TAU), 1..3),
+        prop_oneof![0.002f64..0.05, 0.05f64..0.4],
+        any::<u64>(),
+    )
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(cases(16)))]
+
+    /// A sliced-mesh-like blob grown by a small distance (dense short lines with round
+    /// joins), then offset again and again by distances either way.
+    #[test]
+    fn offsets_of_grown_dense_blobs_stay_valid_input(
+        (n, waves, jitter, seed) in blob_params(),
+        grow in 0.05f64..1.0,
+        ds in proptest::collection::vec(prop_oneof![-3.0f64..-0.2, 0.2f64..3.0], 3..7),
+        fine in any::<bool>(),
+    ) {
+        let tol = if fine { 0.001 } else { 0.01 };
+        let waves: Vec<_> = waves.into_iter().map(|(a, f, p)| (a, f.round(), p)).collect();
+        let b = blob(Point::new(0.0, 0.0), 20.0, n, &waves, jitter, seed);
+        prop_assume!(first_crossing(std::slice::from_ref(&b), tol).is_none());
+        let mut all = vec![grow];
+        all.extend(ds);
+        offsets_again("blob", Region::new(b, vec![]), &all, tol).map_err(TestCaseError::fail)?;
+    }
+
+    /// Two such blobs grown as islands of a rectangle, then pocketed: the first pass by
+    /// the tool radius, the later ones by the step-over, until nothing is left.
+    #[test]
+    fn pockets_round_grown_dense_blobs_stay_valid_input(
+        (n, waves, jitter, seed) in blob_params(),
+        grow in 0.05f64..1.0,
+        radius in 1.0f64..4.0,
+        step in 0.3f64..0.9,
+        fine in any::<bool>(),
+    ) {
+        let tol = if fine { 0.001 } else { 0.01 };
+        let waves: Vec<_> = waves.into_iter().map(|(a, f, p)| (a, f.round(), p)).collect();
+        let b1 = blob(Point::new(-12.0, 0.0), 9.0, n, &waves, jitter, seed);
+        let b2 = blob(Point::new(13.0, 2.0), 7.0, n / 2 + 20, &waves, jitter, seed ^ 0x9e37);
+        prop_assume!(first_crossing(&[b1.clone(), b2.clone()], tol).is_none());
+        let grown = offset_shape(&Shape::new(vec![b1, b2]), grow, &opts(tol))
+            .map_err(|e| TestCaseError::fail(format!("growing the blobs: {e}")))?;
+        prop_assume!(!grown.paths.is_empty());
+        if let Some((path, at)) = first_crossing(&grown.paths, tol) {
+            return Err(TestCaseError::fail(format!("the grown blobs are not valid input: path {path} crosses itself at {at:?}")));
+        }
+        let mut paths = vec![Polyline::rect(Point::new(-30.0, -20.0), Point::new(30.0, 20.0))];
+        paths.extend(grown.paths);
+        let regions = Shape::new(paths).regions();
+        let d = -radius;
+        let s = -radius * 2.0 * step;
+        let mut ds = vec![d];
+        ds.extend(std::iter::repeat_n(s, 40));
+        for r in regions {
+            offsets_again("pocket", r, &ds, tol).map_err(TestCaseError::fail)?;
+        }
+    }
+}
