@@ -397,14 +397,16 @@ mod tests {
             to: P3::new(20.0, 0.0, -2.0),
             feed: 100.0,
         });
-        // the same helix: no deviation
+        // the same helix: no deviation of what was cut (only the helix was run, so measured
+        // both ways the line after it, 10 mm long, is missed)
         let same = ex(
             Motion::ArcCcw,
             [10.0, 0.0, 0.0],
             [10.0, 0.0, -2.0],
             Some([0.0, 0.0]),
         );
-        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
+        assert!(max_stray(&tp, std::slice::from_ref(&same)) < 1e-6);
+        assert!((max_deviation(&tp, std::slice::from_ref(&same)) - 10.0).abs() < 1e-6);
         // the helix 0.1 mm larger in radius
         let wide = ex(
             Motion::ArcCcw,
@@ -412,7 +414,7 @@ mod tests {
             [10.1, 0.0, -2.0],
             Some([0.0, 0.0]),
         );
-        assert!((max_deviation(&tp, &[wide]) - 0.1).abs() < 1e-3);
+        assert!((max_stray(&tp, &[wide]) - 0.1).abs() < 1e-3);
         // the helix run flat at the start height: near the end of the turn the helix is
         // almost 2 mm below, until the flat circle comes back near the helix's start
         let flat = ex(
@@ -421,11 +423,11 @@ mod tests {
             [10.0, 0.0, 0.0],
             Some([0.0, 0.0]),
         );
-        let d = max_deviation(&tp, &[flat]);
+        let d = max_stray(&tp, &[flat]);
         assert!(d > 1.9 && d < 2.0, "{d}");
         // a line 0.3 mm above the planned one
         let high = ex(Motion::Linear, [10.0, 0.0, -1.7], [20.0, 0.0, -1.7], None);
-        assert!((max_deviation(&tp, &[high]) - 0.3).abs() < 1e-6);
+        assert!((max_stray(&tp, &[high]) - 0.3).abs() < 1e-6);
         // rapids do not count; cuts with nothing planned are infinitely off, and so is a
         // plan of which nothing was cut
         let rapid = ex(Motion::Rapid, [50.0, 50.0, 5.0], [60.0, 50.0, 5.0], None);
@@ -465,7 +467,8 @@ mod tests {
         assert!((d.missed - 1.0).abs() < 1e-9, "{d:?}");
         assert!((d.missed_at.z + 2.0).abs() < 1e-9, "{d:?}");
         let mut both = first.to_vec();
-        both.push(ex(Motion::Linear, [10.0, 0.0, -1.0], [0.0, 0.0, -2.0], None));
+        both.push(ex(Motion::Rapid, [10.0, 0.0, -1.0], [0.0, 0.0, 1.0], None));
+        both.push(ex(Motion::Linear, [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], None));
         both.push(ex(Motion::Linear, [0.0, 0.0, -2.0], [10.0, 0.0, -2.0], None));
         assert!(deviation(&tp, &both).missed < 1e-9);
     }
