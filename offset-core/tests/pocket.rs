@@ -83,8 +83,10 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
     // whole pocket without touching a wall or island
     let b = tp.bounds().unwrap();
     assert!((b.min.z + p.cut.depth).abs() < 1e-9, "{name}: {b:?}");
-    let depths = offset_core::ops::pass_depths(p.cut.depth, p.cut.stepdown);
-    for z in depths {
+    // the pass depths worked out here, not by the planner's own function: equal steps of
+    // at most the stepdown down to the depth
+    let n = (p.cut.depth / p.cut.stepdown).ceil() as usize;
+    for z in (1..=n).map(|k| -p.cut.depth * k as f64 / n as f64) {
         // the chord tolerance of Clipper's round joins and of the pass arcs
         let c = check_coverage(region, &tp, r, z, 0.1, 0.01);
         assert_eq!(

@@ -8,7 +8,7 @@
 
 use offset_core::check::Checker;
 use offset_core::geom::{Point, Polyline, Region, Segment, Shape, Vertex};
-use offset_core::ops::{pass_depths, profile, Cutting, Entry, ProfileParams, Side};
+use offset_core::ops::{profile, Cutting, Entry, ProfileParams, Side};
 use offset_core::toolpath::{arc_segment, Move, Tool, Toolpath, P3};
 
 /// The plan's tolerance (arc fitting, offsets) and how near a cut must come to count.
@@ -175,7 +175,10 @@ fn check_plan(c: &Case, tp: &Toolpath) -> f64 {
             .collect()
     };
     assert!(expected.len() > 100, "{name}: {} points expected", expected.len());
-    let depths = pass_depths(c.p.cut.depth, c.p.cut.stepdown);
+    // the pass depths worked out here, not by the planner's own function: equal steps of
+    // at most the stepdown down to the depth
+    let n = (c.p.cut.depth / c.p.cut.stepdown).ceil() as usize;
+    let depths: Vec<f64> = (1..=n).map(|k| -c.p.cut.depth * k as f64 / n as f64).collect();
     let tab_z = -c.p.cut.depth + c.p.tab_height;
     let mut under_tab = 0usize;
     for e in &expected {
