@@ -10,20 +10,27 @@
 //! | `POST /jobs/{id}/override` | feed, spindle and rapid overrides of a running job |
 //! | `POST /machines/{name}/unlock`, `/home`, `/jog` | the operator at the machine, between jobs |
 //! | `GET /jobs/{id}/events` | newline-delimited JSON events until the job ends |
+//! | `POST /machines/{name}/gcode?file_name=F` | a G-code file streamed into the store (`upload`) |
+//! | `POST /machines/{name}/lock`, `/release`, `GET /locks` | the control lock (`access_api`) |
+//! | `GET /whoami`, `POST /access/reload` | the caller's role; reload the access table |
 //!
-//! Refusals are 4xx with `{ "error": "one sentence" }`.
+//! Who may call what is the route table of `access` (`access::ROUTES`); every route added
+//! here needs its line there. Refusals are 4xx with `{ "error": "one sentence" }`.
 
-use crate::intake::{self, IntakeError, JobSpec, Target};
+use crate::access::{Access, Acted, Gate, Principal};
+use crate::intake::{IntakeError, JobSpec};
+use crate::planner::{PlanError, PlanFn};
 use crate::scheduler::{Event, SchedError, Scheduler};
 use crate::store::{JobId, NewJob};
 use axum::body::Body;
-use axum::extract::{Path, Request, State};
+use axum::extract::{Extension, Path, Request, State};
 use axum::http::{header, StatusCode};
-use axum::middleware::{self, Next};
+use axum::middleware;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use tokio::sync::broadcast;
 
 /// A refusal: status and one sentence.
@@ -58,17 +65,46 @@ fn bad(msg: impl Into<String>) -> ApiError {
     ApiError(StatusCode::BAD_REQUEST, msg.into())
 }
 
+/// What every handler shares.
 #[derive(Clone)]
-struct AppState {
-    sched: Scheduler,
-    token: Option<String>,
+pub struct AppState {
+    pub sched: Scheduler,
+    pub access: Arc<Access>,
+    /// How a job is planned (in a forked child, see `planner`).
+    pub planner: PlanFn,
+    /// Jobs planned at once (`limits::MAX_CONCURRENT_PLANS`).
+    pub plans: Arc<tokio::sync::Semaphore>,
 }
 
-/// The API's routes over `sched`; with `token`, every request must carry
-/// `Authorization: Bearer TOKEN`.
-pub fn router(sched: Scheduler, token: Option<String>) -> Router {
-    let state = AppState { sched, token };
+/// The API's routes over `sched`, guarded by `access` (who may call what: `access::ROUTES`),
+/// planning jobs with `planner`.
+pub fn router(sched: Scheduler, access: Arc<Access>, planner: PlanFn) -> Router {
+    router_with(sched, access, planner, Router::new())
+}
+
+/// The API's routes, and the service routes `GET /metrics` and `GET /events` of `service`
+/// (`events::router`), behind the same route table.
+pub fn router_with(
+    sched: Scheduler,
+    access: Arc<Access>,
+    planner: PlanFn,
+    service: Router,
+) -> Router {
+    let state = AppState {
+        sched: sched.clone(),
+        access: access.clone(),
+        planner,
+        plans: Arc::new(tokio::sync::Semaphore::new(
+            crate::limits::MAX_CONCURRENT_PLANS,
+        )),
+    };
+    let gate = Gate {
+        access: access.clone(),
+        sched,
+    };
     Router::new()
+        .route_service("/metrics", service.clone())
+        .route_service("/events", service)
         .route("/machines", get(machines))
         .route("/jobs", get(jobs).post(submit))
         .route("/jobs/{id}", get(job))
@@ -78,29 +114,22 @@ pub fn router(sched: Scheduler, token: Option<String>) -> Router {
         .route("/machines/{name}/{op}", post(operate))
         .route("/jobs/{id}/cancel", post(cancel))
         .route("/jobs/{id}/events", get(events))
+        .route("/machines/{name}/gcode", post(crate::upload::gcode))
+        .merge(crate::access_api::routes())
+        .route_layer(middleware::from_fn_with_state(
+            gate,
+            crate::access::authorize,
+        ))
         .fallback(|| async { bad("no such request: see docs/daemon.md for the API") })
-        .layer(middleware::from_fn_with_state(state.clone(), auth))
-        .layer(axum::extract::DefaultBodyLimit::max(64 << 20))
+        .layer(middleware::from_fn_with_state(
+            access,
+            crate::access::authenticate,
+        ))
+        .layer(middleware::from_fn(crate::limits::json_errors))
+        .layer(axum::extract::DefaultBodyLimit::max(
+            crate::limits::MAX_JSON_BODY,
+        ))
         .with_state(state)
-}
-
-async fn auth(State(st): State<AppState>, req: Request, next: Next) -> Response {
-    if let Some(token) = &st.token {
-        let given = req
-            .headers()
-            .get(header::AUTHORIZATION)
-            .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
-        if given != Some(token.as_str()) {
-            return ApiError(
-                StatusCode::UNAUTHORIZED,
-                "this daemon needs `Authorization: Bearer TOKEN` (the token given to serve --token)"
-                    .into(),
-            )
-            .into_response();
-        }
-    }
-    next.run(req).await
 }
 
 async fn machines(State(st): State<AppState>) -> Result<Response, ApiError> {
@@ -136,9 +165,10 @@ pub struct ResumeRequest {
 async fn resume(
     State(st): State<AppState>,
     Path(id): Path<String>,
-    body: axum::body::Bytes,
+    req: Request,
 ) -> Result<Response, ApiError> {
     let id = job_id(&id)?;
+    let body = crate::limits::json_body(req).await?;
     let req: ResumeRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
         ResumeRequest::default()
     } else {
@@ -156,41 +186,86 @@ async fn cancel(State(st): State<AppState>, Path(id): Path<String>) -> Result<Re
     Ok(Json(st.sched.cancel(job_id(&id)?).await?).into_response())
 }
 
-async fn submit(State(st): State<AppState>, body: axum::body::Bytes) -> Result<Response, ApiError> {
+async fn submit(
+    State(st): State<AppState>,
+    Extension(who): Extension<Principal>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let body = crate::limits::json_body(req).await?;
     let spec: JobSpec = serde_json::from_slice(&body)
         .map_err(|e| bad(format!("the request is not a valid job: {e}")))?;
+    drop(body);
+    let Some(name) = spec.machine.clone() else {
+        return Err(bad("the job names no machine (give \"machine\")"));
+    };
+    st.sched.machine_config(&name)?;
+    st.access
+        .check_operate(&who, &name, &st.sched)
+        .map_err(|d| ApiError(d.0, d.1))?;
+    submit_spec(&st, spec).await
+}
+
+/// Plans `spec` (in a forked child: a crash fails this job only), checks the program's size,
+/// stores and queues it: 201 and the job.
+pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiError> {
     let Some(name) = spec.machine.clone() else {
         return Err(bad("the job names no machine (give \"machine\")"));
     };
     let machine = st.sched.machine_config(&name)?.clone();
     let file_name = spec.input.file_name.clone();
     let params = params_of(&spec);
-    // planning is CPU work: off the async threads
-    let planned =
-        tokio::task::spawn_blocking(move || intake::plan(&spec, Target::Machine(&machine)))
+    let planning = std::time::Instant::now();
+    let planned = {
+        let _turn = st.plans.acquire().await.map_err(|e| {
+            ApiError(
+                StatusCode::SERVICE_UNAVAILABLE,
+                format!("the daemon is stopping: {e}"),
+            )
+        })?;
+        crate::planner::plan_isolated(spec, machine, st.planner, crate::planner::PLAN_TIME_LIMIT)
             .await
-            .map_err(|e| {
-                ApiError(
-                    StatusCode::INTERNAL_SERVER_ERROR,
-                    format!("planning crashed: {e}"),
-                )
-            })?
-            .map_err(|e| match e {
-                IntakeError::Refused(m) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
-                other => bad(other.to_string()),
-            })?;
+    };
+    crate::memory::give_back();
+    let planned = planned.map_err(|e| match e {
+        PlanError::Intake(IntakeError::Refused(m)) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
+        PlanError::Intake(other) => bad(other.to_string()),
+        other @ (PlanError::Crashed(_) | PlanError::TimedOut(_)) => {
+            ApiError(StatusCode::UNPROCESSABLE_ENTITY, other.to_string())
+        }
+        other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, other.to_string()),
+    })?;
+    if planned.program.len() > crate::limits::MAX_PROGRAM_UNITS {
+        return Err(ApiError(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            format!(
+                "the program has {} units, more than the daemon's limit of {}",
+                planned.program.len(),
+                crate::limits::MAX_PROGRAM_UNITS
+            ),
+        ));
+    }
+    let planning = planning.elapsed();
     let rec = st.sched.submit(NewJob {
-        machine: name,
+        machine: name.clone(),
         op: planned.operation,
         file_name,
         params,
         program: planned.program,
     })?;
-    Ok((StatusCode::CREATED, Json(rec)).into_response())
+    if let Some(m) = st.sched.metrics() {
+        m.job_submitted(&rec.machine, planning);
+    }
+    let mut resp = (StatusCode::CREATED, Json(&rec)).into_response();
+    resp.extensions_mut().insert(Acted {
+        machine: Some(rec.machine.clone()),
+        job: Some(rec.id),
+        note: None,
+    });
+    Ok(resp)
 }
 
 /// What the store keeps of a job's spec: everything but the file's bytes.
-fn params_of(spec: &JobSpec) -> serde_json::Value {
+pub fn params_of(spec: &JobSpec) -> serde_json::Value {
     let mut v = serde_json::to_value(spec).unwrap_or_default();
     if let Some(input) = v.get_mut("input").and_then(|i| i.as_object_mut()) {
         input.remove("file_text");

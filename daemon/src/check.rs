@@ -17,45 +17,54 @@ pub fn planned_move(i: usize) -> String {
 /// Checks every move of `tp` against `machine`'s work area and feed limit; the refusal names
 /// the move with `at`.
 pub fn moves(tp: &Toolpath, machine: &MachineConfig, at: &Where<'_>) -> Result<(), String> {
-    let mut first = true;
-    let mut result = Ok(());
-    let mut index = 0usize;
-    let mut i_of = Vec::with_capacity(tp.moves.len());
-    // `walk` skips moves that go nowhere; keep each walked move's index in `tp.moves`
+    let mut check = MoveCheck::new(machine);
     for (i, m) in tp.moves.iter().enumerate() {
-        if matches!(
-            m,
-            Move::Rapid { .. }
-                | Move::Linear { .. }
-                | Move::Arc { .. }
-                | Move::Stitch { .. }
-                | Move::Jump { .. }
-        ) {
-            i_of.push(i);
+        check.step(m, &|| at(i))?;
+    }
+    Ok(())
+}
+
+/// The checks of [`moves`], one move at a time (for a program read as it streams in): the
+/// position is followed as `Toolpath::walk` follows it, from the origin.
+pub struct MoveCheck<'m> {
+    machine: &'m MachineConfig,
+    pos: P3,
+    first: bool,
+}
+
+impl<'m> MoveCheck<'m> {
+    pub fn new(machine: &'m MachineConfig) -> MoveCheck<'m> {
+        MoveCheck {
+            machine,
+            pos: P3::default(),
+            first: true,
         }
     }
-    tp.walk(P3::default(), |from, m, to| {
-        let i = i_of.get(index).copied().unwrap_or(index);
-        index += 1;
-        if result.is_err() {
-            return;
-        }
+
+    /// Checks move `m`; `at` names it in a refusal. Moves that go nowhere pass.
+    pub fn step(&mut self, m: &Move, at: &dyn Fn() -> String) -> Result<(), String> {
+        let from = self.pos;
+        let to = match m {
+            Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } => *to,
+            Move::Stitch { to } | Move::Jump { to } => P3::at_z(*to, from.z),
+            _ => return Ok(()),
+        };
+        let machine = self.machine;
         if let (Some(max), Move::Linear { feed, .. } | Move::Arc { feed, .. }) =
             (machine.max_feed, m)
         {
             if *feed > max + 1e-9 {
-                result = Err(format!(
+                return Err(format!(
                     "{}: the feed {} mm/min is above machine `{}`'s limit of {max} mm/min",
-                    at(i),
+                    at(),
                     feed,
                     machine.name
                 ));
-                return;
             }
         }
         if let Some(w) = &machine.work_area {
             let mut pts = vec![to];
-            if !first {
+            if !self.first {
                 pts.push(from);
             }
             if let Move::Arc { center, ccw, .. } = m {
@@ -72,22 +81,22 @@ pub fn moves(tp: &Toolpath, machine: &MachineConfig, at: &Where<'_>) -> Result<(
                         } else {
                             "it goes to"
                         };
-                        result = Err(format!(
+                        return Err(format!(
                             "{}: {what} {axis} {:.3}, outside machine `{}`'s work area ({axis} {} to {})",
-                            at(i),
+                            at(),
                             v[k],
                             machine.name,
                             w.min[k],
                             w.max[k]
                         ));
-                        return;
                     }
                 }
             }
         }
-        first = false;
-    });
-    result
+        self.first = false;
+        self.pos = to;
+        Ok(())
+    }
 }
 
 /// A G-code file read for a machine: the lines to send (comments and blank lines dropped),
@@ -108,14 +117,74 @@ pub fn gcode_program(
     text: &str,
     machine: &MachineConfig,
 ) -> Result<GcodeProgram, String> {
+    let mut check = GcodeCheck::new(file, machine);
     let mut lines = Vec::new();
     let mut source_lines = Vec::new();
-    let mut percent_at = Vec::new();
+    let mut moves = Toolpath::new("program");
     for (i, raw) in text.lines().enumerate() {
-        let n = i + 1;
+        if let Some(c) = check.line(i + 1, raw)? {
+            lines.push(c.line);
+            source_lines.push(i + 1);
+            if let Some(m) = c.motion {
+                moves.push(m);
+            }
+        }
+    }
+    Ok(GcodeProgram {
+        lines,
+        source_lines,
+        moves,
+    })
+}
+
+/// A program line that passed the checks: the line to send, and the move it makes.
+#[derive(Clone, Debug)]
+pub struct CheckedLine {
+    pub line: String,
+    pub motion: Option<Move>,
+}
+
+/// The checks of [`gcode_program`], one line at a time, so a file can be checked as it
+/// streams in without being held whole: every refusal names the file, the line and (for a
+/// move) its text.
+pub struct GcodeCheck<'m> {
+    file: String,
+    machine: &'m MachineConfig,
+    mm_per_unit: f64,
+    /// Program lines so far.
+    kept: usize,
+    /// A `%` that came after program lines: only the end of the program may follow it.
+    closing_percent: Option<usize>,
+    reader: gcode_read::Reader,
+    moves: MoveCheck<'m>,
+}
+
+impl<'m> GcodeCheck<'m> {
+    pub fn new(file: &str, machine: &'m MachineConfig) -> GcodeCheck<'m> {
+        GcodeCheck {
+            file: file.to_string(),
+            machine,
+            mm_per_unit: 1.0,
+            kept: 0,
+            closing_percent: None,
+            reader: gcode_read::Reader::default(),
+            moves: MoveCheck::new(machine),
+        }
+    }
+
+    /// Program lines that passed so far.
+    pub fn kept(&self) -> usize {
+        self.kept
+    }
+
+    /// Checks line `n` (1-based) of the file; the line to send, or None for a comment, a
+    /// blank line or a tape mark.
+    pub fn line(&mut self, n: usize, raw: &str) -> Result<Option<CheckedLine>, String> {
+        let file = &self.file;
+        let machine = self.machine;
         let line = strip_comments(raw);
         if line.is_empty() {
-            continue;
+            return Ok(None);
         }
         if let Some(c) = line
             .chars()
@@ -126,32 +195,27 @@ pub fn gcode_program(
             ));
         }
         if line == "%" {
-            percent_at.push((n, lines.len()));
-            continue;
+            // a `%` may only mark the start and the end of the program (tape marks)
+            if self.kept > 0 && self.closing_percent.is_none() {
+                self.closing_percent = Some(n);
+            }
+            return Ok(None);
         }
         if line.starts_with('$') {
             return Err(format!(
                 "{file}, line {n} `{line}`: settings and system commands ($…) are not part of a job; give them at the machine"
             ));
         }
-        lines.push(line);
-        source_lines.push(n);
-    }
-    // a `%` may only mark the start and the end of the program (tape marks)
-    for &(n, before) in &percent_at {
-        if before != 0 && before != lines.len() {
+        if let Some(p) = self.closing_percent {
             return Err(format!(
-                "{file}, line {n}: a `%` in the middle of the program (only the first and last lines may be `%`)"
+                "{file}, line {p}: a `%` in the middle of the program (only the first and last lines may be `%`)"
             ));
         }
-    }
-    let mut mm_per_unit = 1.0;
-    for (line, &n) in lines.iter().zip(&source_lines) {
-        let words = words(line);
+        let words = words(&line);
         for (letter, value) in &words {
             match (letter, value.parse::<f64>().ok()) {
-                ('G', Some(20.0)) => mm_per_unit = 25.4,
-                ('G', Some(21.0)) => mm_per_unit = 1.0,
+                ('G', Some(20.0)) => self.mm_per_unit = 25.4,
+                ('G', Some(21.0)) => self.mm_per_unit = 1.0,
                 _ => {}
             }
         }
@@ -184,7 +248,7 @@ pub fn gcode_program(
                     // checked on the F word, not only on cutting moves: `G0 X9 F9000`
                     // leaves F9000 in force for the next G1
                     if let (Some(max), Some(f)) = (machine.max_feed, code()) {
-                        let f = f * mm_per_unit;
+                        let f = f * self.mm_per_unit;
                         if f > max + 1e-9 {
                             return Err(format!(
                                 "{file}, line {n} `{line}`: the feed {f} mm/min is above machine `{}`'s limit of {max} mm/min",
@@ -196,19 +260,17 @@ pub fn gcode_program(
                 _ => {}
             }
         }
+        let motion = self
+            .reader
+            .line(&line)
+            .map_err(|e| format!("{file}, line {n}: {e}"))?;
+        if let Some(m) = &motion {
+            self.moves
+                .step(m, &|| format!("{file}, line {n} `{line}`"))?;
+        }
+        self.kept += 1;
+        Ok(Some(CheckedLine { line, motion }))
     }
-    let (read, move_lines) = gcode_read::read_with_lines(&lines.join("\n"))
-        .map_err(|e| format!("{file}, line {}: {}", source_lines[e.line - 1], e.message))?;
-    let at = |i: usize| {
-        let k = move_lines[i] - 1;
-        format!("{file}, line {} `{}`", source_lines[k], lines[k])
-    };
-    moves(&read, machine, &at)?;
-    Ok(GcodeProgram {
-        lines,
-        source_lines,
-        moves: read,
-    })
 }
 
 /// A line without its `( … )` and `;` comments, trimmed.

@@ -15,18 +15,31 @@ use std::path::PathBuf;
 #[derive(Clone, Debug)]
 pub enum Endpoint {
     Unix(PathBuf),
-    /// host:port, with the bearer token the daemon was started with.
+    /// host:port in plaintext (a daemon started with --insecure-plaintext), with a token.
     Tcp {
         addr: String,
         token: Option<String>,
+    },
+    /// host:port over TLS, trusting the CA certificates in `ca` (PEM), with a token.
+    Tls {
+        addr: String,
+        token: Option<String>,
+        ca: PathBuf,
+        /// The name the daemon's certificate must carry (default: the host of `addr`).
+        server_name: Option<String>,
+    },
+    /// A Unix socket, with a token (for a local user the `[access]` table does not name).
+    UnixToken {
+        path: PathBuf,
+        token: String,
     },
 }
 
 impl std::fmt::Display for Endpoint {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         match self {
-            Endpoint::Unix(p) => write!(f, "{}", p.display()),
-            Endpoint::Tcp { addr, .. } => write!(f, "{addr}"),
+            Endpoint::Unix(p) | Endpoint::UnixToken { path: p, .. } => write!(f, "{}", p.display()),
+            Endpoint::Tcp { addr, .. } | Endpoint::Tls { addr, .. } => write!(f, "{addr}"),
         }
     }
 }
@@ -41,6 +54,12 @@ pub enum ClientError {
     Refused(String),
     #[error("the daemon's answer made no sense: {0}")]
     Protocol(String),
+    /// The TLS handshake failed (a certificate the CA does not vouch for, a plaintext daemon).
+    #[error("no TLS connection to the daemon at {addr}: {why}")]
+    Tls { addr: String, why: String },
+    /// The client's own files (a CA file, a file to send).
+    #[error("{0}")]
+    Local(String),
 }
 
 /// A client of one daemon.
@@ -60,34 +79,73 @@ impl Client {
         path: &str,
         body: Option<Vec<u8>>,
     ) -> Result<(StatusCode, Incoming), ClientError> {
+        let has_body = body.is_some();
+        let body = Full::new(Bytes::from(body.unwrap_or_default()))
+            .map_err(|never| match never {})
+            .boxed_unsync();
+        self.send_body(method, path, body, has_body.then_some("application/json"))
+            .await
+    }
+
+    async fn send_body(
+        &self,
+        method: Method,
+        path: &str,
+        body: Body,
+        content_type: Option<&str>,
+    ) -> Result<(StatusCode, Incoming), ClientError> {
         let unreachable = || ClientError::Unreachable(self.endpoint.to_string());
         let mut req = Request::builder()
             .method(method)
             .uri(path)
             .header(hyper::header::HOST, "machlink");
-        if body.is_some() {
-            req = req.header(hyper::header::CONTENT_TYPE, "application/json");
+        if let Some(ct) = content_type {
+            req = req.header(hyper::header::CONTENT_TYPE, ct);
         }
-        let sender = match &self.endpoint {
-            Endpoint::Unix(p) => {
+        let token = match &self.endpoint {
+            Endpoint::Tcp { token, .. } | Endpoint::Tls { token, .. } => token.clone(),
+            Endpoint::UnixToken { token, .. } => Some(token.clone()),
+            Endpoint::Unix(_) => None,
+        };
+        if let Some(t) = token {
+            req = req.header(hyper::header::AUTHORIZATION, format!("Bearer {t}"));
+        }
+        let mut sender = match &self.endpoint {
+            Endpoint::Unix(p) | Endpoint::UnixToken { path: p, .. } => {
                 let io = tokio::net::UnixStream::connect(p)
                     .await
                     .map_err(|_| unreachable())?;
                 handshake(io).await?
             }
-            Endpoint::Tcp { addr, token } => {
-                if let Some(t) = token {
-                    req = req.header(hyper::header::AUTHORIZATION, format!("Bearer {t}"));
-                }
+            Endpoint::Tcp { addr, .. } => {
                 let io = tokio::net::TcpStream::connect(addr)
                     .await
                     .map_err(|_| unreachable())?;
                 handshake(io).await?
             }
+            Endpoint::Tls {
+                addr,
+                ca,
+                server_name,
+                ..
+            } => {
+                let cfg = crate::tls::client_config(ca).map_err(ClientError::Local)?;
+                // a daemon that is not there is unreachable; one that fails the handshake
+                // is refused
+                tokio::net::TcpStream::connect(addr)
+                    .await
+                    .map_err(|_| unreachable())?;
+                let io = crate::tls::connect(addr, server_name.as_deref(), cfg)
+                    .await
+                    .map_err(|e| ClientError::Tls {
+                        addr: addr.clone(),
+                        why: e.to_string(),
+                    })?;
+                handshake(io).await?
+            }
         };
-        let mut sender = sender;
         let req = req
-            .body(Full::new(Bytes::from(body.unwrap_or_default())))
+            .body(body)
             .map_err(|e| ClientError::Protocol(e.to_string()))?;
         let resp = sender
             .send_request(req)
@@ -147,6 +205,98 @@ impl Client {
             .await
     }
 
+    /// Sends a G-code file to machine `machine` as it is, streamed from disk (the daemon
+    /// checks each line as it arrives and stores the program without holding the file).
+    pub async fn submit_gcode_file(
+        &self,
+        machine: &str,
+        path: &std::path::Path,
+    ) -> Result<JobRecord, ClientError> {
+        let file = tokio::fs::File::open(path)
+            .await
+            .map_err(|e| ClientError::Local(format!("cannot read {}: {e}", path.display())))?;
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| path.display().to_string());
+        let stream = tokio_util_free_reader(file);
+        let body = http_body_util::StreamBody::new(stream).boxed_unsync();
+        let uri = format!(
+            "/machines/{}/gcode?file_name={}",
+            encode(machine),
+            encode(&name)
+        );
+        let (status, body) = self
+            .send_body(Method::POST, &uri, body, Some("text/plain"))
+            .await?;
+        let bytes = body
+            .collect()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))?
+            .to_bytes();
+        if !status.is_success() {
+            return Err(refusal(status, &bytes));
+        }
+        serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))
+    }
+
+    /// Takes machine `machine`'s control lock; `take_over` (admins) breaks someone else's.
+    pub async fn lock(
+        &self,
+        machine: &str,
+        take_over: bool,
+    ) -> Result<Option<crate::access::LockInfo>, ClientError> {
+        let body = serde_json::to_vec(&crate::access_api::LockRequest { take_over })
+            .map_err(|e| ClientError::Protocol(e.to_string()))?;
+        self.call(
+            Method::POST,
+            &format!("/machines/{}/lock", encode(machine)),
+            Some(body),
+        )
+        .await
+    }
+
+    /// Releases machine `machine`'s control lock (its holder, or an admin breaking it).
+    pub async fn release(&self, machine: &str) -> Result<serde_json::Value, ClientError> {
+        self.call(
+            Method::POST,
+            &format!("/machines/{}/release", encode(machine)),
+            None,
+        )
+        .await
+    }
+
+    /// The locks held now.
+    pub async fn locks(&self) -> Result<Vec<crate::access::LockInfo>, ClientError> {
+        self.call(Method::GET, "/locks", None).await
+    }
+
+    /// Who the daemon takes this client for.
+    pub async fn whoami(&self) -> Result<serde_json::Value, ClientError> {
+        self.call(Method::GET, "/whoami", None).await
+    }
+
+    /// Has the daemon reread its config's `[access]` table.
+    pub async fn reload_access(&self) -> Result<serde_json::Value, ClientError> {
+        self.call(Method::POST, "/access/reload", None).await
+    }
+
+    /// Any request, for tools and tests: the status and the body.
+    pub async fn raw(
+        &self,
+        method: Method,
+        path: &str,
+        body: Option<Vec<u8>>,
+    ) -> Result<(StatusCode, Bytes), ClientError> {
+        let (status, body) = self.send(method, path, body).await?;
+        let bytes = body
+            .collect()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))?
+            .to_bytes();
+        Ok((status, bytes))
+    }
+
     /// What a resume of the job would do (from `from_line`, 1-based, when given).
     pub async fn resume_preview(
         &self,
@@ -187,8 +337,44 @@ impl Client {
                 ),
             ),
         };
-        self.call(Method::POST, &format!("/machines/{machine}/{name}"), body)
+        self.call(Method::POST, &format!("/machines/{}/{name}", encode(machine)), body)
             .await
+    }
+
+    /// A text resource such as `GET /metrics`.
+    pub async fn text(&self, path: &str) -> Result<String, ClientError> {
+        let (status, body) = self.send(Method::GET, path, None).await?;
+        let bytes = body
+            .collect()
+            .await
+            .map_err(|e| ClientError::Protocol(e.to_string()))?
+            .to_bytes();
+        if !status.is_success() {
+            return Err(refusal(status, &bytes));
+        }
+        Ok(String::from_utf8_lossy(&bytes).into_owned())
+    }
+
+    /// Every job's events from now on (`GET /events`), or only `machine`'s; never ends
+    /// while the daemon runs.
+    pub async fn follow(&self, machine: Option<&str>) -> Result<EventStream, ClientError> {
+        let path = match machine {
+            Some(m) => format!("/events?machine={}", encode(m)),
+            None => "/events".to_string(),
+        };
+        let (status, mut body) = self.send(Method::GET, &path, None).await?;
+        if !status.is_success() {
+            let bytes = (&mut body)
+                .collect()
+                .await
+                .map_err(|e| ClientError::Protocol(e.to_string()))?
+                .to_bytes();
+            return Err(refusal(status, &bytes));
+        }
+        Ok(EventStream {
+            body,
+            buf: Vec::new(),
+        })
     }
 
     /// The job's events, from its current state until it ends.
@@ -211,9 +397,10 @@ impl Client {
     }
 }
 
-async fn handshake<S>(
-    io: S,
-) -> Result<hyper::client::conn::http1::SendRequest<Full<Bytes>>, ClientError>
+/// A request body: bytes in memory, or a file streamed from disk.
+type Body = http_body_util::combinators::UnsyncBoxBody<Bytes, std::io::Error>;
+
+async fn handshake<S>(io: S) -> Result<hyper::client::conn::http1::SendRequest<Body>, ClientError>
 where
     S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
 {
@@ -263,4 +450,36 @@ impl EventStream {
             }
         }
     }
+}
+
+/// A path segment or query value, percent-encoded.
+fn encode(s: &str) -> String {
+    let mut out = String::new();
+    for b in s.bytes() {
+        if b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.' | b'~') {
+            out.push(b as char);
+        } else {
+            out.push_str(&format!("%{b:02X}"));
+        }
+    }
+    out
+}
+
+/// A file as a stream of body frames, 256 KiB at a time.
+fn tokio_util_free_reader(
+    file: tokio::fs::File,
+) -> impl futures::Stream<Item = Result<hyper::body::Frame<Bytes>, std::io::Error>> + Send {
+    futures::stream::unfold(Some(file), |file| async move {
+        use tokio::io::AsyncReadExt;
+        let mut file = file?;
+        let mut buf = vec![0u8; 256 << 10];
+        match file.read(&mut buf).await {
+            Ok(0) => None,
+            Ok(n) => {
+                buf.truncate(n);
+                Some((Ok(hyper::body::Frame::data(Bytes::from(buf))), Some(file)))
+            }
+            Err(e) => Some((Err(e), None)),
+        }
+    })
 }

@@ -49,6 +49,13 @@ pub enum ConfigError {
 pub struct Config {
     pub daemon: DaemonConfig,
     pub machines: Vec<MachineConfig>,
+    /// `[fleet]`: the daemon shares a queue and a view with others on NATS JetStream.
+    pub fleet: Option<crate::fleet::FleetConfig>,
+    /// `[[webhook]]`: URLs that get a POST of chosen events.
+    pub webhooks: Vec<crate::webhooks::WebhookConfig>,
+    /// The `[access]` table: tokens, local users and groups, socket group, audit log
+    /// (`crate::access`).
+    pub access: crate::access::AccessConfig,
 }
 
 /// The `[daemon]` table, resolved.
@@ -176,6 +183,12 @@ struct RawConfig {
     daemon: RawDaemon,
     #[serde(default)]
     machine: Vec<toml::Spanned<RawMachine>>,
+    #[serde(default)]
+    fleet: Option<toml::Spanned<crate::fleet::FleetConfig>>,
+    #[serde(default)]
+    webhook: Vec<toml::Spanned<crate::webhooks::WebhookConfig>>,
+    #[serde(default)]
+    access: crate::access::RawAccess,
 }
 
 #[derive(Default, Deserialize)]
@@ -183,18 +196,19 @@ struct RawConfig {
 struct RawDaemon {
     store: Option<PathBuf>,
     socket: Option<PathBuf>,
-    journal_every: Option<usize>,
-    journal_max_lag_ms: Option<u64>,
+    journal_every: Option<toml::Spanned<usize>>,
+    journal_max_lag_ms: Option<toml::Spanned<u64>>,
 }
 
-/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`,
-/// else `/tmp/machlink-$USER.sock`.
+/// The socket path used when the config names none: `$XDG_RUNTIME_DIR/machlink.sock`
+/// (a folder only its user can enter), else `/tmp/machlink-$USER/machlink.sock` (a folder
+/// the daemon creates 0700).
 pub fn default_socket() -> PathBuf {
     match std::env::var_os("XDG_RUNTIME_DIR") {
         Some(dir) if !dir.is_empty() => PathBuf::from(dir).join("machlink.sock"),
         _ => {
             let user = std::env::var("USER").unwrap_or_else(|_| "user".into());
-            PathBuf::from(format!("/tmp/machlink-{user}.sock"))
+            PathBuf::from(format!("/tmp/machlink-{user}/machlink.sock"))
         }
     }
 }
@@ -210,6 +224,9 @@ impl Config {
                 journal_max_lag: Duration::from_secs(1),
             },
             machines: Vec::new(),
+            fleet: None,
+            webhooks: Vec::new(),
+            access: Default::default(),
         }
     }
 
@@ -267,16 +284,21 @@ impl Config {
             cfg.daemon.socket = resolve(s);
         }
         if let Some(n) = raw.daemon.journal_every {
+            let (span, n) = (n.span(), n.into_inner());
             if n == 0 {
-                return Err(at(None, "[daemon] journal_every must be 1 or more".into()));
+                return Err(at(
+                    Some(span),
+                    "[daemon] key `journal_every`: must be 1 or more".into(),
+                ));
             }
             cfg.daemon.journal_every = n;
         }
         if let Some(ms) = raw.daemon.journal_max_lag_ms {
+            let (span, ms) = (ms.span(), ms.into_inner());
             if ms == 0 || ms > 1000 {
                 return Err(at(
-                    None,
-                    format!("[daemon] journal_max_lag_ms must be 1 to 1000, got {ms}"),
+                    Some(span),
+                    format!("[daemon] key `journal_max_lag_ms`: must be 1 to 1000, got {ms}"),
                 ));
             }
             cfg.daemon.journal_max_lag = Duration::from_millis(ms);
@@ -286,7 +308,7 @@ impl Config {
             let m = m
                 .into_inner()
                 .resolve(registry, span.clone())
-                .map_err(|(span, message)| at(Some(span), message))?;
+                .map_err(|(span, message)| at(Some(key_span(text, span, &message)), message))?;
             if cfg.machines.iter().any(|o| o.name == m.name) {
                 return Err(at(
                     Some(span),
@@ -295,6 +317,28 @@ impl Config {
             }
             cfg.machines.push(m);
         }
+        for (i, w) in raw.webhook.into_iter().enumerate() {
+            let span = w.span();
+            let w = w.into_inner();
+            w.check().map_err(|m| {
+                at(
+                    Some(key_span(text, span, &m)),
+                    format!("[[webhook]] {}: {m}", i + 1),
+                )
+            })?;
+            cfg.webhooks.push(w);
+        }
+        if let Some(f) = raw.fleet {
+            let span = f.span();
+            let mut f = f.into_inner();
+            let names: Vec<String> = cfg.machines.iter().map(|m| m.name.clone()).collect();
+            f.check(&names)
+                .map_err(|m| at(Some(key_span(text, span, &m)), format!("[fleet]: {m}")))?;
+            f.credentials = f.credentials.map(resolve);
+            cfg.fleet = Some(f);
+        }
+        let names: Vec<&str> = cfg.machines.iter().map(|m| m.name.as_str()).collect();
+        cfg.access = raw.access.resolve(&names, dir).map_err(|m| at(None, m))?;
         Ok(cfg)
     }
 
@@ -311,14 +355,16 @@ impl MachineConfig {
         }
         if let Some(f) = self.max_feed {
             if !(f.is_finite() && f > 0.0) {
-                return Err(format!("max_feed must be a positive number, got {f}"));
+                return Err(format!(
+                    "key `max_feed`: must be a positive number, got {f}"
+                ));
             }
         }
         if let Some(w) = &self.work_area {
             for (i, axis) in ["X", "Y", "Z"].iter().enumerate() {
                 if !(w.min[i].is_finite() && w.max[i].is_finite() && w.min[i] < w.max[i]) {
                     return Err(format!(
-                        "work_area: min {axis} {} must be below max {axis} {}",
+                        "key `work_area`: min {axis} {} must be below max {axis} {}",
                         w.min[i], w.max[i]
                     ));
                 }
@@ -327,7 +373,7 @@ impl MachineConfig {
         for t in &self.tools {
             if !(t.diameter.is_finite() && t.diameter > 0.0) {
                 return Err(format!(
-                    "tool {}: the diameter must be a positive number, got {}",
+                    "key `tools`: tool {}: the diameter must be a positive number, got {}",
                     t.number, t.diameter
                 ));
             }
@@ -353,6 +399,34 @@ fn machine_at(text: &str, offset: usize) -> Option<String> {
         .iter()
         .rfind(|m| m.span().start <= offset)
         .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
+}
+
+/// Within a table's `span`, the line of the key a message names ("key `url`: …"), so the
+/// error points at it; else the table.
+fn key_span(text: &str, span: std::ops::Range<usize>, message: &str) -> std::ops::Range<usize> {
+    let Some(key) = message
+        .split("key `")
+        .nth(1)
+        .and_then(|r| r.split('`').next())
+    else {
+        return span;
+    };
+    // the table runs from its header to the next header
+    let mut at = span.start;
+    for (n, line) in text[span.start..].split_inclusive('\n').enumerate() {
+        let t = line.trim_start();
+        if n > 0 && t.starts_with('[') {
+            break;
+        }
+        if t.strip_prefix(key)
+            .is_some_and(|r| r.trim_start().starts_with('='))
+        {
+            let start = at + (line.len() - t.len());
+            return start..start + key.len();
+        }
+        at += line.len();
+    }
+    span
 }
 
 /// 1-based line and column of byte `offset` in `text`.
@@ -476,7 +550,10 @@ impl RawMachine {
         let Some(kind) = registry.kind(&link) else {
             return Err((
                 link_span,
-                format!("machine `{name}`: {}", unknown_link(registry, &link)),
+                format!(
+                    "machine `{name}`: key `link`: {}",
+                    unknown_link(registry, &link)
+                ),
             ));
         };
         let own: BTreeSet<&str> = kind.keys().into_iter().collect();
@@ -685,7 +762,10 @@ time_scale = 20
             "[[machine]]\nname = \"mill\"\nlink = \"grbl\"\nport = \"/dev/x\"\nmax_feed = -3\n",
         )
         .unwrap_err();
-        assert!(e.contains("max_feed must be a positive number"), "{e}");
+        assert!(
+            e.contains("key `max_feed`: must be a positive number"),
+            "{e}"
+        );
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbll\"\n").unwrap_err();
         assert!(e.contains("machine `mill`") && e.contains("grbll"), "{e}");
         let e = parse("[[machine]]\nname = \"mill\"\nlink = \"grbl\"\n").unwrap_err();

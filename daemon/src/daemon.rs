@@ -1,11 +1,16 @@
 //! The daemon put together: store, the machines' kinds started, scheduler and API listeners.
 
+use crate::access::{Access, Peer};
 use crate::api;
+use crate::audit::Audit;
 use crate::config::Config;
+use crate::events;
+use crate::metrics::Metrics;
 use crate::scheduler::{JournalPolicy, MachineSetup, Scheduler};
 use crate::store::{Store, StoreError};
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::sync::Arc;
 use tokio::task::JoinHandle;
 
 /// Why the daemon could not start.
@@ -13,8 +18,22 @@ use tokio::task::JoinHandle;
 pub enum DaemonError {
     #[error(transparent)]
     Store(#[from] StoreError),
-    #[error("another daemon is already listening at {0}")]
-    SocketBusy(String),
+    #[error(transparent)]
+    Socket(#[from] crate::fsperm::SocketError),
+    #[error("{0}")]
+    Access(String),
+    #[error("cannot open the audit log {path}: {source}")]
+    Audit {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("cannot make the job store {path} private (0600): {source}")]
+    StoreMode {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("cannot listen at {what}: {source}")]
     Listen {
         what: String,
@@ -35,8 +54,33 @@ pub enum DaemonError {
 pub struct StartOptions {
     /// Overrides the config's socket.
     pub socket: Option<PathBuf>,
-    /// Also listen on TCP at this address, requiring this bearer token.
-    pub tcp: Option<(String, String)>,
+    /// Also listen on TCP at this address (TLS unless `tcp_security` says plaintext); every
+    /// request there needs a bearer token.
+    pub listen: Option<String>,
+    /// An admin token named `command-line` besides the config's (`serve --token`); at least
+    /// 32 characters.
+    pub token: Option<String>,
+    /// How TCP is served: TLS, or plaintext only when spelled out.
+    pub tcp_security: TcpSecurity,
+    /// The config file, for `POST /access/reload`.
+    pub config_path: Option<PathBuf>,
+    /// How jobs are planned (default: `intake::plan`), in a forked child either way; tests
+    /// hand in a planner that panics or overflows its stack.
+    pub planner: Option<crate::planner::PlanFn>,
+    /// Also serve `GET /metrics` alone (read-only, no token) on this TCP address.
+    pub metrics_listen: Option<String>,
+}
+
+/// How the API is served on TCP.
+#[derive(Clone, Debug, Default)]
+pub enum TcpSecurity {
+    /// Not said: TCP is refused (the daemon needs TLS or the explicit plaintext mode).
+    #[default]
+    Unset,
+    /// TLS with this certificate chain and private key (PEM).
+    Tls { cert: PathBuf, key: PathBuf },
+    /// Plaintext, when the operator spelled out `--insecure-plaintext`: warned on every start.
+    InsecurePlaintext,
 }
 
 /// A running daemon. Dropping it stops it the way a crash would.
@@ -45,6 +89,12 @@ pub struct Daemon {
     pub socket: PathBuf,
     /// The TCP address actually bound, when asked to listen on TCP.
     pub tcp: Option<SocketAddr>,
+    /// The address `GET /metrics` is served on alone, when asked (`metrics_listen`).
+    pub metrics_addr: Option<SocketAddr>,
+    /// The daemon's metrics and events (`GET /metrics`, `GET /events`).
+    pub service: events::Service,
+    /// Who may do what, the machines' locks and the audit log.
+    pub access: Arc<Access>,
     servers: Vec<JoinHandle<()>>,
 }
 
@@ -52,7 +102,60 @@ impl Daemon {
     /// Opens the store (marking crashed jobs interrupted), starts each machine's kind (its
     /// simulator, for `sim-…` links), the machine workers and the API. Needs a tokio runtime.
     pub async fn start(config: Config, opts: StartOptions) -> Result<Daemon, DaemonError> {
+        // everything about access is checked before anything is opened or started
+        if let Some(t) = &opts.token {
+            crate::access::check_token_strength(t)
+                .map_err(|e| DaemonError::Access(format!("--token: {e}")))?;
+        }
+        let tls = match (&opts.listen, &opts.tcp_security) {
+            (Some(addr), TcpSecurity::Unset) => {
+                return Err(DaemonError::Access(format!(
+                    "--listen {addr}: TCP needs TLS (--tls-cert FILE --tls-key FILE), or --insecure-plaintext to send tokens and jobs readable by anyone on the network"
+                )))
+            }
+            (Some(_), TcpSecurity::Tls { cert, key }) => {
+                Some(crate::tls::server_config(cert, key).map_err(DaemonError::Access)?)
+            }
+            _ => None,
+        };
+        // the socket's folder and path are checked before any file is touched
+        let group = config.access.socket_group.as_ref().map(|g| g.0);
+        let socket = opts.socket.clone().unwrap_or(config.daemon.socket.clone());
+        if let Some(dir) = socket.parent().filter(|d| !d.as_os_str().is_empty()) {
+            crate::fsperm::socket_folder(dir, group)?;
+        }
+        crate::fsperm::check_socket_path(&socket)?;
+        let store_path = config.daemon.store.clone();
+        let store_err = |source| DaemonError::StoreMode {
+            path: store_path.display().to_string(),
+            source,
+        };
+        crate::fsperm::private_store(&store_path).map_err(store_err)?;
+        let audit_path = config.access.audit_log.clone().unwrap_or_else(|| {
+            let mut name = store_path
+                .file_stem()
+                .map(|s| s.to_os_string())
+                .unwrap_or_else(|| "machlink".into());
+            name.push("-audit.jsonl");
+            store_path.with_file_name(name)
+        });
+        let audit = Audit::open(&audit_path).map_err(|source| DaemonError::Audit {
+            path: audit_path.display().to_string(),
+            source,
+        })?;
+        let access = Arc::new(Access::new(
+            config.access.clone(),
+            opts.token.clone(),
+            audit,
+            opts.config_path.clone(),
+        ));
+        if opts.listen.is_some() && !access.has_tokens() {
+            return Err(DaemonError::Access(
+                "--listen: no token could reach the daemon on TCP; give --token or add [[access.token]] to the config (machlink token new)".into(),
+            ));
+        }
         let store = Store::open(&config.daemon.store)?;
+        crate::fsperm::private_companions(&store_path).map_err(store_err)?;
         let mut machines = Vec::new();
         for m in &config.machines {
             let device =
@@ -77,17 +180,46 @@ impl Daemon {
                 max_lag: config.daemon.journal_max_lag,
             },
         )?;
-        let socket = opts.socket.unwrap_or(config.daemon.socket.clone());
-        let listener = bind_unix(&socket).await?;
+        // a live daemon's socket is never taken over; a dead one's is removed
+        crate::fsperm::clear_socket_path(&socket).await?;
+        let listener = bind_unix(&socket, group)?;
+        let planner = opts.planner.unwrap_or(crate::intake::plan);
         let mut servers = Vec::new();
-        let app = api::router(scheduler.clone(), None);
+        let metrics = Arc::new(Metrics::new());
+        scheduler.attach_metrics(metrics.clone());
+        servers.push(tokio::spawn(metrics.clone().follow(scheduler.subscribe())));
+        servers.push(tokio::spawn(events::log_jobs(scheduler.subscribe())));
+        let service = events::Service {
+            sched: scheduler.clone(),
+            metrics,
+        };
+        servers.extend(crate::webhooks::start(
+            &config.webhooks,
+            scheduler.subscribe(),
+            service.metrics.clone(),
+        ));
+        if let Some(fleet) = config.fleet.clone() {
+            servers.push(tokio::spawn(crate::fleet::node::run(
+                fleet,
+                scheduler.clone(),
+                service.metrics.clone(),
+            )));
+        }
+        let app = api::router_with(
+            scheduler.clone(),
+            access.clone(),
+            planner,
+            events::router(service.clone()),
+        );
         servers.push(tokio::spawn(async move {
+            let app = app.into_make_service_with_connect_info::<Peer>();
             if let Err(e) = axum::serve(listener, app).await {
                 tracing::error!("the API on the Unix socket stopped: {e}");
             }
         }));
+        servers.push(tokio::spawn(give_back_after_jobs(scheduler.clone())));
         let mut tcp = None;
-        if let Some((addr, token)) = opts.tcp {
+        if let Some(addr) = opts.listen {
             let l = tokio::net::TcpListener::bind(&addr)
                 .await
                 .map_err(|source| DaemonError::Listen {
@@ -95,17 +227,70 @@ impl Daemon {
                     source,
                 })?;
             tcp = l.local_addr().ok();
-            let app = api::router(scheduler.clone(), Some(token));
+            let app = api::router_with(
+                scheduler.clone(),
+                access.clone(),
+                planner,
+                events::router(service.clone()),
+            );
+            match tls {
+                Some(cfg) => {
+                    let l = crate::tls::TlsListener::new(l, cfg).map_err(|source| {
+                        DaemonError::Listen {
+                            what: addr.clone(),
+                            source,
+                        }
+                    })?;
+                    access.audit.daemon(&format!("listen tls {addr}"), "done");
+                    servers.push(tokio::spawn(async move {
+                        let app = app.into_make_service_with_connect_info::<Peer>();
+                        if let Err(e) = axum::serve(l, app).await {
+                            tracing::error!("the API on TCP stopped: {e}");
+                        }
+                    }));
+                }
+                None => {
+                    let warning = format!(
+                        "the API listens on TCP {addr} in PLAINTEXT (--insecure-plaintext): tokens and jobs cross the network readable by anyone on it"
+                    );
+                    tracing::warn!("{warning}");
+                    eprintln!("machlink: warning: {warning}");
+                    access
+                        .audit
+                        .daemon(&format!("listen plaintext {addr}"), "done: insecure");
+                    servers.push(tokio::spawn(async move {
+                        let app = app.into_make_service_with_connect_info::<Peer>();
+                        if let Err(e) = axum::serve(l, app).await {
+                            tracing::error!("the API on TCP stopped: {e}");
+                        }
+                    }));
+                }
+            }
+        }
+        let mut metrics_addr = None;
+        if let Some(addr) = opts.metrics_listen {
+            let l = tokio::net::TcpListener::bind(&addr)
+                .await
+                .map_err(|source| DaemonError::Listen {
+                    what: addr.clone(),
+                    source,
+                })?;
+            metrics_addr = l.local_addr().ok();
+            let app = events::metrics_router(service.clone());
             servers.push(tokio::spawn(async move {
                 if let Err(e) = axum::serve(l, app).await {
-                    tracing::error!("the API on TCP stopped: {e}");
+                    tracing::error!("the metrics listener stopped: {e}");
                 }
             }));
         }
+        access.audit.daemon("start", "done");
         Ok(Daemon {
             scheduler,
             socket,
             tcp,
+            metrics_addr,
+            service,
+            access,
             servers,
         })
     }
@@ -143,21 +328,34 @@ impl Drop for Daemon {
     }
 }
 
-/// Binds the Unix socket, replacing a stale socket file but never a live daemon's.
-async fn bind_unix(path: &std::path::Path) -> Result<tokio::net::UnixListener, DaemonError> {
-    if path.exists() {
-        if tokio::net::UnixStream::connect(path).await.is_ok() {
-            return Err(DaemonError::SocketBusy(path.display().to_string()));
+/// Binds the Unix socket (its path cleared and its folder checked by `fsperm`) with its mode
+/// set before anyone can reach it: 0600, or 0660 for a socket group.
+fn bind_unix(
+    path: &std::path::Path,
+    group: Option<u32>,
+) -> Result<tokio::net::UnixListener, DaemonError> {
+    Ok(crate::fsperm::bind_private(path, group)?)
+}
+
+/// Gives freed memory back to the system each time a job ends (a large program is freed
+/// then).
+async fn give_back_after_jobs(sched: Scheduler) {
+    let mut rx = sched.subscribe();
+    loop {
+        match rx.recv().await {
+            Ok(crate::scheduler::Event::State { state, .. }) if state.is_final() => {
+                // the worker drops the program right after it records the final state
+                tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+                let store = sched.store().clone();
+                let _ = tokio::task::spawn_blocking(move || {
+                    store.release_memory();
+                    crate::memory::give_back();
+                })
+                .await;
+            }
+            Ok(_) => {}
+            Err(tokio::sync::broadcast::error::RecvError::Lagged(_)) => {}
+            Err(tokio::sync::broadcast::error::RecvError::Closed) => return,
         }
-        let _ = std::fs::remove_file(path);
     }
-    let listen_err = |source| DaemonError::Listen {
-        what: path.display().to_string(),
-        source,
-    };
-    let l = tokio::net::UnixListener::bind(path).map_err(listen_err)?;
-    // only the daemon's user may talk to it
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).map_err(listen_err)?;
-    Ok(l)
 }

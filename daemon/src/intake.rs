@@ -347,6 +347,13 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
         },
     )
     .map_err(|e| IntakeError::Input(e.to_string()))?;
+    let vertices: usize = shape.paths.iter().map(|p| p.vertices.len()).sum();
+    if vertices > crate::limits::MAX_SHAPE_VERTICES {
+        return Err(IntakeError::Input(format!(
+            "{file} has {vertices} vertices, more than the daemon's limit of {} per job",
+            crate::limits::MAX_SHAPE_VERTICES
+        )));
+    }
     Ok((
         shape,
         warnings

@@ -1,10 +1,12 @@
 //! `machlink`: the shop-floor daemon (`machlink serve`) and the operator's command line.
 //! Every subcommand lives in `cmd/`; errors reach the operator as one plain sentence on
-//! stderr and a non-zero exit status.
+//! stderr and a non-zero exit status: 1 refused or failed, 2 usage, 3 daemon unreachable
+//! (0 also when the reader of stdout went away early, as `| head` does).
 
 mod cmd;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
+use std::io::Write;
 
 #[derive(Parser)]
 #[command(
@@ -52,11 +54,90 @@ enum Command {
     Plan(cmd::plan::PlanCmdArgs),
     /// Draw a shape, a plan or a program as SVG or PNG.
     Preview(cmd::preview::PreviewArgs),
+    /// Follow every job's state changes (for scripts and dashboards).
+    Events(cmd::events::EventsArgs),
+    /// Check a configuration file offline: every mistake with its line and key.
+    CheckConfig(cmd::check_config::CheckConfigArgs),
+    /// Print the shell completion script (bash, zsh, fish, …).
+    Completions(cmd::completions::CompletionsArgs),
+    /// Print or write the man pages.
+    Man(cmd::completions::ManArgs),
+    /// Tokens for the API: `token new --role operator --machines router,mill`.
+    Token(cmd::access::TokenArgs),
+    /// Take a machine's control lock (others can watch, not steer; `--break`: admins).
+    Lock(cmd::access::LockArgs),
+    /// Release a machine's control lock.
+    Release(cmd::access::ReleaseArgs),
+    /// List the machines' control locks.
+    Locks(cmd::access::PlainArgs),
+    /// Who the daemon takes you for: name, role, machines.
+    Whoami(cmd::access::PlainArgs),
+    /// Have the daemon reread its config's [access] table (admins).
+    Reload(cmd::access::PlainArgs),
 }
 
+/// Exit statuses (docs/daemon.md): refused or failed, usage, daemon unreachable.
+const EXIT_FAILED: i32 = 1;
+const EXIT_UNREACHABLE: i32 = 3;
+
 fn main() {
+    // a reader that closes stdout early (`machlink jobs --json | head -c 600`) ends the
+    // command quietly with status 0, whichever command was printing: no panic message
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !is_closed_stdout(info.payload()) {
+            default_hook(info);
+        }
+    }));
     let cli = Cli::parse();
-    let result = match cli.command {
+    let outcome = std::panic::catch_unwind(move || run(cli));
+    let result = match outcome {
+        Ok(r) => r,
+        Err(p) if is_closed_stdout(p.as_ref()) => std::process::exit(0),
+        Err(p) => std::panic::resume_unwind(p),
+    };
+    if let Err(e) = result {
+        if e.chain().any(|c| {
+            c.downcast_ref::<std::io::Error>()
+                .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+        }) {
+            std::process::exit(0);
+        }
+        let unreachable = e.chain().any(|c| {
+            matches!(
+                c.downcast_ref::<machlink::client::ClientError>(),
+                Some(machlink::client::ClientError::Unreachable(_))
+            )
+        });
+        // one sentence: the chain of causes joined, no backtrace, nothing a device sent that
+        // could steer the terminal
+        let msg = e
+            .chain()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(": ");
+        let msg = machlink_protocols::untrusted::printable(&msg, 4096);
+        let _ = writeln!(std::io::stderr(), "machlink: {msg}");
+        std::process::exit(if unreachable {
+            EXIT_UNREACHABLE
+        } else {
+            EXIT_FAILED
+        });
+    }
+}
+
+/// Whether a panic is std's "failed printing to stdout" of a closed pipe.
+fn is_closed_stdout(payload: &(dyn std::any::Any + Send)) -> bool {
+    let text = payload
+        .downcast_ref::<String>()
+        .map(String::as_str)
+        .or_else(|| payload.downcast_ref::<&str>().copied())
+        .unwrap_or("");
+    text.starts_with("failed printing to stdout") && text.contains("Broken pipe")
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Serve(a) => cmd::serve::run(a),
         Command::Submit(a) => cmd::submit::run(a),
@@ -73,15 +154,15 @@ fn main() {
         Command::Offset(a) => cmd::offset::run(a),
         Command::Plan(a) => cmd::plan::run(a),
         Command::Preview(a) => cmd::preview::run(a),
-    };
-    if let Err(e) = result {
-        // one sentence: the chain of causes joined, no backtrace
-        let msg = e
-            .chain()
-            .map(|c| c.to_string())
-            .collect::<Vec<_>>()
-            .join(": ");
-        eprintln!("machlink: {msg}");
-        std::process::exit(1);
+        Command::Events(a) => cmd::events::run(a),
+        Command::CheckConfig(a) => cmd::check_config::run(a),
+        Command::Completions(a) => cmd::completions::completions(a, Cli::command()),
+        Command::Man(a) => cmd::completions::man(a, Cli::command()),
+        Command::Token(a) => cmd::access::token(a),
+        Command::Lock(a) => cmd::access::lock(a),
+        Command::Release(a) => cmd::access::release(a),
+        Command::Locks(a) => cmd::access::locks(a),
+        Command::Whoami(a) => cmd::access::whoami(a),
+        Command::Reload(a) => cmd::access::reload(a),
     }
 }

@@ -11,3 +11,10 @@ pub fn standard() -> Registry {
     machlink_sim::kinds::register(&mut r);
     r
 }
+
+/// The receive-buffer overflows a machine's device has counted, for the devices that count
+/// them (the GRBL simulator); None for the others. Asked of the kinds' own crates, which
+/// know their device types.
+pub fn rx_overflows(device: &machlink_protocols::kind::Device) -> Option<u64> {
+    machlink_sim::kinds::rx_overflows(device)
+}

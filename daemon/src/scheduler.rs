@@ -13,7 +13,7 @@ mod run;
 
 use crate::config::MachineConfig;
 use crate::resume::ResumePreview;
-use crate::store::{JobId, JobRecord, JobState, NewJob, Store, StoreError};
+use crate::store::{JobId, JobRecord, JobState, NewJob, NewJobUnits, Store, StoreError};
 use machlink_protocols::kind::{Device, MachineLink};
 use machlink_protocols::{Control, DeviceState, LinkError, MachineStatus, Operation, Overrides};
 use serde::{Deserialize, Serialize};
@@ -144,6 +144,8 @@ struct Inner {
     workers: Mutex<Vec<JoinHandle<()>>>,
     /// Set by a graceful shutdown: no new jobs, nothing new starts.
     closing: AtomicBool,
+    /// The metrics attached with `Scheduler::attach_metrics` (each machine holds them too).
+    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
 }
 
 struct Machine {
@@ -159,6 +161,10 @@ struct Machine {
     overrides: Mutex<Overrides>,
     /// Its slot in the store's progress file.
     slot: usize,
+    /// Where link openings and failures are counted (`Scheduler::attach_metrics`).
+    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
+    /// A link to the machine has been opened before (a later opening is a reconnect).
+    opened: AtomicBool,
 }
 
 /// The device's last report and when it came.
@@ -267,6 +273,8 @@ impl Scheduler {
                     status: Mutex::new(Seen::default()),
                     overrides: Mutex::new(Overrides::default()),
                     slot,
+                    metrics: std::sync::OnceLock::new(),
+                    opened: AtomicBool::new(false),
                 },
             );
         }
@@ -277,6 +285,7 @@ impl Scheduler {
             journal,
             workers: Mutex::new(Vec::new()),
             closing: AtomicBool::new(false),
+            metrics: std::sync::OnceLock::new(),
         });
         for job in inner.store.jobs_in(JobState::Queued)? {
             match inner.machines.get(&job.machine) {
@@ -347,6 +356,25 @@ impl Scheduler {
         self.inner.machines.get(name)?.device.downcast_ref()
     }
 
+    /// What machine `name`'s kind prepared at start-up, untyped (for the metrics to ask
+    /// the kind's own crate about it).
+    pub fn device_any(&self, name: &str) -> Option<&Device> {
+        Some(&self.inner.machines.get(name)?.device)
+    }
+
+    /// The metrics attached with `attach_metrics`, for the intake to count into.
+    pub fn metrics(&self) -> Option<&Arc<crate::metrics::Metrics>> {
+        self.inner.metrics.get()
+    }
+
+    /// Counts link openings and failures into `metrics` from now on.
+    pub fn attach_metrics(&self, metrics: Arc<crate::metrics::Metrics>) {
+        let _ = self.inner.metrics.set(metrics.clone());
+        for m in self.inner.machines.values() {
+            let _ = m.metrics.set(metrics.clone());
+        }
+    }
+
     /// Stores the job with its program (and the machining time its kind estimates) and
     /// queues it on its machine.
     pub fn submit(&self, job: NewJob) -> Result<JobRecord, SchedError> {
@@ -366,6 +394,27 @@ impl Scheduler {
         if let Some(t) = estimate {
             self.inner.store.set_estimate(id, t)?;
         }
+        let rec = self.job(id)?;
+        self.inner.broadcast_state(&rec);
+        let _ = m.queue.send(id);
+        Ok(rec)
+    }
+
+    /// Like [`Scheduler::submit`], for a program already in the store's form (a G-code file
+    /// stored as it streamed in).
+    pub fn submit_units(&self, job: NewJobUnits) -> Result<JobRecord, SchedError> {
+        let m = self.machine(&job.machine)?;
+        if self.inner.closing.load(Ordering::SeqCst) {
+            return Err(SchedError::Conflict(
+                "the daemon is shutting down and takes no new jobs".into(),
+            ));
+        }
+        if job.total_units == 0 {
+            return Err(SchedError::Conflict(
+                "the program is empty: there is nothing to send".into(),
+            ));
+        }
+        let id = self.inner.store.insert_job_units(&job)?;
         let rec = self.job(id)?;
         self.inner.broadcast_state(&rec);
         let _ = m.queue.send(id);
@@ -664,17 +713,27 @@ impl Inner {
         let _ = self.events.send(Event::state_of(j));
     }
 
+    /// Records a job's state and tells the watchers, once per change: a state set again
+    /// as it was (a job that goes on running after a reconnect) is no event.
     fn set_state(&self, id: JobId, state: JobState, error: Option<&str>) {
+        let before = self.store.job(id).ok().flatten();
         if let Err(e) = self.store.set_state(id, state, error) {
             tracing::error!("job {id}: cannot record the state {state}: {e}");
         }
         if let Ok(Some(j)) = self.store.job(id) {
-            self.broadcast_state(&j);
+            let same = before.is_some_and(|b| b.state == j.state && b.error == j.error);
+            if !same {
+                self.broadcast_state(&j);
+            }
         }
     }
 
-    /// Notes why a job waits (or clears the note), and tells the watchers.
+    /// Notes why a job waits (or clears the note), and tells the watchers when it changed.
     fn note(&self, id: JobId, note: Option<&str>) {
+        let before = self.store.job(id).ok().flatten();
+        if before.as_ref().is_some_and(|b| b.note.as_deref() == note) {
+            return;
+        }
         if let Err(e) = self.store.set_note(id, note) {
             tracing::error!("job {id}: cannot record a note: {e}");
         }

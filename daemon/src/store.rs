@@ -138,6 +138,19 @@ pub struct NewJob {
     pub program: Program,
 }
 
+/// A new job whose program is already in the store's form: the post's name and the units as
+/// a JSON array (what `AnyKind::decode` reads back), with their count.
+#[derive(Clone, Debug)]
+pub struct NewJobUnits {
+    pub machine: String,
+    pub op: String,
+    pub file_name: String,
+    pub params: serde_json::Value,
+    pub post: String,
+    pub units_json: String,
+    pub total_units: usize,
+}
+
 /// A program as the store holds it.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StoredProgram {
@@ -496,6 +509,24 @@ impl Store {
 
     /// Inserts a queued job and its program in one transaction; returns its id.
     pub fn insert_job(&self, job: &NewJob) -> Result<JobId, StoreError> {
+        let units = job
+            .program
+            .to_json()
+            .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
+        self.insert_job_units(&NewJobUnits {
+            machine: job.machine.clone(),
+            op: job.op.clone(),
+            file_name: job.file_name.clone(),
+            params: job.params.clone(),
+            post: job.program.post().to_string(),
+            units_json: units,
+            total_units: job.program.len(),
+        })
+    }
+
+    /// Inserts a queued job whose program comes as the store keeps it (a G-code file whose
+    /// units were written as it streamed in), in one transaction; returns its id.
+    pub fn insert_job_units(&self, job: &NewJobUnits) -> Result<JobId, StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
         tx.execute(
@@ -507,18 +538,23 @@ impl Store {
                 job.file_name,
                 job.params.to_string(),
                 now_ms(),
-                job.program.len() as i64
+                job.total_units as i64
             ],
         )?;
         let id = tx.last_insert_rowid();
-        let units = job
-            .program
-            .to_json()
-            .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
+        // the units are written into a blob of their size, page by page: no copy of a large
+        // program is made on the way into the store
         tx.execute(
-            "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, ?3)",
-            params![id, job.program.post(), units],
+            "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, zeroblob(?3))",
+            params![id, job.post, job.units_json.len() as i64],
         )?;
+        {
+            use std::io::Write;
+            let mut blob = tx.blob_open(rusqlite::MAIN_DB, "programs", "units", id, false)?;
+            blob.write_all(job.units_json.as_bytes()).map_err(|e| {
+                StoreError::Corrupt(format!("cannot write job {id}'s program: {e}"))
+            })?;
+        }
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units) VALUES (?1, ?2, 'queued', 0)",
             params![id, now_ms()],
@@ -577,7 +613,7 @@ impl Store {
             .query_row(
                 "SELECT kind, units FROM programs WHERE job_id = ?1",
                 [id],
-                |r| Ok((r.get(0)?, r.get(1)?)),
+                |r| Ok((r.get(0)?, text_or_blob(r.get_ref(1)?)?)),
             )
             .optional()?
             .ok_or_else(|| StoreError::Corrupt(format!("job {id} has no program")))?;
@@ -766,6 +802,14 @@ impl Store {
         Ok(())
     }
 
+    /// Gives the connection's page cache back to the allocator (after a large program went
+    /// in or out, so the daemon's memory returns to its baseline).
+    pub fn release_memory(&self) {
+        if let Err(e) = self.conn().execute_batch("PRAGMA shrink_memory") {
+            tracing::warn!("the job store could not release its cache: {e}");
+        }
+    }
+
     /// How many journal flushes this store has made (for tests and stats).
     pub fn flush_count(&self) -> u64 {
         self.flushes.load(std::sync::atomic::Ordering::Relaxed)
@@ -804,6 +848,20 @@ impl Store {
                     .ok_or_else(|| StoreError::Corrupt(format!("job {} vanished", j.id)))
             })
             .collect()
+    }
+}
+
+/// A program's units as text, stored as text (older stores) or as a blob written in place.
+fn text_or_blob(v: rusqlite::types::ValueRef<'_>) -> rusqlite::Result<String> {
+    use rusqlite::types::{FromSqlError, ValueRef};
+    match v {
+        ValueRef::Text(b) | ValueRef::Blob(b) => String::from_utf8(b.to_vec())
+            .map_err(|e| rusqlite::Error::FromSqlConversionFailure(1, v.data_type(), Box::new(e))),
+        other => Err(rusqlite::Error::FromSqlConversionFailure(
+            1,
+            other.data_type(),
+            Box::new(FromSqlError::InvalidType),
+        )),
     }
 }
 
@@ -944,6 +1002,56 @@ impl Journal {
         self.flushed = self.acked;
         self.oldest_pending = None;
         Some(batch)
+    }
+}
+
+/// Queries for the service side: metrics and the fleet.
+impl Store {
+    /// How many jobs each machine has in each state (for the `machlink_jobs` gauge).
+    pub fn count_by_machine_state(
+        &self,
+    ) -> Result<std::collections::HashMap<(String, &'static str), usize>, StoreError> {
+        let conn = self.conn();
+        let mut st =
+            conn.prepare("SELECT machine, state, COUNT(*) FROM jobs GROUP BY machine, state")?;
+        let rows = st.query_map([], |r| {
+            Ok((
+                r.get::<_, String>(0)?,
+                r.get::<_, String>(1)?,
+                r.get::<_, i64>(2)?,
+            ))
+        })?;
+        let mut out = std::collections::HashMap::new();
+        for r in rows {
+            let (machine, state, n) = r?;
+            let state = JobState::parse(&state)
+                .ok_or_else(|| StoreError::Corrupt(format!("an unknown job state `{state}`")))?;
+            out.insert((machine, state.as_str()), n as usize);
+        }
+        Ok(out)
+    }
+
+    /// Indexes jobs by the fleet id in their parameters (once, when the daemon joins a
+    /// fleet), so `job_by_fleet_id` is a lookup.
+    pub fn index_fleet_ids(&self) -> Result<(), StoreError> {
+        self.conn().execute_batch(
+            "CREATE INDEX IF NOT EXISTS jobs_fleet_id ON jobs(json_extract(params, '$.fleet_id'))",
+        )?;
+        Ok(())
+    }
+
+    /// The job whose parameters carry `"fleet_id": id` (a job taken from the fleet's queue).
+    pub fn job_by_fleet_id(&self, fleet_id: &str) -> Result<Option<JobRecord>, StoreError> {
+        let conn = self.conn();
+        conn.query_row(
+            &format!(
+                "SELECT {JOB_COLUMNS} FROM jobs WHERE json_extract(params, '$.fleet_id') = ?1"
+            ),
+            [fleet_id],
+            row_to_job,
+        )
+        .optional()?
+        .transpose()
     }
 }
 

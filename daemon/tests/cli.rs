@@ -110,12 +110,14 @@ fn a_daemon_that_is_not_running_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let sock = dir.path().join("none.sock");
     let o = run(&["jobs", "--socket", sock.to_str().unwrap()]);
-    fails_with(
-        &o,
-        &format!(
-            "cannot reach the daemon at {}: is `machlink serve` running?",
+    // exit status 3: the daemon is unreachable (docs/daemon.md, Exit status)
+    assert_eq!(o.status.code(), Some(3), "{}", stderr(&o));
+    assert_eq!(
+        stderr(&o).trim_end(),
+        format!(
+            "machlink: cannot reach the daemon at {}: is `machlink serve` running?",
             sock.display()
-        ),
+        )
     );
 }
 

@@ -23,14 +23,47 @@ pub fn read(text: &str) -> Result<Toolpath, ReadError> {
 pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> {
     let mut tp = Toolpath::new("program");
     let mut lines = Vec::new();
-    let mut pos = P3::default();
-    let mut motion = 0u8;
-    let mut scale = 1.0;
-    let mut absolute = true;
-    let mut feed = 0.0;
+    let mut reader = Reader::default();
     for (n, raw) in text.lines().enumerate() {
         let line = n + 1;
-        let err = |message: String| ReadError { line, message };
+        if let Some(m) = reader
+            .line(raw)
+            .map_err(|message| ReadError { line, message })?
+        {
+            tp.push(m);
+            lines.push(line);
+        }
+    }
+    Ok((tp, lines))
+}
+
+/// The reader's modal state, one line at a time: for a program read as it streams in,
+/// without holding its moves.
+#[derive(Clone, Debug)]
+pub struct Reader {
+    pos: P3,
+    motion: u8,
+    scale: f64,
+    absolute: bool,
+    feed: f64,
+}
+
+impl Default for Reader {
+    fn default() -> Self {
+        Reader {
+            pos: P3::default(),
+            motion: 0,
+            scale: 1.0,
+            absolute: true,
+            feed: 0.0,
+        }
+    }
+}
+
+impl Reader {
+    /// Reads one line; the work-frame move it makes, if any. The error is one sentence
+    /// without the line number.
+    pub fn line(&mut self, raw: &str) -> Result<Option<Move>, String> {
         // strip ( … ) and ; comments
         let mut clean = String::new();
         let mut depth = 0;
@@ -53,7 +86,7 @@ pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> 
                 continue;
             }
             if !letter.is_ascii_alphabetic() {
-                return Err(err(format!("expected a word letter, found '{letter}'")));
+                return Err(format!("expected a word letter, found '{letter}'"));
             }
             i += 1;
             let start = i;
@@ -66,73 +99,68 @@ pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> 
             }
             let v: f64 = num
                 .parse()
-                .map_err(|_| err(format!("word {letter} has no number (\"{num}\")")))?;
+                .map_err(|_| format!("word {letter} has no number (\"{num}\")"))?;
             words.push((letter, v));
         }
+        let scale = &mut self.scale;
         let mut target: [Option<f64>; 3] = [None; 3];
         let (mut ci, mut cj, mut cr) = (None, None, None);
-        let mut moved = false;
         let mut outside_work_frame = false;
         for &(l, v) in &words {
             match l {
                 'G' if v == 53.0 || v == 28.0 || v == 30.0 => outside_work_frame = true,
                 'G' => match v {
-                    v if v == 0.0 || v == 1.0 || v == 2.0 || v == 3.0 => {
-                        motion = v as u8;
-                        moved = true;
-                    }
-                    20.0 => scale = 25.4,
-                    21.0 => scale = 1.0,
-                    90.0 => absolute = true,
-                    91.0 => absolute = false,
+                    v if v == 0.0 || v == 1.0 || v == 2.0 || v == 3.0 => self.motion = v as u8,
+                    20.0 => *scale = 25.4,
+                    21.0 => *scale = 1.0,
+                    90.0 => self.absolute = true,
+                    91.0 => self.absolute = false,
                     _ => {}
                 },
                 'X' => target[0] = Some(v),
                 'Y' => target[1] = Some(v),
                 'Z' => target[2] = Some(v),
-                'I' => ci = Some(v * scale),
-                'J' => cj = Some(v * scale),
-                'R' => cr = Some(v * scale),
-                'F' => feed = v * scale,
+                'I' => ci = Some(v * *scale),
+                'J' => cj = Some(v * *scale),
+                'R' => cr = Some(v * *scale),
+                'F' => self.feed = v * *scale,
                 _ => {}
             }
         }
         if target.iter().all(|t| t.is_none()) {
-            let _ = moved;
-            continue;
+            return Ok(None);
         }
+        let pos = self.pos;
         let cur = [pos.x, pos.y, pos.z];
         let mut to = [0.0; 3];
         for k in 0..3 {
             to[k] = match target[k] {
-                Some(v) if absolute => v * scale,
-                Some(v) => cur[k] + v * scale,
+                Some(v) if self.absolute => v * self.scale,
+                Some(v) => cur[k] + v * self.scale,
                 None => cur[k],
             };
         }
         let to = P3::new(to[0], to[1], to[2]);
         if !(to.x.is_finite() && to.y.is_finite() && to.z.is_finite()) {
-            return Err(err("a coordinate is not a finite number".into()));
+            return Err("a coordinate is not a finite number".into());
         }
         if outside_work_frame {
-            pos = to;
-            continue;
+            self.pos = to;
+            return Ok(None);
         }
-        let m = match motion {
+        let feed = self.feed;
+        let m = match self.motion {
             0 => Move::Rapid { to },
             1 => Move::Linear { to, feed },
             _ => {
-                let ccw = motion == 3;
+                let ccw = self.motion == 3;
                 let center = match (ci, cj, cr) {
-                    (_, _, Some(r)) => {
-                        radius_center(pos.xy(), to.xy(), r, ccw).ok_or_else(|| {
-                            err(format!("arc radius {r} is too small for its end points"))
-                        })?
-                    }
+                    (_, _, Some(r)) => radius_center(pos.xy(), to.xy(), r, ccw)
+                        .ok_or_else(|| format!("arc radius {r} is too small for its end points"))?,
                     (i, j, None) if i.is_some() || j.is_some() => {
                         Point::new(pos.x + i.unwrap_or(0.0), pos.y + j.unwrap_or(0.0))
                     }
-                    _ => return Err(err("an arc needs I/J or R".into())),
+                    _ => return Err("an arc needs I/J or R".into()),
                 };
                 Move::Arc {
                     to,
@@ -142,11 +170,9 @@ pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> 
                 }
             }
         };
-        tp.push(m);
-        lines.push(line);
-        pos = to;
+        self.pos = to;
+        Ok(Some(m))
     }
-    Ok((tp, lines))
 }
 
 /// The centre of the arc of radius `r` from `a` to `b` (negative r: the long way round).

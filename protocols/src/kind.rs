@@ -59,6 +59,13 @@ pub trait MachineKind: Send + Sync + 'static {
     ) -> Option<Result<Vec<Self::Unit>, PostError>> {
         None
     }
+    /// Whether [`MachineKind::gcode_units`] returns a G-code file's lines themselves, one unit
+    /// per line, unchanged and without reading its moves (GRBL). The daemon then stores a long
+    /// file as it streams in (its units as a JSON array of the lines) without building its
+    /// moves or a second copy.
+    fn gcode_lines_are_units(&self) -> bool {
+        false
+    }
     /// Prepares machine `machine` when the daemon starts: starts its simulator, warns of a
     /// port that is not there yet.
     fn start(
@@ -227,6 +234,8 @@ pub trait AnyKind: Send + Sync {
     fn decode(&self, post: &str, units_json: &str) -> Result<Program, serde_json::Error>;
     /// A G-code program handed in as it is; None when the kind takes none.
     fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>>;
+    /// See [`MachineKind::gcode_lines_are_units`].
+    fn gcode_lines_are_units(&self) -> bool;
     fn start(
         &self,
         machine: &str,
@@ -330,6 +339,9 @@ impl<K: MachineKind> AnyKind for K {
     fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>> {
         self.gcode_units(lines, moves)
             .map(|r| r.map(|units| Program::new(GCODE_FILE, units)))
+    }
+    fn gcode_lines_are_units(&self) -> bool {
+        MachineKind::gcode_lines_are_units(self)
     }
     fn start(
         &self,

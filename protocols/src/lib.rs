@@ -18,6 +18,7 @@ pub mod post;
 pub mod program;
 pub mod serial;
 pub mod sewing;
+pub mod untrusted;
 
 pub use kind::{AnyKind, MachineKind, MachineLink, Registry};
 pub use link::{

@@ -1,17 +1,20 @@
 //! Serial ports: open a controller's port (USB-serial or a pty) as an async byte stream.
 
 use crate::link::LinkError;
+use crate::untrusted::Guarded;
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
 /// Opens `port` at `baud`, 8N1, no flow control; the error names the port, and says
-/// `PortBusy` when another program (or a link closed a moment ago) holds it.
-pub fn open(port: &str, baud: u32) -> Result<SerialStream, LinkError> {
+/// `PortBusy` when another program (or a link closed a moment ago) holds it. Reads pass the
+/// flood guard of `crate::untrusted`: a device that floods the line is cut off.
+pub fn open(port: &str, baud: u32) -> Result<Guarded<SerialStream>, LinkError> {
     tokio_serial::new(port, baud)
         .data_bits(tokio_serial::DataBits::Eight)
         .parity(tokio_serial::Parity::None)
         .stop_bits(tokio_serial::StopBits::One)
         .flow_control(tokio_serial::FlowControl::None)
         .open_native_async()
+        .map(Guarded::new)
         .map_err(|e| open_error(port, std::io::Error::from(e)))
 }
 

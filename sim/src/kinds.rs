@@ -87,6 +87,9 @@ impl MachineKind for SimGrblKind {
     ) -> Option<Result<Vec<String>, PostError>> {
         gcode_file_units(lines)
     }
+    fn gcode_lines_are_units(&self) -> bool {
+        true
+    }
     fn start(
         &self,
         _machine: &str,
@@ -273,4 +276,12 @@ impl MachineKind for SimModbusKind {
             port: addr.port(),
         }))
     }
+}
+
+/// The receive-buffer overflows the simulator behind a `sim-…` machine has counted, when it
+/// counts them (the GRBL simulator): for the daemon's metrics.
+pub fn rx_overflows(device: &machlink_protocols::kind::Device) -> Option<u64> {
+    device
+        .downcast_ref::<GrblSimHandle>()
+        .map(GrblSimHandle::rx_overflows)
 }

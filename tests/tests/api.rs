@@ -1,9 +1,9 @@
-//! The API itself: the bearer token on TCP, and bad requests answered with one sentence.
+//! The API itself: bad requests answered with one sentence (tokens, TLS and roles are in
+//! `access.rs` and `tls.rs`).
 
 mod common;
 
 use common::*;
-use machlink::client::{Client, Endpoint};
 use machlink::daemon::StartOptions;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
@@ -32,39 +32,6 @@ async fn raw(
 
 const MACHINE: &str = "[[machine]]\nname = \"bench\"\nlink = \"sim-grbl\"\ntime_scale = 100.0\n\
                        max_feed = 1000.0\nwork_area = { min = [-10, -10, -5], max = [50, 50, 10] }\n";
-
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn tcp_requests_need_the_token() {
-    let dir = tempfile::tempdir().unwrap();
-    let d = start(
-        dir.path(),
-        MACHINE,
-        StartOptions {
-            tcp: Some(("127.0.0.1:0".into(), "s3cret".into())),
-            ..Default::default()
-        },
-    )
-    .await;
-    let addr = d.tcp.unwrap().to_string();
-    for token in [None, Some("wrong".to_string())] {
-        let c = Client::new(Endpoint::Tcp {
-            addr: addr.clone(),
-            token,
-        });
-        let e = c.machines().await.unwrap_err().to_string();
-        assert!(e.contains("Authorization: Bearer"), "{e}");
-    }
-    let c = Client::new(Endpoint::Tcp {
-        addr,
-        token: Some("s3cret".into()),
-    });
-    assert_eq!(c.machines().await.unwrap()[0].name, "bench");
-    // the Unix socket needs no token, and only the daemon's user may open it
-    assert_eq!(client(&d).machines().await.unwrap()[0].name, "bench");
-    use std::os::unix::fs::PermissionsExt;
-    let mode = std::fs::metadata(&d.socket).unwrap().permissions().mode();
-    assert_eq!(mode & 0o777, 0o600);
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_requests_get_one_sentence() {

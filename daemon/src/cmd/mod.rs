@@ -1,7 +1,13 @@
 //! The subcommands, one module each, and the job options they share (`job`).
 
+pub mod check_config;
+pub mod completions;
+pub mod access;
+pub mod connect;
 pub mod at_machine;
 pub mod demo;
+pub mod events;
+pub mod fleet;
 pub mod job;
 pub mod offset;
 pub mod operate;
@@ -9,3 +15,13 @@ pub mod plan;
 pub mod preview;
 pub mod serve;
 pub mod submit;
+
+/// Writes `text` to stdout; a reader that went away (`machlink jobs --json | head`) is no
+/// error: see `main`, which ends such a command quietly with status 0.
+pub fn out(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut o = std::io::stdout().lock();
+    o.write_all(text.as_bytes())?;
+    o.flush()?;
+    Ok(())
+}

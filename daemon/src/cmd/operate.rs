@@ -2,43 +2,13 @@
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use machlink::client::{Client, Endpoint};
+use machlink::client::Client;
 use machlink::scheduler::Event;
 use machlink::store::{JobId, JobRecord, JobState};
 use std::io::{IsTerminal, Write};
-use std::path::PathBuf;
 use std::time::Duration;
 
-/// How to reach the daemon (every client command takes these).
-#[derive(clap::Args, Clone, Debug)]
-pub struct ClientArgs {
-    /// The daemon's Unix socket. Default: $XDG_RUNTIME_DIR/machlink.sock, else
-    /// /tmp/machlink-$USER.sock.
-    #[arg(long, value_name = "PATH")]
-    pub socket: Option<PathBuf>,
-    /// Reach the daemon on TCP at ADDR instead (it must run with --listen and --token).
-    #[arg(long, value_name = "ADDR", requires = "token")]
-    pub connect: Option<String>,
-    /// The daemon's bearer token, for --connect.
-    #[arg(long)]
-    pub token: Option<String>,
-}
-
-impl ClientArgs {
-    pub fn client(&self) -> Client {
-        match &self.connect {
-            Some(addr) => Client::new(Endpoint::Tcp {
-                addr: addr.clone(),
-                token: self.token.clone(),
-            }),
-            None => Client::new(Endpoint::Unix(
-                self.socket
-                    .clone()
-                    .unwrap_or_else(machlink::config::default_socket),
-            )),
-        }
-    }
-}
+pub use super::connect::ClientArgs;
 
 #[derive(clap::Args)]
 pub struct JobsArgs {
@@ -47,6 +17,8 @@ pub struct JobsArgs {
     pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
+    #[command(flatten)]
+    pub fleet: super::fleet::FleetArgs,
 }
 
 #[derive(clap::Args)]
@@ -121,6 +93,9 @@ pub fn span(ms: i64) -> String {
 }
 
 pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
+    if let Some(url) = &a.fleet.fleet {
+        return super::fleet::jobs(&a.fleet, url, a.json);
+    }
     let jobs = runtime()?.block_on(a.client.client().jobs())?;
     if a.json {
         println!("{}", serde_json::to_string_pretty(&jobs)?);

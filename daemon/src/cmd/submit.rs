@@ -24,18 +24,38 @@ pub struct SubmitArgs {
     pub watch: bool,
     #[command(flatten)]
     pub client: ClientArgs,
+    #[command(flatten)]
+    pub fleet: super::fleet::FleetArgs,
 }
 
 pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
-    let spec = a.job.spec(&a.file, Some(a.machine), a.post)?;
+    if let Some(url) = &a.fleet.fleet {
+        if a.watch {
+            anyhow::bail!("--watch follows a job of one daemon; follow a fleet job with `machlink jobs --fleet {url}`");
+        }
+        let spec = a.job.spec(&a.file, Some(a.machine.clone()), a.post.clone())?;
+        return super::fleet::submit(&a.fleet, url, &spec);
+    }
     let client = a.client.client();
+    // a G-code file with nothing to plan is streamed from disk as it is
+    let stream_gcode = machlink::intake::is_gcode_file(&a.file.to_string_lossy())
+        && a.job.op.is_none()
+        && a.post.is_none();
+    let spec = if stream_gcode {
+        None
+    } else {
+        Some(a.job.spec(&a.file, Some(a.machine.clone()), a.post)?)
+    };
     super::operate::runtime()?.block_on(async {
-        let job = client.submit(&spec).await?;
+        let job = match &spec {
+            Some(spec) => client.submit(spec).await?,
+            None => client.submit_gcode_file(&a.machine, &a.file).await?,
+        };
         eprintln!(
             "job {} queued on {} ({} units)",
             job.id, job.machine, job.total_units
         );
-        println!("{}", job.id);
+        super::out(&format!("{}\n", job.id))?;
         if a.watch {
             watch_job(&client, job.id, false).await?;
         }

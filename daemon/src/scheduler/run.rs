@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::store::{Journal, SendRecord};
+use machlink_protocols::untrusted::{printable, MAX_TEXT};
 use machlink_protocols::{LinkEvent, Program, Reattach, SendJournal, StreamEnd};
 use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 
@@ -301,10 +302,16 @@ impl Job<'_> {
                     }
                     Outcome::Final(
                         JobState::Cancelled,
-                        Some(describe_failure(&e, &program, journal.acked())),
+                        Some(printable(
+                            &describe_failure(&e, &program, journal.acked()),
+                            MAX_TEXT,
+                        )),
                     )
                 }
                 Err(e) if e.is_disconnect() => {
+                    if let Some(metrics) = m.metrics.get() {
+                        metrics.link_failed(&m.config.name, &e);
+                    }
                     *link = None;
                     match self.reconnect(link, &program, &e).await {
                         Back::Stream(f) => {
@@ -320,7 +327,10 @@ impl Job<'_> {
                     }
                 }
                 Err(e) => {
-                    let msg = describe_failure(&e, &program, journal.acked());
+                    if let Some(metrics) = m.metrics.get() {
+                        metrics.link_failed(&m.config.name, &e);
+                    }
+                    let msg = printable(&describe_failure(&e, &program, journal.acked()), MAX_TEXT);
                     // a device that refused a line or raised an alarm is still talking (the
                     // link resets it); a link that broke is opened afresh for the next job
                     if !e.keeps_link() {
@@ -701,7 +711,9 @@ impl Job<'_> {
                     total: self.total,
                 });
             }
-            LinkEvent::Status(s) => {
+            LinkEvent::Status(mut s) => {
+                // device text is untrusted: no control characters reach a log or a terminal
+                s.detail = printable(&s.detail, MAX_TEXT);
                 let held = matches!(
                     s.state,
                     DeviceState::Held | DeviceState::Idle | DeviceState::NeedsOperator { .. }
@@ -723,7 +735,7 @@ impl Job<'_> {
                 let _ = inner.events.send(Event::Message {
                     machine: m.config.name.clone(),
                     job: Some(id),
-                    text,
+                    text: printable(&text, MAX_TEXT),
                 });
             }
         }
@@ -814,7 +826,18 @@ pub(super) async fn open_link(m: &Machine) -> Result<Box<dyn MachineLink>, LinkE
             Err(LinkError::PortBusy { .. }) if Instant::now() < give_up => {
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
-            r => return r,
+            r => {
+                if let Some(metrics) = m.metrics.get() {
+                    match &r {
+                        Ok(_) => metrics.link_opened(
+                            &c.name,
+                            m.opened.swap(true, std::sync::atomic::Ordering::Relaxed),
+                        ),
+                        Err(e) => metrics.link_failed(&c.name, e),
+                    }
+                }
+                return r;
+            }
         }
     }
 }

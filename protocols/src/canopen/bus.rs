@@ -123,11 +123,14 @@ pub async fn open(spec: &BusSpec) -> Result<Box<dyn CanBus>, crate::link::LinkEr
 pub async fn open_slcan(
     port: &str,
     bitrate: u32,
-) -> Result<super::slcan::SlcanBus<tokio_serial::SerialStream>, crate::link::LinkError> {
+) -> Result<
+    super::slcan::SlcanBus<crate::untrusted::Guarded<tokio_serial::SerialStream>>,
+    crate::link::LinkError,
+> {
     use std::os::fd::{AsRawFd, BorrowedFd};
     let stream = crate::serial::open(port, 115_200)?;
     // SAFETY: the fd is the open serial port's, borrowed only to duplicate it.
-    let writer = unsafe { BorrowedFd::borrow_raw(stream.as_raw_fd()) }
+    let writer = unsafe { BorrowedFd::borrow_raw(stream.get_ref().as_raw_fd()) }
         .try_clone_to_owned()
         .map_err(crate::link::LinkError::Io)?;
     let bus = super::slcan::SlcanBus::open(stream, port, bitrate)

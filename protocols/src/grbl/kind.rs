@@ -163,6 +163,9 @@ impl MachineKind for GrblKind {
     ) -> Option<Result<Vec<String>, PostError>> {
         gcode_file_units(lines)
     }
+    fn gcode_lines_are_units(&self) -> bool {
+        true
+    }
     fn start(&self, machine: &str, s: &GrblSettings) -> BoxFuture<'static, std::io::Result<()>> {
         warn_missing_port(machine, &s.port);
         started(())

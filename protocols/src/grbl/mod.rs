@@ -98,7 +98,7 @@ type Incoming = Result<String, std::io::Error>;
 /// A connection to one GRBL controller.
 pub struct GrblLink {
     writer: Box<dyn AsyncWrite + Unpin + Send>,
-    lines: mpsc::UnboundedReceiver<Incoming>,
+    lines: mpsc::Receiver<Incoming>,
     reader: tokio::task::JoinHandle<()>,
     opts: GrblOptions,
     window: usize,
@@ -129,29 +129,34 @@ enum PassEnd {
     Cancelled { acked: usize },
 }
 
-async fn read_lines<R: AsyncRead + Unpin>(mut r: R, tx: mpsc::UnboundedSender<Incoming>) {
+/// Lines the reader may hold that the link has not taken yet; past that the reader waits
+/// (and the flood guard of the transport cuts off a device that keeps sending).
+const PENDING_LINES: usize = 4096;
+
+/// Reads the controller's lines: each bounded in length and made printable
+/// (`crate::untrusted`), so no reply can grow a buffer without end or put a control
+/// character in a log.
+async fn read_lines<R: AsyncRead + Unpin>(mut r: R, tx: mpsc::Sender<Incoming>) {
     let mut buf = [0u8; 1024];
-    let mut line: Vec<u8> = Vec::new();
+    let mut splitter = crate::untrusted::LineSplitter::new(crate::untrusted::MAX_LINE);
     loop {
         match r.read(&mut buf).await {
             Ok(0) => return,
             Ok(n) => {
-                for &b in &buf[..n] {
-                    if b == b'\n' || b == b'\r' {
-                        if !line.is_empty() {
-                            let text = String::from_utf8_lossy(&line).into_owned();
-                            line.clear();
-                            if tx.send(Ok(text)).is_err() {
-                                return;
-                            }
-                        }
-                    } else {
-                        line.push(b);
+                let mut lines = Vec::new();
+                let pushed = splitter.push(&buf[..n], |l| lines.push(l));
+                for l in lines {
+                    if tx.send(Ok(l)).await.is_err() {
+                        return;
                     }
+                }
+                if let Err(e) = pushed {
+                    let _ = tx.send(Err(std::io::Error::other(e))).await;
+                    return;
                 }
             }
             Err(e) => {
-                let _ = tx.send(Err(e));
+                let _ = tx.send(Err(e)).await;
                 return;
             }
         }
@@ -164,7 +169,7 @@ impl GrblLink {
     pub async fn open(port: &str, opts: GrblOptions) -> Result<GrblLink, LinkError> {
         let stream = crate::serial::open(port, opts.baud)?;
         // what the controller said to an earlier connection is not for this one
-        let _ = tokio_serial::SerialPort::clear(&stream, tokio_serial::ClearBuffer::Input);
+        let _ = tokio_serial::SerialPort::clear(stream.get_ref(), tokio_serial::ClearBuffer::Input);
         Self::from_stream(stream, opts).await
     }
 
@@ -174,7 +179,7 @@ impl GrblLink {
         S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
         let (r, w) = tokio::io::split(io);
-        let (tx, rx) = mpsc::unbounded_channel();
+        let (tx, rx) = mpsc::channel(PENDING_LINES);
         let reader = tokio::spawn(read_lines(r, tx));
         let mut link = GrblLink {
             writer: Box::new(w),

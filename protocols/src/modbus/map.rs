@@ -92,10 +92,12 @@ impl WordOrder {
         };
         ((hi as u32) << 16) | lo as u32
     }
-    /// Reads the 32-bit value at `regs[at..at + 2]`.
+    /// Reads the 32-bit value at `regs[at..at + 2]`; registers a short reply lacks read as 0
+    /// (what a device sends is never trusted to be as long as asked).
     pub fn get(self, regs: &[u16], at: u16) -> u32 {
         let at = at as usize;
-        self.join([regs[at], regs[at + 1]])
+        let r = |i: usize| regs.get(i).copied().unwrap_or(0);
+        self.join([r(at), r(at + 1)])
     }
     /// Writes `v` at `regs[at..at + 2]`.
     pub fn put(self, regs: &mut [u16], at: u16, v: u32) {
@@ -185,7 +187,7 @@ impl MotionBlock {
 
     /// Reads a block back from its registers: (sequence, block), or the unknown kind value.
     pub fn decode(r: &[u16], order: WordOrder) -> Result<(u32, MotionBlock), u16> {
-        let kind_reg = r[block_reg::KIND as usize];
+        let kind_reg = r.get(block_reg::KIND as usize).copied().unwrap_or(0);
         let kind = BlockKind::from_register(kind_reg).ok_or(kind_reg)?;
         let i = |at| order.get(r, at) as i32;
         Ok((
@@ -351,13 +353,14 @@ impl Status {
     /// Decodes the first `STATUS_REGISTERS` header registers.
     pub fn decode(r: &[u16], order: WordOrder) -> Status {
         let i = |at| order.get(r, at) as i32;
+        let w = |at: u16| r.get(at as usize).copied().unwrap_or(0);
         Status {
-            version: r[reg::VERSION as usize],
-            capacity: r[reg::CAPACITY as usize],
-            block_size: r[reg::BLOCK_SIZE as usize],
-            state: r[reg::STATE as usize],
-            fault: r[reg::FAULT as usize],
-            command: r[reg::COMMAND as usize],
+            version: w(reg::VERSION),
+            capacity: w(reg::CAPACITY),
+            block_size: w(reg::BLOCK_SIZE),
+            state: w(reg::STATE),
+            fault: w(reg::FAULT),
+            command: w(reg::COMMAND),
             write_seq: order.get(r, reg::WRITE_SEQ),
             consumed_seq: order.get(r, reg::CONSUMED_SEQ),
             position: [i(reg::POS_X), i(reg::POS_Y), i(reg::POS_Z)],
@@ -377,11 +380,15 @@ pub struct Layout {
 impl Layout {
     /// Ring slot of block sequence `seq` (sequences start at 1).
     pub fn slot(&self, seq: u32) -> u16 {
-        ((seq.wrapping_sub(1)) % self.capacity as u32) as u16
+        // a capacity of 0 (a device that says so) has no slots: everything maps to slot 0
+        ((seq.wrapping_sub(1)) % (self.capacity.max(1) as u32)) as u16
     }
-    /// Address of the first register of ring slot `slot`.
+    /// Address of the first register of ring slot `slot` (wrapping past the 16-bit address
+    /// space, which the link's checks of the map's size refuse before it matters).
     pub fn slot_address(&self, slot: u16) -> u16 {
-        self.base + reg::RING + slot * BLOCK_REGISTERS
+        self.base
+            .wrapping_add(reg::RING)
+            .wrapping_add(slot.wrapping_mul(BLOCK_REGISTERS))
     }
     /// One past the last register of the map.
     pub fn end(&self) -> u32 {

@@ -1,0 +1,178 @@
+//! `POST /machines/{name}/gcode?file_name=part.nc`: a G-code file streamed into the store.
+//!
+//! The body is the file as it is. Each line is checked as it arrives (the checks of
+//! `check::gcode_program`, one line at a time) and, for a machine whose kind takes a G-code
+//! file's lines as its units (GRBL), appended to the stored program's JSON: the file is never
+//! held whole, neither as text nor as moves; the program's JSON is the one copy. Other kinds
+//! get the whole file planned as a `POST /jobs` would (bounded by the JSON body limit).
+
+use crate::access::Acted;
+use crate::api::{ApiError, AppState};
+use crate::check::GcodeCheck;
+use crate::limits::{too_large, MAX_GCODE_BODY, MAX_GCODE_LINE, MAX_JSON_BODY, MAX_PROGRAM_UNITS};
+use crate::store::NewJobUnits;
+use axum::extract::{Path, Query, Request, State};
+use axum::http::StatusCode;
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use futures::StreamExt;
+use machlink_protocols::kind::GCODE_FILE;
+use serde::Deserialize;
+
+/// The query of the upload.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UploadQuery {
+    /// The file's name as the operator knows it (shown in `jobs`, named in refusals).
+    pub file_name: String,
+}
+
+fn bad(m: String) -> ApiError {
+    ApiError(StatusCode::BAD_REQUEST, m)
+}
+
+/// The handler.
+pub async fn gcode(
+    State(st): State<AppState>,
+    Path(name): Path<String>,
+    Query(q): Query<UploadQuery>,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let machine = st.sched.machine_config(&name)?.clone();
+    let file = q.file_name.clone();
+    if !crate::intake::is_gcode_file(&file) {
+        return Err(bad(format!(
+            "{file} is not named as a G-code file (.nc, .gcode, .ngc, .tap, .gc, .cnc)"
+        )));
+    }
+    let declared = crate::limits::content_length(&req);
+    if declared.is_some_and(|n| n > MAX_GCODE_BODY) {
+        return Err(too_large(&file, MAX_GCODE_BODY));
+    }
+    if !machine.kind.gcode_lines_are_units() {
+        return whole_file(st, name, file, req).await;
+    }
+    let mut check = GcodeCheck::new(&file, &machine);
+    let mut json: Vec<u8> =
+        Vec::with_capacity(declared.unwrap_or(0).min(MAX_GCODE_BODY) as usize + 64);
+    json.push(b'[');
+    let mut count = 0usize;
+    let mut received = 0u64;
+    let mut partial: Vec<u8> = Vec::new();
+    let mut n = 0usize;
+    let mut take = |raw: &[u8],
+                    n: usize,
+                    json: &mut Vec<u8>,
+                    count: &mut usize|
+     -> Result<(), ApiError> {
+        let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
+        if raw.len() > MAX_GCODE_LINE {
+            return Err(ApiError(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                format!("{file}, line {n}: the line is longer than the daemon's limit of {MAX_GCODE_LINE} bytes"),
+            ));
+        }
+        let text = std::str::from_utf8(raw)
+            .map_err(|_| bad(format!("{file}, line {n}: the line is not text (UTF-8)")))?;
+        let checked = check
+            .line(n, text)
+            .map_err(|m| ApiError(StatusCode::UNPROCESSABLE_ENTITY, m))?;
+        if let Some(c) = checked {
+            if *count == MAX_PROGRAM_UNITS {
+                return Err(ApiError(
+                    StatusCode::PAYLOAD_TOO_LARGE,
+                    format!("{file} has more than the daemon's limit of {MAX_PROGRAM_UNITS} program lines"),
+                ));
+            }
+            if *count > 0 {
+                json.push(b',');
+            }
+            serde_json::to_writer(&mut *json, &c.line)
+                .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+            *count += 1;
+        }
+        Ok(())
+    };
+    let mut body = req.into_body().into_data_stream();
+    while let Some(chunk) = body.next().await {
+        let chunk = chunk.map_err(|e| bad(format!("{file} could not be received: {e}")))?;
+        received += chunk.len() as u64;
+        if received > MAX_GCODE_BODY {
+            return Err(too_large(&file, MAX_GCODE_BODY));
+        }
+        let mut rest: &[u8] = &chunk;
+        while let Some(i) = rest.iter().position(|&b| b == b'\n') {
+            n += 1;
+            if partial.is_empty() {
+                take(&rest[..i], n, &mut json, &mut count)?;
+            } else {
+                partial.extend_from_slice(&rest[..i]);
+                let line = std::mem::take(&mut partial);
+                take(&line, n, &mut json, &mut count)?;
+            }
+            rest = &rest[i + 1..];
+        }
+        if partial.len() + rest.len() > MAX_GCODE_LINE + 1 {
+            return Err(ApiError(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                format!("{file}, line {}: the line is longer than the daemon's limit of {MAX_GCODE_LINE} bytes", n + 1),
+            ));
+        }
+        partial.extend_from_slice(rest);
+    }
+    if !partial.is_empty() {
+        n += 1;
+        let line = std::mem::take(&mut partial);
+        take(&line, n, &mut json, &mut count)?;
+    }
+    json.push(b']');
+    drop(body);
+    let units_json = String::from_utf8(json)
+        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    let rec = st.sched.submit_units(NewJobUnits {
+        machine: name.clone(),
+        op: "gcode".into(),
+        file_name: file.clone(),
+        params: serde_json::json!({ "machine": name, "input": { "file_name": file } }),
+        post: GCODE_FILE.into(),
+        units_json,
+        total_units: count,
+    });
+    st.sched.store().release_memory();
+    crate::memory::give_back();
+    let rec = rec?;
+    let mut resp = (StatusCode::CREATED, Json(&rec)).into_response();
+    resp.extensions_mut().insert(Acted {
+        machine: Some(rec.machine.clone()),
+        job: Some(rec.id),
+        note: None,
+    });
+    Ok(resp)
+}
+
+/// A machine whose kind makes its units from the file's moves: the file is taken whole (up
+/// to the JSON body limit) and planned as `POST /jobs` plans it.
+async fn whole_file(
+    st: AppState,
+    machine: String,
+    file: String,
+    req: Request,
+) -> Result<Response, ApiError> {
+    let bytes = crate::limits::json_body(req).await.map_err(|e| {
+        if e.0 == StatusCode::PAYLOAD_TOO_LARGE {
+            too_large(&file, MAX_JSON_BODY as u64)
+        } else {
+            e
+        }
+    })?;
+    let spec = crate::intake::JobSpec {
+        machine: Some(machine),
+        input: crate::intake::Input::from_bytes(&file, bytes.to_vec()),
+        operation: None,
+        tolerance: None,
+        layers: Vec::new(),
+        post: None,
+    };
+    drop(bytes);
+    crate::api::submit_spec(&st, spec).await
+}

@@ -1,0 +1,2 @@
+//! Helpers shared by the daemon crate's tests.
+pub mod nats;
