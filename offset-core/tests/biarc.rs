@@ -19,12 +19,6 @@ use offset_core::toolpath::{Move, Toolpath, P3};
 use proptest::prelude::*;
 use std::f64::consts::{PI, TAU};
 
-fn cases(default: u32) -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
 
 fn circle_points(r: f64, n: usize) -> Vec<Point> {
     (0..n)
@@ -158,7 +152,7 @@ fn check_fit(pts: &[Point], closed: bool, tol: f64) -> Result<(), TestCaseError>
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(cases(16)))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(16)))]
     #[test]
     fn fitted_curves_stay_within_the_tolerance_and_are_smooth(
         amp in 1.0f64..10.0,

@@ -243,9 +243,7 @@ fn arb_mesh() -> impl Strategy<Value = Mesh> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(128)
-    ))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(128)))]
 
     /// No cutter location lets the cutter into any triangle by more than 1e-9 mm, and the
     /// hierarchy's pruning finds the same height as every triangle tried alone.

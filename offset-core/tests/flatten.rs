@@ -25,7 +25,7 @@ fn pt() -> impl Strategy<Value = Point> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(32)))]
     #[test]
     fn beziers_stay_within_the_tolerance(p0 in pt(), p1 in pt(), p2 in pt(), p3 in pt(), e in -3.0f64..-1.0) {
         let tol = 10f64.powf(e);

@@ -6,15 +6,16 @@ use offset_core::io::{read_shape, svg};
 use proptest::prelude::*;
 use std::path::PathBuf;
 
-/// A file of `shared/data/dxf`; a test that needs one fails, naming it, when it is absent.
-fn data(name: &str) -> Option<Vec<u8>> {
+/// A file of `shared/data/dxf`; a test that needs one fails, naming it, when it is absent
+/// (never passes by skipping).
+fn data(name: &str) -> Vec<u8> {
     let p = PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../shared/data/dxf"
     ))
     .join(name);
     match std::fs::read(&p) {
-        Ok(b) => Some(b),
+        Ok(b) => b,
         Err(e) => panic!(
             "{} is needed by this test and cannot be read: {e}",
             p.display()
@@ -24,9 +25,7 @@ fn data(name: &str) -> Option<Vec<u8>> {
 
 #[test]
 fn loose_lines_and_arcs_chain_into_contours() {
-    let Some(b) = data("1_polylines.dxf") else {
-        return;
-    };
+    let b = data("1_polylines.dxf");
     let d = read_with(&b, "1_polylines.dxf", &DxfOptions::default()).unwrap();
     // $INSUNITS 6: metres
     assert_eq!(d.scale, 1000.0);
@@ -62,9 +61,7 @@ fn loose_lines_and_arcs_chain_into_contours() {
 
 #[test]
 fn a_closed_loop_with_two_arcs() {
-    let Some(b) = data("6_closed_loop_with_arcs.dxf") else {
-        return;
-    };
+    let b = data("6_closed_loop_with_arcs.dxf");
     let s = read_shape(&b, "6_closed_loop_with_arcs.dxf").unwrap();
     assert_eq!(s.paths.len(), 1, "{s:?}");
     let p = &s.paths[0];
@@ -81,9 +78,7 @@ fn a_closed_loop_with_two_arcs() {
 
 #[test]
 fn old_style_polylines_with_bulges() {
-    let Some(b) = data("POLI-ALL210_12.DXF") else {
-        return;
-    };
+    let b = data("POLI-ALL210_12.DXF");
     let s = read_shape(&b, "POLI-ALL210_12.DXF").unwrap();
     assert!(!s.paths.is_empty());
     assert!(s.paths.len() <= 30);
@@ -99,24 +94,21 @@ fn old_style_polylines_with_bulges() {
 
 #[test]
 fn old_headers_unicode_and_trash_after_eof() {
-    if let Some(b) = data("ASCII_R12.dxf") {
-        let s = read_shape(&b, "ASCII_R12.dxf").unwrap();
-        let segs: usize = s.paths.iter().map(|p| p.segment_count()).sum();
-        assert_eq!(segs, 2);
-    }
-    if let Some(b) = data("dxf_unicode.dxf") {
-        read_shape(&b, "dxf_unicode.dxf").unwrap();
-    }
-    if let Some(b) = data("R12_with_trash_beyond_EOF.dxf") {
-        read_shape(&b, "R12_with_trash_beyond_EOF.dxf").unwrap();
-    }
+    let b = data("ASCII_R12.dxf");
+    let s = read_shape(&b, "ASCII_R12.dxf").unwrap();
+    let segs: usize = s.paths.iter().map(|p| p.segment_count()).sum();
+    assert_eq!(segs, 2);
+    read_shape(&data("dxf_unicode.dxf"), "dxf_unicode.dxf").unwrap();
+    read_shape(
+        &data("R12_with_trash_beyond_EOF.dxf"),
+        "R12_with_trash_beyond_EOF.dxf",
+    )
+    .unwrap();
 }
 
 #[test]
 fn circles_with_radius_zero_or_less_are_named() {
-    let Some(b) = data("circle_radius_le_0.dxf") else {
-        return;
-    };
+    let b = data("circle_radius_le_0.dxf");
     let e = read_shape(&b, "circle_radius_le_0.dxf")
         .unwrap_err()
         .to_string();
@@ -129,9 +121,7 @@ fn circles_with_radius_zero_or_less_are_named() {
 
 #[test]
 fn a_layer_with_nothing_is_a_clear_error() {
-    let Some(b) = data("6_closed_loop_with_arcs.dxf") else {
-        return;
-    };
+    let b = data("6_closed_loop_with_arcs.dxf");
     let e = read_with(
         &b,
         "x.dxf",
@@ -170,7 +160,7 @@ fn the_fuzz_bases_read_cleanly() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(300))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(300)))]
     #[test]
     fn dxf_reader_never_panics(edits in prop::collection::vec((any::<usize>(), any::<u8>()), 0..12), cut in any::<usize>()) {
         let b = mutate(SMALL_DXF.as_bytes(), &edits, cut);
@@ -436,7 +426,7 @@ fn mm(pts: &[(f64, f64)]) -> Vec<(i64, i64)> {
 #[test]
 fn insunits_in_metres_scale_the_real_drawings_to_mm() {
     for f in ["1_polylines.dxf", "6_closed_loop_with_arcs.dxf"] {
-        let b = data(f).unwrap();
+        let b = data(f);
         let d = read_with(&b, f, &DxfOptions::default()).unwrap();
         assert_eq!(d.scale, 1000.0, "{f}: $INSUNITS 6 is metres");
         // the same file read as if unitless is a thousand times smaller
@@ -675,7 +665,7 @@ fn a_block_that_inserts_itself_is_refused_and_an_undefined_one_warned() {
 fn the_real_r12_insert_places_a_block_of_text_only() {
     // ASCII_R12.dxf inserts block *U1, which holds one TEXT: it is read (and skipped as
     // text), and the drawing's two LINEs stay what it cuts
-    let b = data("ASCII_R12.dxf").unwrap();
+    let b = data("ASCII_R12.dxf");
     let d = read_with(&b, "ASCII_R12.dxf", &DxfOptions::default()).unwrap();
     assert!(
         d.warnings

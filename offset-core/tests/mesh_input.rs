@@ -160,9 +160,7 @@ fn vertices_within_the_weld_tolerance_become_one() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|s| s.parse().ok()).unwrap_or(256)
-    ))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(256)))]
 
     /// Whatever the bytes, reading gives a mesh or an error, never a panic.
     #[test]

@@ -118,7 +118,7 @@ fn star_strategy() -> impl Strategy<Value = (Vec<f64>, Vec<f64>, f64)> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 1500, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(1500)))]
 
     #[test]
     fn random_stars_keep_their_distance(rb in star_strategy(), use_arcs in any::<bool>()) {

@@ -13,12 +13,6 @@ use offset_core::offset::{offset_region, OffsetOptions};
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
-fn cases(default: u32) -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
 
 /// r = r0 + Σ a_k sin(f_k θ + φ_k), sampled at n points.
 fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
@@ -95,7 +89,7 @@ fn dense_gears_offset_again_at_pocket_steps_until_nothing_is_left() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(cases(12)))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(12)))]
 
     /// Dense wavy outlines, offset inwards or outwards six times.
     #[test]

@@ -42,8 +42,9 @@ fn open_corner_gets_a_round_join_outside_and_is_trimmed_inside() {
 }
 
 #[test]
-fn u_turn_narrower_than_twice_the_distance_loses_its_middle() {
-    // a hairpin 2 mm wide, offset 3 mm into its inside: nothing is 3 mm from both legs
+fn u_turn_narrower_than_twice_the_distance_has_no_inside_offset_and_a_whole_outside_one() {
+    // a hairpin 2 mm wide, offset 3 mm into its inside (right of travel): nothing is 3 mm
+    // from both legs, so nothing comes back, and the checker expects nothing there
     let p = Polyline::new(
         vec![
             Vertex::new(10.0, 0.0, 0.0),
@@ -54,11 +55,16 @@ fn u_turn_narrower_than_twice_the_distance_loses_its_middle() {
         false,
     );
     let out = offset_polyline(&p, -3.0, &OffsetOptions::default()).unwrap();
-    let r = check_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
-    assert!(r.within(1e-3), "{r:?}");
+    assert!(out.is_empty(), "{out:?}");
+    let r = check_offset(std::slice::from_ref(&p), &out, -3.0, 1e-3);
+    assert!(r.within(1e-3) && r.expected == 0, "{r:?}");
+    // outside (left of travel): one path round the bend, every point of it due and present
     let out = offset_polyline(&p, 3.0, &OffsetOptions::default()).unwrap();
     assert_eq!(out.len(), 1);
-    assert_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
+    let r = assert_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
+    assert!(r.expected > 100, "{r:?}");
+    // its two legs and the half circle round the bend (radius 4)
+    assert!((out[0].length() - (20.0 + 4.0 * PI)).abs() < 1e-6, "{}", out[0].length());
 }
 
 #[test]
@@ -126,7 +132,7 @@ fn walk(steps: &[(f64, f64, f64)]) -> Polyline {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 1000, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(1000)))]
 
     #[test]
     fn random_open_paths_keep_their_distance(

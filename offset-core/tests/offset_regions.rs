@@ -94,7 +94,7 @@ fn region_strategy() -> impl Strategy<Value = (Vec<f64>, Vec<(f64, f64, bool)>, 
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 600, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(600)))]
 
     #[test]
     fn random_regions_keep_their_distance((radii, islands, d) in region_strategy()) {

@@ -236,7 +236,7 @@ fn wild_f64() -> impl Strategy<Value = f64> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 600, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(600)))]
 
     #[test]
     fn wild_input_never_panics(

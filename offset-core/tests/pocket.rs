@@ -79,21 +79,27 @@ fn check(name: &str, shape: &Shape, p: &PocketParams, use_kernel: bool) {
     };
     let region = &shape.regions()[0];
     let r = p.cut.tool.radius();
-    // both depth passes reach the bottom, and nothing goes below it
+    // nothing goes below the bottom, and every pass depth (not just the last) clears the
+    // whole pocket without touching a wall or island
     let b = tp.bounds().unwrap();
     assert!((b.min.z + p.cut.depth).abs() < 1e-9, "{name}: {b:?}");
-    // the chord tolerance of Clipper's round joins and of the pass arcs
-    let c = check_coverage(region, &tp, r, -p.cut.depth, 0.1, 0.01);
-    assert_eq!(
-        c.gouges, 0,
-        "{name}: tool enters a wall or island at {:?}",
-        c.first_gouge
-    );
-    assert_eq!(
-        c.uncut, 0,
-        "{name}: {} of {} reachable cells uncut, e.g. at {:?}",
-        c.uncut, c.cells, c.first_uncut
-    );
+    // the pass depths worked out here, not by the planner's own function: equal steps of
+    // at most the stepdown down to the depth
+    let n = (p.cut.depth / p.cut.stepdown).ceil() as usize;
+    for z in (1..=n).map(|k| -p.cut.depth * k as f64 / n as f64) {
+        // the chord tolerance of Clipper's round joins and of the pass arcs
+        let c = check_coverage(region, &tp, r, z, 0.1, 0.01);
+        assert_eq!(
+            c.gouges, 0,
+            "{name}: at z {z} the tool enters a wall or island at {:?}",
+            c.first_gouge
+        );
+        assert_eq!(
+            c.uncut, 0,
+            "{name}: at z {z}, {} of {} reachable cells uncut, e.g. at {:?}",
+            c.uncut, c.cells, c.first_uncut
+        );
+    }
     check_entries(name, &tp, p);
     // rapids only ever at the safe height or straight down onto a start
     tp.walk(P3::default(), |from, m, to| {
@@ -164,11 +170,12 @@ fn pockets_with_islands_are_covered_without_gouging_kernel_offsets() {
     }
 }
 
+/// The shapes' premises, on Clipper2's offsets (the reference the pocket tests above plan
+/// with): the two islands' offsets merge, the bar splits the pocket, the island by the wall
+/// joins the wall. (This checks the test shapes, not the pocket planner.)
 #[test]
-fn merging_islands_become_one_pass_loop() {
-    let shape = merging();
-    let p = params(Stepover::Percent(40.0));
-    let first = clipper_offset(&shape.regions()[0], -3.0, 1e-3).unwrap();
+fn the_test_shapes_merge_split_and_join_as_named_under_clipper2() {
+    let first = clipper_offset(&merging().regions()[0], -3.0, 1e-3).unwrap();
     assert_eq!(first.len(), 1);
     assert_eq!(first[0].islands.len(), 1, "the two islands' offsets merge");
     let split = clipper_offset(&splitting().regions()[0], -3.0 - 2.4, 1e-3).unwrap();
@@ -179,7 +186,6 @@ fn merging_islands_become_one_pass_loop() {
         1,
         "the island by the wall joins the wall"
     );
-    let _ = p;
 }
 
 #[test]

@@ -244,9 +244,7 @@ fn the_shared_drawings_scaled_and_moved_far_out_plan_or_are_refused() {
 const SMALL_DXF: &str = "0\nSECTION\n2\nHEADER\n9\n$INSUNITS\n70\n4\n0\nENDSEC\n0\nSECTION\n2\nENTITIES\n0\nLWPOLYLINE\n90\n4\n70\n1\n10\n0\n20\n0\n10\n40\n20\n0\n42\n0.3\n10\n40\n20\n30\n10\n0\n20\n30\n0\nCIRCLE\n10\n20\n20\n15\n40\n5\n0\nLINE\n10\n60\n20\n0\n11\n90\n21\n10\n0\nENDSEC\n0\nEOF\n";
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(
-        std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(64)
-    ))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(64)))]
 
     /// Digits swapped in a small drawing (sizes, units, bulges that become huge or tiny):
     /// it reads and plans, or is refused, every time.

@@ -1,7 +1,11 @@
-//! Properties of stitch paths over random polylines: every stitch short enough, on the
-//! 0.1 mm grid, within tolerance of its curve, and a needle drop on every sharp corner.
+//! Properties of stitch paths over random polylines, both ways: every stitch short enough,
+//! on the 0.1 mm grid and within tolerance of its curve, every point of the curve within
+//! tolerance of a stitch (nothing left unsewn), and a needle drop on every sharp corner. A
+//! curve long enough to sew that comes back `Empty` fails.
 
+use offset_core::check::Checker;
 use offset_core::geom::{Bounds, Point, Polyline, Segment, Shape, Vertex};
+use offset_core::stitch::GRID;
 use offset_core::stitch::{on_grid, snap, stitch, StitchError, StitchParams, GRID_SLACK};
 use offset_core::toolpath::Move;
 use proptest::prelude::*;
@@ -28,6 +32,25 @@ fn drops_and_jumps(moves: &[Move]) -> (Vec<(Point, bool)>, Vec<f64>) {
     (drops, jumps)
 }
 
+/// The stitches as open polylines, one per run of needle drops between jumps.
+fn sewn_polylines(drops: &[(Point, bool)]) -> Vec<Polyline> {
+    let mut out = Vec::new();
+    let mut cur: Vec<Point> = Vec::new();
+    for &(q, sewn) in drops {
+        if !sewn {
+            if cur.len() > 1 {
+                out.push(Polyline::from_points(&cur, false));
+            }
+            cur.clear();
+        }
+        cur.push(q);
+    }
+    if cur.len() > 1 {
+        out.push(Polyline::from_points(&cur, false));
+    }
+    out
+}
+
 fn turn(a: &Segment, b: &Segment) -> f64 {
     let (u, v) = (a.tangent_at(1.0), b.tangent_at(0.0));
     u.cross(v).atan2(u.dot(v)).abs().to_degrees()
@@ -37,10 +60,27 @@ fn turn(a: &Segment, b: &Segment) -> f64 {
 fn check_on_curve(pl: &Polyline, p: &StitchParams) -> Result<(), TestCaseError> {
     let tp = match stitch(&Shape::new(vec![pl.clone()]), p) {
         Ok(tp) => tp,
-        Err(StitchError::Empty(_)) => return Ok(()),
-        Err(e) => return Err(TestCaseError::fail(format!("{e}"))),
+        // nothing to sew is right only for a curve shorter than one grid step
+        Err(StitchError::Empty(_)) if pl.segment_count() == 0 || pl.length() < GRID => {
+            return Ok(())
+        }
+        Err(e) => return Err(TestCaseError::fail(format!("{e} ({pl:?})"))),
     };
     let (drops, jumps) = drops_and_jumps(&tp.moves);
+    // the other way: every point of the curve lies within tolerance (plus the grid's
+    // rounding) of a stitch
+    let seams = Checker::new(&sewn_polylines(&drops));
+    for s in pl.segments() {
+        let n = ((s.length() / 0.05).ceil() as usize).clamp(1, 100_000);
+        for i in 0..=n {
+            let q = s.point_at(i as f64 / n as f64);
+            let d = seams.distance(q);
+            prop_assert!(
+                d <= p.tolerance + GRID_SLACK + 1e-9,
+                "the curve at {q:?} is left unsewn: the nearest stitch is {d} mm away"
+            );
+        }
+    }
     for j in jumps {
         prop_assert!(j <= p.max_jump + 1e-9, "jump of {j} mm");
     }
@@ -107,7 +147,7 @@ fn polyline_strategy() -> impl Strategy<Value = Polyline> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(64)))]
 
     #[test]
     fn random_curves_sew_within_all_limits(

@@ -162,7 +162,7 @@ fn turn(a: &Segment, b: &Segment) -> f64 {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(32))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(32)))]
 
     #[test]
     fn offset_rows_stay_on_the_kernel_curves_with_drops_on_their_corners(
@@ -190,6 +190,22 @@ proptest! {
                 prop_assert!(w[0].dist(w[1]) <= l + 2.0 * GRID_SLACK + 1e-9);
             }
             prop_assert!(each_stitch_point(s, |q| near(q) <= p.tolerance + 1e-9));
+        }
+        // the other way: every point of every row curve is sewn (within tolerance and the
+        // grid's rounding of a stitch), so a row or a stretch of one left out fails
+        let sewn: Vec<Polyline> = all.iter().filter(|s| s.len() > 1)
+            .map(|s| Polyline::from_points(s, false)).collect();
+        let sewn = offset_core::check::Checker::new(&sewn);
+        for c in &curves {
+            for sg in c.segments() {
+                let n = ((sg.length() / 0.05).ceil() as usize).clamp(1, 100_000);
+                for i in 0..=n {
+                    let q = sg.point_at(i as f64 / n as f64);
+                    let dd = sewn.distance(q);
+                    prop_assert!(dd <= p.tolerance + GRID_SLACK + 1e-9,
+                        "the row at {:?} is left unsewn: the nearest stitch is {} mm away", q, dd);
+                }
+            }
         }
         for c in &curves {
             let segs: Vec<Segment> = c.segments().filter(|s| s.length() > 1e-9).collect();

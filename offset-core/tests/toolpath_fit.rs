@@ -25,12 +25,6 @@ use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::f64::consts::{PI, TAU};
 
-fn cases(default: u32) -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
-}
 
 fn circle_points(r: f64, n: usize) -> Vec<Point> {
     (0..n)
@@ -233,7 +227,7 @@ fn blob(r0: f64, wob: &[(f64, f64)], n: usize, notches: &[f64]) -> Polyline {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(cases(10)))]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(10)))]
 
     /// Pockets and profiles of random blobs given as points (not fitted on import, so the
     /// passes are runs of short lines), fitted afterwards: within the tolerance everywhere.

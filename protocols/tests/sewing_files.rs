@@ -1,4 +1,6 @@
-//! DST and JEF files: every step round-trips, test patterns come back byte-exact, headers match the stitches.
+//! DST and JEF files: every step round-trips through our reader, patterns rewrite to the
+//! same bytes, headers match the stitches, and pyembroidery (a reader we did not write, from
+//! .ci/requirements.txt) reads every needle drop, trim and colour change where we put them.
 
 use machlink_protocols::sewing::{dst, jef, records, RecordLimits, StitchKind, StitchRecord};
 use offset_core::geom::{Point, Polyline, Shape};
@@ -75,7 +77,7 @@ fn every_dst_step_round_trips_as_stitch_and_jump() {
 }
 
 #[test]
-fn dst_test_patterns_are_byte_exact_and_headers_match_the_stitches() {
+fn dst_patterns_rewrite_to_the_same_bytes_and_headers_match_the_stitches() {
     let pattern = mixed_pattern();
     let bytes = dst::write(&pattern, "pocket").unwrap();
     let back = dst::read(&bytes, "pocket.dst").unwrap();
@@ -186,7 +188,7 @@ fn a_planned_seam_survives_dst_and_jef() {
 }
 
 #[test]
-fn every_jef_step_round_trips_and_patterns_are_byte_exact() {
+fn every_jef_step_round_trips_and_patterns_rewrite_to_the_same_bytes() {
     for kind in [StitchKind::Stitch, StitchKind::Jump] {
         let recs = every_step(127, kind);
         let bytes = jef::write(&recs, &Default::default()).unwrap();
@@ -224,4 +226,88 @@ fn broken_files_are_one_sentence_naming_the_file() {
     let long = vec![StitchRecord::new(StitchKind::Stitch, 122, 0)];
     let e = dst::write(&long, "p").unwrap_err().to_string();
     assert!(e.starts_with("stitch 0 to (12.2, 0.0) mm"), "{e}");
+}
+
+/// What pyembroidery reads from `path`: (x, y, command) per record, in its units (0.1 mm,
+/// y down). Fails (never skips) when python3 or pyembroidery is missing.
+fn pyembroidery_read(path: &std::path::Path) -> Vec<(i32, i32, u32)> {
+    let script = "import sys, json, pyembroidery\n\
+        p = pyembroidery.read(sys.argv[1])\n\
+        print(json.dumps([[int(round(x)), int(round(y)), int(c) & 0xFF] for x, y, c in p.stitches]))";
+    let out = std::process::Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(path)
+        .output()
+        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
+    assert!(
+        out.status.success(),
+        "python3 with pyembroidery is needed for this test (run .ci/run, or `python3 -m pip \
+         install -r .ci/requirements.txt`); it failed on {}: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Vec<(i32, i32, u32)> =
+        serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON");
+    v
+}
+
+/// pyembroidery's command numbers (EmbConstant).
+const PY_STITCH: u32 = 0;
+const PY_TRIM: u32 = 2;
+const PY_COLOR_CHANGE: u32 = 5;
+
+#[test]
+fn pyembroidery_reads_our_dst_and_jef_as_the_same_stitches_trims_and_colour_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let pocket = Polyline::from_points(
+        &[
+            Point::new(0.0, 0.0),
+            Point::new(140.0, 0.0),
+            Point::new(140.0, 120.0),
+            Point::new(70.0, 150.0),
+            Point::new(0.0, 120.0),
+        ],
+        true,
+    );
+    let seam = stitch(&Shape::new(vec![pocket]), &StitchParams::default()).unwrap();
+    for (name, limits) in [("dst", RecordLimits::DST), ("jef", RecordLimits::JEF)] {
+        for (what, recs) in [
+            ("mixed", mixed_pattern()),
+            ("seam", records(&seam, limits).unwrap()),
+        ] {
+            let bytes = if name == "dst" {
+                dst::write(&recs, what).unwrap()
+            } else {
+                jef::write(&recs, &Default::default()).unwrap()
+            };
+            let path = dir.path().join(format!("{what}.{name}"));
+            std::fs::write(&path, &bytes).unwrap();
+            let theirs = pyembroidery_read(&path);
+            // every needle drop in order, at our coordinates (pyembroidery's y points down)
+            let ours: Vec<(i32, i32)> = recs
+                .iter()
+                .filter(|r| r.kind == StitchKind::Stitch)
+                .map(|r| (r.x, -r.y))
+                .collect();
+            let read: Vec<(i32, i32)> = theirs
+                .iter()
+                .filter(|r| r.2 == PY_STITCH)
+                .map(|r| (r.0, r.1))
+                .collect();
+            assert!(ours.len() > 30, "{what}.{name}: {} stitches", ours.len());
+            assert_eq!(read, ours, "{what}.{name}: pyembroidery reads other stitches");
+            let count = |k: StitchKind| recs.iter().filter(|r| r.kind == k).count();
+            let py_count = |c: u32| theirs.iter().filter(|r| r.2 == c).count();
+            assert_eq!(
+                py_count(PY_COLOR_CHANGE),
+                count(StitchKind::ColorChange),
+                "{what}.{name}: colour changes"
+            );
+            if name == "dst" {
+                // a DST trim is three zero jumps, which pyembroidery reads back as a trim
+                assert_eq!(py_count(PY_TRIM), count(StitchKind::Trim), "{what}.dst: trims");
+            }
+        }
+    }
 }

@@ -223,7 +223,7 @@ fn build(start: (f64, f64), steps: &[Step]) -> Toolpath {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 32, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(32)))]
 
     #[test]
     fn grbl_posts_are_short_ascii_accepted_and_reproduce_the_path(

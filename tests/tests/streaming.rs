@@ -154,3 +154,68 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
     let dev = machlink_sim::grbl::max_deviation(&planned, &trace);
     assert!(dev < 0.01, "the machine strayed {dev} mm from the plan");
 }
+
+/// Three GRBL machines on three ports run a job each at the same time: while the last to
+/// start has 100 lines acknowledged, the others are still running (they overlap), and each
+/// device ran exactly its own program, every line once and in order (the programs differ,
+/// so a line sent to the wrong port shows).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_machines_stream_at_once_and_each_runs_exactly_its_own_program() {
+    let names = ["mill", "router", "engraver"];
+    let sims: Vec<_> = names
+        .iter()
+        .map(|_| {
+            machlink_sim::grbl::GrblSim::spawn_pty(GrblSimConfig {
+                time_scale: 400.0,
+                ..Default::default()
+            })
+            .expect("the simulator starts")
+        })
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let machines: String = names
+        .iter()
+        .zip(&sims)
+        .map(|(n, s)| {
+            format!(
+                "[[machine]]\nname = \"{n}\"\nlink = \"grbl\"\nport = \"{}\"\n\n",
+                s.port().display()
+            )
+        })
+        .collect();
+    let d = start(dir.path(), &machines, Default::default()).await;
+    let c = client(&d);
+    // the same zig-zag, 10 mm further in Y on each machine (Y0.5 becomes Y10.5, Y20.5)
+    let programs: Vec<Vec<String>> = (0..names.len())
+        .map(|k| {
+            zigzag(2400)
+                .into_iter()
+                .map(|l| l.replace('Y', &format!("Y{}", k)))
+                .collect()
+        })
+        .collect();
+    let mut ids = Vec::new();
+    for (n, lines) in names.iter().zip(&programs) {
+        ids.push(submit_gcode(&c, n, &format!("{n}-zigzag"), lines).await.id);
+    }
+    // overlap: when every job has 100 lines acknowledged, none has ended yet
+    for &id in &ids {
+        wait_until(&c, id, |r| r.acked_units >= 100).await;
+    }
+    for &id in &ids {
+        let r = c.job(id).await.unwrap();
+        assert!(
+            !r.state.is_final(),
+            "job {id} ended before the others had 100 lines: the machines ran one after another"
+        );
+    }
+    for ((id, sim), lines) in ids.iter().zip(&sims).zip(&programs) {
+        let done = wait_end(&c, *id).await;
+        assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+        assert_eq!(done.acked_units, 2400);
+        let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
+        assert_eq!(executed, expected_motion(lines), "job {id}: its machine ran another program");
+        assert_eq!(sim.received_lines(), 2400);
+        assert_eq!(sim.rx_overflows(), 0);
+    }
+}

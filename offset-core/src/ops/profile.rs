@@ -3,7 +3,7 @@
 use super::entry::{self, Entry, Plunges};
 use super::{pass_depths, Cutting, OpError};
 use crate::geom::Shape;
-use crate::geom::{Point, Polyline, Segment};
+use crate::geom::{Point, Polyline, Segment, Vertex};
 use crate::offset::{offset_region, OffsetOptions};
 use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
@@ -117,11 +117,12 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                     -p.cut.tool.radius()
                 };
                 for r in offset_region(&region, d, &opts)? {
-                    // Outside: the part is inside the outer loop; Inside: the part (the
-                    // material around the hole) lies outside the outer loop, and the islands
-                    // are material either way.
+                    // Outside: the part is inside the outer loop and its holes' loops lie
+                    // in the holes, the part outside them; Inside: the part (the material
+                    // around the hole) lies outside the outer loop, and the islands left
+                    // standing in the hole are material inside their loops.
                     loops.push((r.outer, p.side == Side::Outside));
-                    loops.extend(r.islands.into_iter().map(|i| (i, true)));
+                    loops.extend(r.islands.into_iter().map(|i| (i, p.side == Side::Inside)));
                 }
             }
         }
@@ -160,7 +161,18 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         );
     }
     for (pl, material_inside) in loops {
-        let pl = oriented(pl, material_inside, p.cut.climb);
+        let mut pl = oriented(pl, material_inside, p.cut.climb);
+        // the most a lead arc may bend away from the loop's start without crossing it
+        let mut lead_room = f64::INFINITY;
+        if pl.closed && (p.lead_in > 0.0 || p.lead_out > 0.0) {
+            (pl, lead_room) = start_clear_of_corners(pl);
+            if p.lead_in.max(p.lead_out) > lead_room {
+                tp.warnings.push(format!(
+                    "a loop's straight sides are too short for {} mm leads: its leads are {lead_room} mm",
+                    p.lead_in.max(p.lead_out)
+                ));
+            }
+        }
         let start = pl.vertices[0].pos();
         if !pl.closed {
             let len = pl.length();
@@ -202,10 +214,9 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         let free_left = pl.is_ccw() != material_inside;
         let t_start = pl.segment(0).tangent_at(0.0);
         let t_end = pl.segment(pl.segment_count() - 1).tangent_at(1.0);
-        let lead_in =
-            (p.lead_in > 0.0).then(|| lead_arc(start, t_start, p.lead_in, free_left, true));
-        let lead_out =
-            (p.lead_out > 0.0).then(|| lead_arc(start, t_end, p.lead_out, free_left, false));
+        let (r_in, r_out) = (p.lead_in.min(lead_room), p.lead_out.min(lead_room));
+        let lead_in = (r_in > 0.0).then(|| lead_arc(start, t_start, r_in, free_left, true));
+        let lead_out = (r_out > 0.0).then(|| lead_arc(start, t_end, r_out, free_left, false));
         let tabs = if p.tabs > 0 {
             tab_spans(pl.length(), p.tabs, p.tab_width + p.cut.tool.diameter)
         } else {
@@ -435,6 +446,37 @@ fn lead_arc(s: Point, t: Point, r: f64, free_left: bool, entering: bool) -> (Poi
         center + t * r
     };
     (far, center, free_left)
+}
+
+/// A closed loop that turns sharply at its first vertex (an inside profile's corner) starts
+/// instead at the middle of its longest straight side: a lead arc leaves the loop's start
+/// backwards (lead-in) or forwards (lead-out), and at a sharp corner that is across the
+/// next side, into the part. Returns the loop and the largest lead radius that stays within
+/// its start side's halves (infinite for a loop smooth at its start, kept as it is: round
+/// joins).
+fn start_clear_of_corners(pl: Polyline) -> (Polyline, f64) {
+    if pl.segment_count() < 2 {
+        return (pl, f64::INFINITY);
+    }
+    let t_in = pl.segment(pl.segment_count() - 1).tangent_at(1.0);
+    let t_out = pl.segment(0).tangent_at(0.0);
+    if t_in.cross(t_out).atan2(t_in.dot(t_out)).abs() < 1e-3 {
+        return (pl, f64::INFINITY);
+    }
+    let n = pl.len();
+    let side = |i: usize| pl.vertices[i].pos().dist(pl.vertices[(i + 1) % n].pos());
+    let longest = (0..n)
+        .filter(|&i| pl.vertices[i].bulge == 0.0)
+        .max_by(|&i, &j| side(i).total_cmp(&side(j)));
+    let Some(i) = longest else {
+        // all arcs and sharp at the start: no straight side to start on
+        return (pl, 0.0);
+    };
+    let room = side(i) / 2.0;
+    let mid = pl.vertices[i].pos().lerp(pl.vertices[(i + 1) % n].pos(), 0.5);
+    let mut vertices = vec![Vertex::new(mid.x, mid.y, 0.0)];
+    vertices.extend((1..=n).map(|k| pl.vertices[(i + k) % n]));
+    (Polyline::new(vertices, true), room)
 }
 
 /// Where the tabs sit along a loop of length `len`: `count` stretches of `width`,

@@ -183,11 +183,28 @@ impl Grid {
     }
 }
 
-/// The worst distance (mm) from a point of the executed cuts (linear and arc moves,
-/// sampled every 0.05 mm but at most 2000 times a move, arcs followed exactly) to the planned cuts. Rapids are left out
-/// on both sides: a controller may take any path between their end points. Infinity
-/// when something was cut but nothing was planned.
-pub fn max_deviation(planned: &Toolpath, executed: &[Executed]) -> f64 {
+/// How far what was cut and what was planned lie apart, each way (mm).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Deviation {
+    /// The worst distance from a point of the executed cuts to the planned cuts (infinite
+    /// when something was cut and nothing was planned).
+    pub strayed: f64,
+    /// The worst distance from a point of the planned cuts to the executed cuts (infinite
+    /// when something was planned and nothing was cut): a planned move left out shows here.
+    pub missed: f64,
+    /// The planned point that lies farthest from what was cut.
+    pub missed_at: P3,
+}
+
+impl Deviation {
+    /// The larger of the two.
+    pub fn worst(&self) -> f64 {
+        self.strayed.max(self.missed)
+    }
+}
+
+/// The planned cuts (linear and arc moves) as pieces.
+fn planned_pieces(planned: &Toolpath) -> Vec<Piece> {
     let mut pieces = Vec::new();
     planned.walk(P3::default(), |from, m, to| match m {
         Move::Linear { .. } => pieces.push(Piece::Line(from, to)),
@@ -198,24 +215,114 @@ pub fn max_deviation(planned: &Toolpath, executed: &[Executed]) -> f64 {
         }),
         _ => {}
     });
-    let cuts: Vec<&Executed> = executed
+    pieces
+}
+
+/// The executed cuts (linear and arc moves) as pieces.
+fn executed_pieces(executed: &[Executed]) -> Vec<Piece> {
+    executed
         .iter()
         .filter(|e| e.motion != Motion::Rapid)
-        .collect();
-    if cuts.is_empty() {
-        return 0.0;
+        .map(|e| {
+            let from = P3::new(e.from[0], e.from[1], e.from[2]);
+            let to = P3::new(e.to[0], e.to[1], e.to[2]);
+            match (e.motion, e.center) {
+                (Motion::ArcCw | Motion::ArcCcw, Some(c)) => Piece::Arc {
+                    seg: arc_segment(
+                        from.xy(),
+                        to.xy(),
+                        Point::new(c[0], c[1]),
+                        e.motion == Motion::ArcCcw,
+                    ),
+                    z0: from.z,
+                    z1: to.z,
+                },
+                _ => Piece::Line(from, to),
+            }
+        })
+        .collect()
+}
+
+/// Points along a piece, no farther apart than the sample step (at most 2000), ends included.
+fn sample_piece(p: &Piece) -> Vec<P3> {
+    match p {
+        Piece::Line(a, b) => {
+            let n = ((a.dist(*b) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
+            (0..=n)
+                .map(|i| {
+                    let t = i as f64 / n as f64;
+                    P3::new(
+                        a.x + (b.x - a.x) * t,
+                        a.y + (b.y - a.y) * t,
+                        a.z + (b.z - a.z) * t,
+                    )
+                })
+                .collect()
+        }
+        Piece::Arc { seg, z0, z1 } => {
+            let n = ((seg.length().hypot(z1 - z0) / SAMPLE_STEP).ceil() as usize)
+                .clamp(1, MAX_SAMPLES);
+            (0..=n)
+                .map(|i| {
+                    let t = i as f64 / n as f64;
+                    let q = seg.point_at(t);
+                    P3::new(q.x, q.y, z0 + (z1 - z0) * t)
+                })
+                .collect()
+        }
     }
-    if pieces.is_empty() {
-        return f64::INFINITY;
+}
+
+/// The worst distance from a sample of `from` to the pieces `to` (with where), infinite
+/// when `from` has pieces and `to` none, 0 when `from` has none.
+fn one_way(from: &[Piece], to: &[Piece]) -> (f64, P3) {
+    if from.is_empty() {
+        return (0.0, P3::default());
     }
-    let grid = Grid::new(&pieces);
-    let mut worst: f64 = 0.0;
-    for e in cuts {
-        for p in sample_executed(e) {
-            worst = worst.max(grid.nearest(&pieces, p));
+    if to.is_empty() {
+        return (f64::INFINITY, from.iter().flat_map(sample_piece).next().unwrap_or_default());
+    }
+    let grid = Grid::new(to);
+    let mut worst = (0.0, P3::default());
+    for piece in from {
+        for p in sample_piece(piece) {
+            let d = grid.nearest(to, p);
+            if d > worst.0 {
+                worst = (d, p);
+            }
         }
     }
     worst
+}
+
+/// How far the executed cuts and the planned cuts (linear and arc moves, sampled every
+/// 0.05 mm but at most 2000 times a move, arcs followed exactly) lie from each other, both
+/// ways. Rapids are left out on both sides: a controller may take any path between their
+/// end points.
+pub fn deviation(planned: &Toolpath, executed: &[Executed]) -> Deviation {
+    let plan = planned_pieces(planned);
+    let cut = executed_pieces(executed);
+    let (strayed, _) = one_way(&cut, &plan);
+    let (missed, missed_at) = one_way(&plan, &cut);
+    Deviation {
+        strayed,
+        missed,
+        missed_at,
+    }
+}
+
+/// The worst distance (mm) between what was cut and what was planned, measured both ways
+/// (see [`deviation`]): a point cut off the plan and a planned cut left out both count.
+/// Infinite when something was cut and nothing planned, or planned and nothing cut; 0 when
+/// neither has a cut.
+pub fn max_deviation(planned: &Toolpath, executed: &[Executed]) -> f64 {
+    deviation(planned, executed).worst()
+}
+
+/// The worst distance (mm) from a point of the executed cuts to the planned cuts only:
+/// what a partial run (a job cancelled or resumed half-way) can be held to.
+pub fn max_stray(planned: &Toolpath, executed: &[Executed]) -> f64 {
+    deviation(planned, executed).strayed
 }
 
 /// Points along an executed move, no farther apart than the sample step, ends included.
@@ -290,14 +397,16 @@ mod tests {
             to: P3::new(20.0, 0.0, -2.0),
             feed: 100.0,
         });
-        // the same helix: no deviation
+        // the same helix: no deviation of what was cut (only the helix was run, so measured
+        // both ways the line after it, 10 mm long, is missed)
         let same = ex(
             Motion::ArcCcw,
             [10.0, 0.0, 0.0],
             [10.0, 0.0, -2.0],
             Some([0.0, 0.0]),
         );
-        assert!(max_deviation(&tp, std::slice::from_ref(&same)) < 1e-6);
+        assert!(max_stray(&tp, std::slice::from_ref(&same)) < 1e-6);
+        assert!((max_deviation(&tp, std::slice::from_ref(&same)) - 10.0).abs() < 1e-6);
         // the helix 0.1 mm larger in radius
         let wide = ex(
             Motion::ArcCcw,
@@ -305,7 +414,7 @@ mod tests {
             [10.1, 0.0, -2.0],
             Some([0.0, 0.0]),
         );
-        assert!((max_deviation(&tp, &[wide]) - 0.1).abs() < 1e-3);
+        assert!((max_stray(&tp, &[wide]) - 0.1).abs() < 1e-3);
         // the helix run flat at the start height: near the end of the turn the helix is
         // almost 2 mm below, until the flat circle comes back near the helix's start
         let flat = ex(
@@ -314,14 +423,53 @@ mod tests {
             [10.0, 0.0, 0.0],
             Some([0.0, 0.0]),
         );
-        let d = max_deviation(&tp, &[flat]);
+        let d = max_stray(&tp, &[flat]);
         assert!(d > 1.9 && d < 2.0, "{d}");
         // a line 0.3 mm above the planned one
         let high = ex(Motion::Linear, [10.0, 0.0, -1.7], [20.0, 0.0, -1.7], None);
-        assert!((max_deviation(&tp, &[high]) - 0.3).abs() < 1e-6);
-        // rapids do not count; cuts with nothing planned are infinitely off
+        assert!((max_stray(&tp, &[high]) - 0.3).abs() < 1e-6);
+        // rapids do not count; cuts with nothing planned are infinitely off, and so is a
+        // plan of which nothing was cut
         let rapid = ex(Motion::Rapid, [50.0, 50.0, 5.0], [60.0, 50.0, 5.0], None);
-        assert_eq!(max_deviation(&tp, &[rapid]), 0.0);
-        assert!(max_deviation(&Toolpath::new("empty"), &[same]).is_infinite());
+        assert_eq!(max_stray(&tp, std::slice::from_ref(&rapid)), 0.0);
+        assert!(max_deviation(&tp, &[rapid]).is_infinite());
+        assert!(max_deviation(&tp, &[]).is_infinite());
+        assert!(max_deviation(&Toolpath::new("empty"), std::slice::from_ref(&same)).is_infinite());
+        assert_eq!(max_deviation(&Toolpath::new("empty"), &[]), 0.0);
+    }
+
+    #[test]
+    fn a_planned_cut_left_out_is_a_deviation() {
+        let mut tp = Toolpath::new("two passes");
+        tp.push(Move::Rapid {
+            to: P3::new(0.0, 0.0, 1.0),
+        });
+        for z in [-1.0, -2.0] {
+            tp.push(Move::Linear {
+                to: P3::new(0.0, 0.0, z),
+                feed: 100.0,
+            });
+            tp.push(Move::Linear {
+                to: P3::new(10.0, 0.0, z),
+                feed: 100.0,
+            });
+            tp.push(Move::Rapid {
+                to: P3::new(0.0, 0.0, 1.0),
+            });
+        }
+        let first = [
+            ex(Motion::Linear, [0.0, 0.0, 1.0], [0.0, 0.0, -1.0], None),
+            ex(Motion::Linear, [0.0, 0.0, -1.0], [10.0, 0.0, -1.0], None),
+        ];
+        // the second depth pass skipped: nothing cut strays, the whole of it is missed
+        let d = deviation(&tp, &first);
+        assert!(d.strayed < 1e-9, "{d:?}");
+        assert!((d.missed - 1.0).abs() < 1e-9, "{d:?}");
+        assert!((d.missed_at.z + 2.0).abs() < 1e-9, "{d:?}");
+        let mut both = first.to_vec();
+        both.push(ex(Motion::Rapid, [10.0, 0.0, -1.0], [0.0, 0.0, 1.0], None));
+        both.push(ex(Motion::Linear, [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], None));
+        both.push(ex(Motion::Linear, [0.0, 0.0, -2.0], [10.0, 0.0, -2.0], None));
+        assert!(deviation(&tp, &both).missed < 1e-9);
     }
 }
