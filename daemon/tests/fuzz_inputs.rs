@@ -2,18 +2,16 @@
 //! DXF, SVG), G-code files through the machine's checks, and the API's job JSON. Any input is
 //! read or refused with a sentence, never a panic, in time bounded by its size; a G-code file
 //! checked as it streams in is refused or taken exactly as the whole file is.
-//! Cases per property: `PROPTEST_CASES` (default 4000).
+//! Cases per property: 4000, scaled by `PROPTEST_CASES / 256`.
 
 use machlink::check::{gcode_program, GcodeCheck};
 use machlink::config::{MachineConfig, WorkArea};
 use machlink::intake::{self, Input, JobSpec};
 use proptest::prelude::*;
 
+/// 4000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(4000)
+    offset_core::check::proptest_cases(4000)
 }
 
 fn machine() -> MachineConfig {

@@ -22,11 +22,9 @@ use offset_core::Tool;
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
+/// `default` cases, scaled by `PROPTEST_CASES / 256` (docs/testing.md).
 fn cases(default: u32) -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(default)
+    offset_core::check::proptest_cases(default)
 }
 
 fn opts(tol: f64) -> OffsetOptions {

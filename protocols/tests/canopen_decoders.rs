@@ -1,7 +1,7 @@
 //! The CANopen decoders never panic, whatever bytes arrive: SLCAN lines from a serial port,
 //! SDO responses to the client, SDO requests to the server, and the broadcast services; and
 //! frames survive SLCAN encoding whatever noise and chunking surround them.
-//! (Case count: PROPTEST_CASES.)
+//! (4000 cases per property, scaled by PROPTEST_CASES / 256.)
 
 use machlink_protocols::canopen::nmt::{self, Emcy, NmtCommand};
 use machlink_protocols::canopen::pdo::{Mapped, Pdo};
@@ -48,6 +48,8 @@ impl ObjectAccess for Dict {
 }
 
 proptest! {
+    // thousands of byte sequences per decoder, scaled by PROPTEST_CASES / 256
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(4000)))]
     #[test]
     fn the_slcan_decoder_takes_any_bytes_in_any_chunks(chunks in proptest::collection::vec(proptest::collection::vec(any::<u8>(), 0..64), 0..32)) {
         let mut d = LineDecoder::new();

@@ -1,6 +1,6 @@
 //! Fuzz-style properties of every parser that reads what a device sends, and of the G-code
 //! reader: any input is parsed or refused, never a panic, in time bounded by its length.
-//! Cases per property: `PROPTEST_CASES` (default 5000).
+//! Cases per property: 5000, scaled by `PROPTEST_CASES / 256`.
 
 use machlink_protocols::gcode_read;
 use machlink_protocols::grbl::reply::{classify, parse_opt, parse_status};
@@ -9,11 +9,9 @@ use machlink_protocols::sewing::wire::{self, Decoded, Decoder, Frame};
 use machlink_protocols::untrusted::{printable, LineSplitter};
 use proptest::prelude::*;
 
+/// 5000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).
 fn cases() -> u32 {
-    std::env::var("PROPTEST_CASES")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(5000)
+    offset_core::check::proptest_cases(5000)
 }
 
 /// Text shaped like GRBL's replies: fragments of real ones, glued and cut.
