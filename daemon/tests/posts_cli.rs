@@ -111,7 +111,8 @@ impl Cut {
 /// absolute millimetres (a G20 or G91 fails the test), modal motion, arcs by I, J.
 fn gcode_cuts(text: &str, post: &str) -> Vec<Cut> {
     use gcode::{Code, Value};
-    let program = gcode::parse(text).unwrap_or_else(|e| panic!("{post}: gcode reads no program: {e:?}"));
+    let program =
+        gcode::parse(text).unwrap_or_else(|e| panic!("{post}: gcode reads no program: {e:?}"));
     let mut at = [0.0f64; 3];
     let mut motion: Option<u32> = None;
     let mut cuts = Vec::new();
@@ -153,7 +154,11 @@ fn gcode_cuts(text: &str, post: &str) -> Vec<Cut> {
             get('Z').unwrap_or(at[2]),
         ];
         match motion {
-            Some(1) => cuts.push(Cut { from: at, to, arc: None }),
+            Some(1) => cuts.push(Cut {
+                from: at,
+                to,
+                arc: None,
+            }),
             Some(m @ (2 | 3)) => {
                 let (i, j) = (get('I').unwrap_or(0.0), get('J').unwrap_or(0.0));
                 cuts.push(Cut {
@@ -192,7 +197,11 @@ fn modbus_cuts(text: &str) -> Vec<Cut> {
             ["linear", x, y, z, f] => {
                 assert!(num(f, 'F') > 0.0, "`{line}`");
                 let to = [num(x, 'X'), num(y, 'Y'), num(z, 'Z')];
-                cuts.push(Cut { from: at, to, arc: None });
+                cuts.push(Cut {
+                    from: at,
+                    to,
+                    arc: None,
+                });
                 at = to;
             }
             ["arc", dir @ ("cw" | "ccw"), x, y, z, i, j, f] => {
@@ -280,9 +289,10 @@ fn check_profile(what: &str, cuts: &[Cut], side: &str, r: f64, depth: f64, stepd
                     a[1] + (b[1] - a[1]) * t + sgn * n[1] * r,
                 ];
                 due += 1;
-                let near = flat.iter().flatten().any(|q| {
-                    (q[2] - z).abs() < 1e-3 && (q[0] - p[0]).hypot(q[1] - p[1]) <= 0.03
-                });
+                let near = flat
+                    .iter()
+                    .flatten()
+                    .any(|q| (q[2] - z).abs() < 1e-3 && (q[0] - p[0]).hypot(q[1] - p[1]) <= 0.03);
                 assert!(near, "{what}: the pass at z {z} never cuts at {p:?}");
             }
         }
@@ -291,8 +301,7 @@ fn check_profile(what: &str, cuts: &[Cut], side: &str, r: f64, depth: f64, stepd
 }
 
 #[test]
-fn every_gcode_post_and_the_modbus_post_cut_profiles_at_the_radius_on_their_side_at_every_depth()
-{
+fn every_gcode_post_and_the_modbus_post_cut_profiles_at_the_radius_on_their_side_at_every_depth() {
     let dir = tempfile::tempdir().unwrap();
     let plate = write_plate(dir.path());
     for side in ["outside", "inside"] {
@@ -390,7 +399,10 @@ fn stitch_plans_written_as_dst_and_jef_are_read_by_pyembroidery_on_the_outline_w
         for run in &runs {
             for &(x, y) in run {
                 let (d, _) = to_plate(x, y);
-                assert!(d <= 0.11, "{post}: a needle drop at ({x}, {y}) is {d} mm off the outline");
+                assert!(
+                    d <= 0.11,
+                    "{post}: a needle drop at ({x}, {y}) is {d} mm off the outline"
+                );
             }
             for w in run.windows(2) {
                 let l = (w[1].0 - w[0].0).hypot(w[1].1 - w[0].1);
@@ -412,13 +424,19 @@ fn stitch_plans_written_as_dst_and_jef_are_read_by_pyembroidery_on_the_outline_w
         for c in corners.windows(2) {
             for i in 0..=100 {
                 let t = i as f64 / 100.0;
-                let p = (c[0].0 + (c[1].0 - c[0].0) * t, c[0].1 + (c[1].1 - c[0].1) * t);
+                let p = (
+                    c[0].0 + (c[1].0 - c[0].0) * t,
+                    c[0].1 + (c[1].1 - c[0].1) * t,
+                );
                 let near = runs
                     .iter()
                     .flat_map(|r| r.windows(2))
                     .map(|w| seg_dist(p, w[0], w[1]))
                     .fold(f64::INFINITY, f64::min);
-                assert!(near <= 0.15, "{post}: the outline at {p:?} is left unsewn ({near} mm)");
+                assert!(
+                    near <= 0.15,
+                    "{post}: the outline at {p:?} is left unsewn ({near} mm)"
+                );
             }
         }
     }
@@ -426,13 +444,17 @@ fn stitch_plans_written_as_dst_and_jef_are_read_by_pyembroidery_on_the_outline_w
 
 /// The areas of the closed paths `offset` wrote (its geometry JSON), each of straight sides.
 fn areas(json: &str) -> Vec<f64> {
-    let shape = offset_core::io::json::read(json.as_bytes(), "out.json").expect("offset writes JSON");
+    let shape =
+        offset_core::io::json::read(json.as_bytes(), "out.json").expect("offset writes JSON");
     shape
         .paths
         .iter()
         .map(|p| {
             assert!(p.closed, "{p:?}");
-            assert!(p.vertices.iter().all(|v| v.bulge == 0.0), "a miter offset has no arcs: {p:?}");
+            assert!(
+                p.vertices.iter().all(|v| v.bulge == 0.0),
+                "a miter offset has no arcs: {p:?}"
+            );
             p.area().abs()
         })
         .collect()
@@ -452,13 +474,39 @@ fn offset_with_miter_joins_mitres_the_corners_and_bevels_them_past_the_limit() {
     let out = dir.path().join("out.json");
     let out_s = out.to_str().unwrap();
     // a miter of a right angle is sqrt(2) times the distance: limit 2 keeps it
-    let o = machlink(&["offset", sq, "-d", "2", "--join", "miter", "--miter-limit", "2", "-o", out_s]);
+    let o = machlink(&[
+        "offset",
+        sq,
+        "-d",
+        "2",
+        "--join",
+        "miter",
+        "--miter-limit",
+        "2",
+        "-o",
+        out_s,
+    ]);
     ok(&o, "offset --join miter");
     let a = areas(&std::fs::read_to_string(&out).unwrap());
     assert_eq!(a.len(), 1);
-    assert!((a[0] - 14.0 * 14.0).abs() < 1e-6, "mitred square: area {}", a[0]);
+    assert!(
+        (a[0] - 14.0 * 14.0).abs() < 1e-6,
+        "mitred square: area {}",
+        a[0]
+    );
     // limit 1 is below sqrt(2): each corner is bevelled, cutting a triangle off it
-    let o = machlink(&["offset", sq, "-d", "2", "--join", "miter", "--miter-limit", "1", "-o", out_s]);
+    let o = machlink(&[
+        "offset",
+        sq,
+        "-d",
+        "2",
+        "--join",
+        "miter",
+        "--miter-limit",
+        "1",
+        "-o",
+        out_s,
+    ]);
     ok(&o, "offset --join miter --miter-limit 1");
     let b = areas(&std::fs::read_to_string(&out).unwrap());
     assert_eq!(b.len(), 1);
@@ -469,7 +517,18 @@ fn offset_with_miter_joins_mitres_the_corners_and_bevels_them_past_the_limit() {
         a[0]
     );
     // inwards the corners stay sharp whatever the limit
-    let o = machlink(&["offset", sq, "-d", "-2", "--join", "miter", "--miter-limit", "1", "-o", out_s]);
+    let o = machlink(&[
+        "offset",
+        sq,
+        "-d",
+        "-2",
+        "--join",
+        "miter",
+        "--miter-limit",
+        "1",
+        "-o",
+        out_s,
+    ]);
     ok(&o, "offset -d -2 --join miter");
     let c = areas(&std::fs::read_to_string(&out).unwrap());
     assert!((c[0] - 36.0).abs() < 1e-6, "shrunk square: area {}", c[0]);

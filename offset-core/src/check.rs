@@ -209,7 +209,12 @@ impl Checker {
     /// tolerance, at most 256 per segment), each sample `q` moved |d| along its unit normal
     /// `n` to the offset's side: out of a region for d > 0, into it for d < 0; left of an
     /// open path for d > 0, right for d < 0. Calls `f(c, q, n, closed)`.
-    fn candidates(&self, distance: f64, tolerance: f64, mut f: impl FnMut(Point, Point, Point, bool)) {
+    fn candidates(
+        &self,
+        distance: f64,
+        tolerance: f64,
+        mut f: impl FnMut(Point, Point, Point, bool),
+    ) {
         let want = distance.abs();
         if want == 0.0 {
             return;
@@ -241,7 +246,15 @@ impl Checker {
     /// may or may not pass); and, for a closed input, `c` lies inside its region for d < 0
     /// and outside for d > 0 (a point exactly |d| from the input on the far side of a
     /// boundary it only touches is not on the offset).
-    fn is_due(&self, c: Point, q: Point, n: Point, closed: bool, distance: f64, tolerance: f64) -> bool {
+    fn is_due(
+        &self,
+        c: Point,
+        q: Point,
+        n: Point,
+        closed: bool,
+        distance: f64,
+        tolerance: f64,
+    ) -> bool {
         let want = distance.abs();
         // a point this much nearer than |d| to the input is off the offset
         let slack = 1e-9 * (1.0 + want);
@@ -363,12 +376,27 @@ mod tests {
         let l = Polyline::from_points(&[Point::new(0.0, 0.0), Point::new(10.0, 0.0)], false);
         let left = Polyline::from_points(&[Point::new(0.0, 2.0), Point::new(10.0, 2.0)], false);
         let right = Polyline::from_points(&[Point::new(0.0, -2.0), Point::new(10.0, -2.0)], false);
-        assert!(check_offset(std::slice::from_ref(&l), std::slice::from_ref(&left), 2.0, 1e-3)
-            .within(1e-3));
-        assert!(check_offset(std::slice::from_ref(&l), std::slice::from_ref(&right), -2.0, 1e-3)
-            .within(1e-3));
+        assert!(check_offset(
+            std::slice::from_ref(&l),
+            std::slice::from_ref(&left),
+            2.0,
+            1e-3
+        )
+        .within(1e-3));
+        assert!(check_offset(
+            std::slice::from_ref(&l),
+            std::slice::from_ref(&right),
+            -2.0,
+            1e-3
+        )
+        .within(1e-3));
         // the right offset handed back for a left one: every point at 2 mm, none where due
-        let r = check_offset(std::slice::from_ref(&l), std::slice::from_ref(&right), 2.0, 1e-3);
+        let r = check_offset(
+            std::slice::from_ref(&l),
+            std::slice::from_ref(&right),
+            2.0,
+            1e-3,
+        );
         assert!((r.missing - 4.0).abs() < 1e-9, "{r:?}");
         // the middle dropped: both ends kept, each point of them at 2 mm
         let ends = [

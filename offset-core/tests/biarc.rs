@@ -19,7 +19,6 @@ use offset_core::toolpath::{Move, Toolpath, P3};
 use proptest::prelude::*;
 use std::f64::consts::{PI, TAU};
 
-
 fn circle_points(r: f64, n: usize) -> Vec<Point> {
     (0..n)
         .map(|i| {

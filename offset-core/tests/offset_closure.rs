@@ -13,7 +13,6 @@ use offset_core::offset::{offset_region, OffsetOptions};
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
-
 /// r = r0 + Σ a_k sin(f_k θ + φ_k), sampled at n points.
 fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
     let pts: Vec<Point> = (0..n)

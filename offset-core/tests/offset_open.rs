@@ -64,7 +64,11 @@ fn u_turn_narrower_than_twice_the_distance_has_no_inside_offset_and_a_whole_outs
     let r = assert_offset(std::slice::from_ref(&p), &out, 3.0, 1e-3);
     assert!(r.expected > 100, "{r:?}");
     // its two legs and the half circle round the bend (radius 4)
-    assert!((out[0].length() - (20.0 + 4.0 * PI)).abs() < 1e-6, "{}", out[0].length());
+    assert!(
+        (out[0].length() - (20.0 + 4.0 * PI)).abs() < 1e-6,
+        "{}",
+        out[0].length()
+    );
 }
 
 #[test]

@@ -35,9 +35,7 @@ impl Cut {
                     0.0
                 }
             }
-            Segment::Arc {
-                a, center, ccw, ..
-            } => {
+            Segment::Arc { a, center, ccw, .. } => {
                 let full = self.seg.length();
                 if full > 0.0 {
                     (arc_segment(a, q, center, ccw).length() / full).clamp(0.0, 1.0)
@@ -86,7 +84,8 @@ struct Case {
 /// Checks one profile; returns how much of the loop was left at the tab height (mm of
 /// expected loop per tab, roughly) so callers can check the tabs exist.
 fn check_profile(c: &Case) -> f64 {
-    let tp = profile(&Shape::new(c.part.clone()), &c.p).unwrap_or_else(|e| panic!("{}: {e}", c.name));
+    let tp =
+        profile(&Shape::new(c.part.clone()), &c.p).unwrap_or_else(|e| panic!("{}: {e}", c.name));
     check_plan(c, &tp)
 }
 
@@ -139,7 +138,8 @@ fn check_plan(c: &Case, tp: &Toolpath) -> f64 {
         .sum();
     if !leads {
         assert_eq!(
-            on_loop, samples,
+            on_loop,
+            samples,
             "{name}: {} points of the cuts lie off the loop at R",
             samples - on_loop
         );
@@ -174,11 +174,17 @@ fn check_plan(c: &Case, tp: &Toolpath) -> f64 {
             .map(|(p, _)| p)
             .collect()
     };
-    assert!(expected.len() > 100, "{name}: {} points expected", expected.len());
+    assert!(
+        expected.len() > 100,
+        "{name}: {} points expected",
+        expected.len()
+    );
     // the pass depths worked out here, not by the planner's own function: equal steps of
     // at most the stepdown down to the depth
     let n = (c.p.cut.depth / c.p.cut.stepdown).ceil() as usize;
-    let depths: Vec<f64> = (1..=n).map(|k| -c.p.cut.depth * k as f64 / n as f64).collect();
+    let depths: Vec<f64> = (1..=n)
+        .map(|k| -c.p.cut.depth * k as f64 / n as f64)
+        .collect();
     let tab_z = -c.p.cut.depth + c.p.tab_height;
     let mut under_tab = 0usize;
     for e in &expected {

@@ -25,7 +25,6 @@ use proptest::prelude::*;
 use std::collections::BTreeMap;
 use std::f64::consts::{PI, TAU};
 
-
 fn circle_points(r: f64, n: usize) -> Vec<Point> {
     (0..n)
         .map(|i| {

@@ -296,7 +296,10 @@ fn pyembroidery_reads_our_dst_and_jef_as_the_same_stitches_trims_and_colour_chan
                 .map(|r| (r.0, r.1))
                 .collect();
             assert!(ours.len() > 30, "{what}.{name}: {} stitches", ours.len());
-            assert_eq!(read, ours, "{what}.{name}: pyembroidery reads other stitches");
+            assert_eq!(
+                read, ours,
+                "{what}.{name}: pyembroidery reads other stitches"
+            );
             let count = |k: StitchKind| recs.iter().filter(|r| r.kind == k).count();
             let py_count = |c: u32| theirs.iter().filter(|r| r.2 == c).count();
             assert_eq!(
@@ -306,7 +309,11 @@ fn pyembroidery_reads_our_dst_and_jef_as_the_same_stitches_trims_and_colour_chan
             );
             if name == "dst" {
                 // a DST trim is three zero jumps, which pyembroidery reads back as a trim
-                assert_eq!(py_count(PY_TRIM), count(StitchKind::Trim), "{what}.dst: trims");
+                assert_eq!(
+                    py_count(PY_TRIM),
+                    count(StitchKind::Trim),
+                    "{what}.dst: trims"
+                );
             }
         }
     }

@@ -214,7 +214,11 @@ async fn three_machines_stream_at_once_and_each_runs_exactly_its_own_program() {
         assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
         assert_eq!(done.acked_units, 2400);
         let executed: Vec<String> = sim.trace().into_iter().map(|e| e.line).collect();
-        assert_eq!(executed, expected_motion(lines), "job {id}: its machine ran another program");
+        assert_eq!(
+            executed,
+            expected_motion(lines),
+            "job {id}: its machine ran another program"
+        );
         assert_eq!(sim.received_lines(), 2400);
         assert_eq!(sim.rx_overflows(), 0);
     }

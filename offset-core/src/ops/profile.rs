@@ -473,7 +473,9 @@ fn start_clear_of_corners(pl: Polyline) -> (Polyline, f64) {
         return (pl, 0.0);
     };
     let room = side(i) / 2.0;
-    let mid = pl.vertices[i].pos().lerp(pl.vertices[(i + 1) % n].pos(), 0.5);
+    let mid = pl.vertices[i]
+        .pos()
+        .lerp(pl.vertices[(i + 1) % n].pos(), 0.5);
     let mut vertices = vec![Vertex::new(mid.x, mid.y, 0.0)];
     vertices.extend((1..=n).map(|k| pl.vertices[(i + k) % n]));
     (Polyline::new(vertices, true), room)

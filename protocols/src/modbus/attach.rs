@@ -32,7 +32,6 @@ impl Ring {
         }
         Ok(())
     }
-
 }
 
 impl ModbusLink {
@@ -58,7 +57,11 @@ impl ModbusLink {
         let last = s.write_seq.max(s.consumed_seq);
         let ours = last <= total
             && s.consumed_seq <= s.write_seq.max(s.consumed_seq)
-            && (last == 0 || self.ring.slots_match(&mut self.session, blocks, last, last).await?[0]);
+            && (last == 0
+                || self
+                    .ring
+                    .slots_match(&mut self.session, blocks, last, last)
+                    .await?[0]);
         if !ours {
             return Ok(Reattach::Unsure {
                 next: handed.acked.min(blocks.len()),

@@ -260,8 +260,8 @@ fn sample_piece(p: &Piece) -> Vec<P3> {
                 .collect()
         }
         Piece::Arc { seg, z0, z1 } => {
-            let n = ((seg.length().hypot(z1 - z0) / SAMPLE_STEP).ceil() as usize)
-                .clamp(1, MAX_SAMPLES);
+            let n =
+                ((seg.length().hypot(z1 - z0) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
             (0..=n)
                 .map(|i| {
                     let t = i as f64 / n as f64;
@@ -280,7 +280,13 @@ fn one_way(from: &[Piece], to: &[Piece]) -> (f64, P3) {
         return (0.0, P3::default());
     }
     if to.is_empty() {
-        return (f64::INFINITY, from.iter().flat_map(sample_piece).next().unwrap_or_default());
+        return (
+            f64::INFINITY,
+            from.iter()
+                .flat_map(sample_piece)
+                .next()
+                .unwrap_or_default(),
+        );
     }
     let grid = Grid::new(to);
     let mut worst = (0.0, P3::default());
@@ -469,7 +475,12 @@ mod tests {
         let mut both = first.to_vec();
         both.push(ex(Motion::Rapid, [10.0, 0.0, -1.0], [0.0, 0.0, 1.0], None));
         both.push(ex(Motion::Linear, [0.0, 0.0, 1.0], [0.0, 0.0, -2.0], None));
-        both.push(ex(Motion::Linear, [0.0, 0.0, -2.0], [10.0, 0.0, -2.0], None));
+        both.push(ex(
+            Motion::Linear,
+            [0.0, 0.0, -2.0],
+            [10.0, 0.0, -2.0],
+            None,
+        ));
         assert!(deviation(&tp, &both).missed < 1e-9);
     }
 }
