@@ -366,26 +366,17 @@ impl Client {
             Some(m) => format!("/events?machine={}", encode(m)),
             None => "/events".to_string(),
         };
-        let (status, mut body) = self.send(Method::GET, &path, None).await?;
-        if !status.is_success() {
-            let bytes = (&mut body)
-                .collect()
-                .await
-                .map_err(|e| ClientError::Protocol(e.to_string()))?
-                .to_bytes();
-            return Err(refusal(status, &bytes));
-        }
-        Ok(EventStream {
-            body,
-            buf: Vec::new(),
-        })
+        self.event_stream(&path).await
     }
 
     /// The job's events, from its current state until it ends.
     pub async fn events(&self, id: JobId) -> Result<EventStream, ClientError> {
-        let (status, mut body) = self
-            .send(Method::GET, &format!("/jobs/{id}/events"), None)
-            .await?;
+        self.event_stream(&format!("/jobs/{id}/events")).await
+    }
+
+    /// A stream of JSON-line events at `path` (a refusal read whole as the daemon's error).
+    async fn event_stream(&self, path: &str) -> Result<EventStream, ClientError> {
+        let (status, mut body) = self.send(Method::GET, path, None).await?;
         if !status.is_success() {
             let bytes = (&mut body)
                 .collect()
