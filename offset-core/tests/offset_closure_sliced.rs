@@ -284,3 +284,77 @@ proptest! {
         }
     }
 }
+
+/// Draws of `offsets_of_grown_dense_blobs_stay_valid_input` that once failed, kept as named
+/// cases: (n, waves, jitter, seed), grow, then the distances, and the tolerance.
+fn grown_blob_case(
+    n: usize,
+    waves: &[(f64, f64, f64)],
+    jitter: f64,
+    seed: u64,
+    grow: f64,
+    ds: &[f64],
+    tol: f64,
+) {
+    let waves: Vec<_> = waves.iter().map(|&(a, f, p)| (a, f.round(), p)).collect();
+    let b = blob(Point::new(0.0, 0.0), 20.0, n, &waves, jitter, seed);
+    assert!(first_crossing(std::slice::from_ref(&b), tol).is_none());
+    let mut all = vec![grow];
+    all.extend_from_slice(ds);
+    if let Err(e) = offsets_again("blob", Region::new(b, vec![]), &all, tol) {
+        panic!("{e}");
+    }
+}
+
+#[test]
+fn grown_blob_221_two_waves_offsets_keep_their_distance() {
+    grown_blob_case(
+        221,
+        &[
+            (1.7138569198922253, 7.18581618776515, 0.5544401138611144),
+            (1.5818847697418517, 5.125317023132577, 5.436377144077454),
+        ],
+        0.08214481192789909,
+        3306916889368159176,
+        0.30978722360463495,
+        &[1.9859805518461588, -2.8840092764560525, -0.2],
+        0.01,
+    );
+}
+
+#[test]
+fn grown_blob_324_one_wave_offsets_keep_their_distance() {
+    grown_blob_case(
+        324,
+        &[(2.4457927130669987, 7.99799033425333, 5.96556968716286)],
+        0.35641119022130374,
+        1068145063386621217,
+        0.06034762323670733,
+        &[
+            -2.6926631458105623,
+            0.8956150519014408,
+            2.692125442947125,
+            1.198542412768581,
+            -1.0245846196605344,
+        ],
+        0.01,
+    );
+}
+
+#[test]
+fn grown_blob_368_fine_tolerance_keeps_its_deep_shrink() {
+    // the second shrink met a zig-zag of 0.3 µm along a line in its raw offset; its loose
+    // half once robbed the loop of its continuation and the whole offset was dropped
+    grown_blob_case(
+        368,
+        &[
+            (0.2, 10.283330981790925, 5.316662328752306),
+            (2.461466723795623, 5.625067745214814, 5.4215368749901796),
+        ],
+        0.01574993339895444,
+        7349996738496442118,
+        0.9733518351470383,
+        &[-0.753444179058939, -2.9656179746347435, -0.2],
+        0.001,
+    );
+}

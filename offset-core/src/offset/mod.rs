@@ -140,33 +140,64 @@ pub fn offset_region(
     distance: f64,
     opts: &OffsetOptions,
 ) -> Result<Vec<Region>, OffsetError> {
+    offset_regions(std::slice::from_ref(region), distance, opts)
+}
+
+/// Offsets several regions as one set of points: where growing brings two of them (or a
+/// region and the island of another it lies in) together, they merge, as the offset of
+/// their union does. Paths are numbered in errors one region after another, outer first.
+pub fn offset_regions(
+    regions: &[Region],
+    distance: f64,
+    opts: &OffsetOptions,
+) -> Result<Vec<Region>, OffsetError> {
     check_args(distance, opts)?;
-    let all: Vec<&Polyline> = region.boundaries().collect();
+    let all: Vec<&Polyline> = regions.iter().flat_map(|r| r.boundaries()).collect();
     for (i, p) in all.iter().enumerate() {
         check_finite(p, i)?;
     }
     let eps = geometric_eps(opts.tolerance, &all);
-    // outer counter-clockwise, islands clockwise, whatever the caller handed us
+    // per region: outer counter-clockwise, islands clockwise, whatever the caller handed us;
+    // a region whose outer is empty goes with its islands
     let mut loops: Vec<(Vec<Seg>, bool)> = Vec::new();
-    for (i, p) in all.iter().enumerate() {
-        let segs = clean(p, eps);
-        if segs.is_empty() {
-            if i == 0 {
-                return Ok(Vec::new());
+    let mut outers: Vec<usize> = Vec::new();
+    for r in regions {
+        for (i, p) in r.boundaries().enumerate() {
+            let segs = clean(p, eps);
+            if segs.is_empty() {
+                if i == 0 {
+                    break;
+                }
+                continue;
             }
-            continue;
+            let area: f64 = segs.iter().map(|s| s.area2()).sum();
+            let want_ccw = i == 0;
+            let segs = if (area >= 0.0) == want_ccw {
+                segs
+            } else {
+                reverse(&segs)
+            };
+            if i == 0 {
+                outers.push(loops.len());
+            }
+            loops.push((segs, true));
         }
-        let area: f64 = segs.iter().map(|s| s.area2()).sum();
-        let want_ccw = i == 0;
-        let segs = if (area >= 0.0) == want_ccw {
-            segs
-        } else {
-            reverse(&segs)
-        };
-        loops.push((segs, true));
     }
     check_input(&mut loops, eps, opts.tolerance)?;
-    if shrinks_away(&loops[0].0, distance) {
+    // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
+    let mut keep = vec![true; loops.len()];
+    for (k, &o) in outers.iter().enumerate() {
+        if shrinks_away(&loops[o].0, distance) {
+            let end = outers.get(k + 1).copied().unwrap_or(loops.len());
+            keep[o..end].iter_mut().for_each(|x| *x = false);
+        }
+    }
+    let loops: Vec<(Vec<Seg>, bool)> = loops
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(l, k)| k.then_some(l))
+        .collect();
+    if loops.is_empty() {
         return Ok(Vec::new());
     }
     let polys: Vec<Loop> = if distance == 0.0 {
@@ -235,18 +266,17 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
     }
     regions
 }
-/// Offsets a whole shape: its closed paths as nested regions, its open paths to one side.
+/// Offsets a whole shape: its closed paths as nested regions, all at once (grown regions
+/// that meet merge), its open paths to one side.
 pub fn offset_shape(
     shape: &Shape,
     distance: f64,
     opts: &OffsetOptions,
 ) -> Result<Shape, OffsetError> {
     let mut out = Vec::new();
-    for r in shape.regions() {
-        for o in offset_region(&r, distance, opts)? {
-            out.push(o.outer);
-            out.extend(o.islands);
-        }
+    for o in offset_regions(&shape.regions(), distance, opts)? {
+        out.push(o.outer);
+        out.extend(o.islands);
     }
     for p in shape.open_paths() {
         out.extend(offset_polyline(p, distance, opts)?);

@@ -519,8 +519,13 @@ pub fn prune(
         }
     };
     let match_eps = eps * 16.0;
-    // open chains first start where no valid run ends
+    // Open chains first start where no valid run ends. A closed curve's run that no valid
+    // run leads into is a spur (half of a zig-zag whose other half was pruned, where raw
+    // curves overlap along a line): it cannot close, so it goes last, after the loops it
+    // would otherwise have robbed of the run it leads into.
     let mut order: Vec<usize> = Vec::new();
+    let mut spurs: Vec<usize> = Vec::new();
+    let mut is_spur = vec![false; runs.len()];
     for (ri, r) in runs.iter().enumerate() {
         if !valid[ri] || used[ri] {
             continue;
@@ -533,10 +538,16 @@ pub fn prune(
             }
         });
         if !has_pred {
-            order.push(ri);
+            if closed[r.path] {
+                spurs.push(ri);
+                is_spur[ri] = true;
+            } else {
+                order.push(ri);
+            }
         }
     }
-    order.extend(0..runs.len());
+    order.extend((0..runs.len()).filter(|&ri| !is_spur[ri]));
+    order.extend(spurs);
     for &ri in &order {
         if !valid[ri] || used[ri] {
             continue;

@@ -409,6 +409,27 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
             h.push(p, t, u);
         }
     }
+    if h.n == 0 && hd < r && hd >= r - eps {
+        // a graze taken as one touching point that lies just off an end: the two crossings
+        // it stands for lie up to √(2 r ε) either side of it, and one of them may still lie
+        // on both (a line through an arc's end at a shallow angle, as where an offset arc
+        // meets the offset of a line it was nearly tangent to)
+        let k = ((r - hd) * (r + hd)).sqrt();
+        for s in [s0 - k, s0 + k] {
+            let Some(t) = accept(s / len, el) else {
+                continue;
+            };
+            let p = l.point_at(t);
+            if let Some(u) = accept(c.param(p), ea) {
+                if swap {
+                    h.push(p, u, t);
+                } else {
+                    h.push(p, t, u);
+                }
+                break;
+            }
+        }
+    }
     h
 }
 
@@ -512,6 +533,26 @@ mod tests {
         let h = intersect(&c, &c2, 1e-9);
         assert_eq!(h.n, 1, "{h:?}");
         assert!((h.p[0].0.dist(Point::default()) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_line_grazing_an_arc_through_its_end_meets_it_there() {
+        // a chord 5.4e-7 inside a circle of radius 3 (a graze within ε = 1e-6): its two
+        // crossings lie 1.8e-3 either side of the top, and the arc ends at the left one
+        let (r, a) = (3.0f64, 0.0006f64);
+        let end = Point::new(-r * a.sin(), r * a.cos());
+        let start = Point::new(-r * (a + 0.3).sin(), r * (a + 0.3).cos());
+        let arc = Seg::arc(Point::new(0.0, 0.0), r, start, end, -0.3);
+        let line = Seg::line(Point::new(-1.0, end.y), Point::new(1.0, end.y));
+        for (h, arc_first) in [
+            (intersect(&line, &arc, 1e-6), false),
+            (intersect(&arc, &line, 1e-6), true),
+        ] {
+            assert_eq!(h.n, 1, "{h:?}");
+            assert!(h.p[0].0.dist(end) < 1e-9, "{h:?}");
+            let on_arc = if arc_first { h.p[0].1 } else { h.p[0].2 };
+            assert!((on_arc - 1.0).abs() < 1e-9, "{h:?}");
+        }
     }
 
     #[test]
