@@ -234,7 +234,6 @@ proptest! {
     /// A sliced-mesh-like blob grown by a small distance (dense short lines with round
     /// joins), then offset again and again by distances either way.
     #[test]
-    #[ignore = "open kernel bug: fresh seeds still find grown blobs whose offsets cross themselves or come up to 0.2 mm too close (docs/testing.md, Known failures); run with --ignored"]
     fn offsets_of_grown_dense_blobs_stay_valid_input(
         (n, waves, jitter, seed) in blob_params(),
         grow in 0.05f64..1.0,
@@ -253,7 +252,6 @@ proptest! {
     /// Two such blobs grown as islands of a rectangle, then pocketed: the first pass by
     /// the tool radius, the later ones by the step-over, until nothing is left.
     #[test]
-    #[ignore = "open kernel bug: fresh seeds still find grown blobs whose offsets cross themselves or come up to 0.2 mm too close (docs/testing.md, Known failures); run with --ignored"]
     fn pockets_round_grown_dense_blobs_stay_valid_input(
         (n, waves, jitter, seed) in blob_params(),
         grow in 0.05f64..1.0,
