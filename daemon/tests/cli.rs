@@ -1,23 +1,12 @@
 //! The `machlink` binary as an operator meets it: `serve`, `submit`, `jobs`, `machines`,
 //! `watch`, `demo`, and one clear sentence with a non-zero exit for every bad input.
 
+mod common;
+use common::cli::{machlink, run, stderr};
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn machlink() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_machlink"));
-    c.env("RUST_LOG", "warn");
-    c
-}
-
-fn run(args: &[&str]) -> Output {
-    machlink().args(args).output().expect("machlink runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()

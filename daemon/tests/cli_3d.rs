@@ -2,6 +2,9 @@
 //! from: a spherical cap (radius 40, 10 mm high) standing on a plate, as an STL file and as
 //! a grid of measured points. The programs are read back from their G-code.
 
+mod common;
+use common::cli::{ok, run as machlink};
+
 use offset_core::mesh::{shapes, write_stl};
 use offset_core::toolpath::{Move, Toolpath, P3};
 use std::path::Path;
@@ -18,22 +21,6 @@ fn part_z(rho: f64) -> f64 {
     } else {
         0.0
     }
-}
-
-fn machlink(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .env("RUST_LOG", "warn")
-        .args(args)
-        .output()
-        .expect("machlink runs")
-}
-
-fn ok(o: &Output, what: &str) {
-    assert!(
-        o.status.success(),
-        "{what}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
 }
 
 /// The cap on a 80 × 80 mm plate as a solid of 1 mm cells, down to Z = -10, as binary STL.

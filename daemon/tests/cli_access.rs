@@ -2,21 +2,14 @@
 //! private under any umask, a regular file or a live daemon's socket never taken over,
 //! tokens made once, locks, exit statuses, and a closed stdout that is no crash.
 
+mod common;
+use common::cli::{machlink, stderr};
+
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn machlink() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_machlink"));
-    c.env("RUST_LOG", "warn").env_remove("MACHLINK_TOKEN");
-    c
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 /// A `machlink serve` child, killed when dropped.
 struct Serve {

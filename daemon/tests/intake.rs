@@ -3,6 +3,9 @@
 //! inches included), byte for byte once written as the post's file. Both run through the
 //! binary; the daemon runs in this process so its store can be read.
 
+mod common;
+use common::cli::run as machlink;
+
 use futures::future::BoxFuture;
 use machlink::config::Config;
 use machlink::daemon::{Daemon, StartOptions};
@@ -63,14 +66,6 @@ impl MachineKind for SinkKind {
     fn open(&self, _: &str, _: &NoKeys, _: &()) -> OpenLink<String> {
         Box::pin(async { Ok(Box::new(SinkLink) as Box<dyn Link<String>>) })
     }
-}
-
-fn machlink(args: &[String]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .env("RUST_LOG", "warn")
-        .args(args)
-        .output()
-        .expect("machlink runs")
 }
 
 fn sample() -> PathBuf {

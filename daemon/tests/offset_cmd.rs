@@ -1,10 +1,9 @@
 //! `machlink offset` end to end: the built binary on temporary files.
 
-use std::process::Command;
+mod common;
+use common::cli::machlink;
 
-fn machlink() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-}
+use std::process::Command;
 
 #[test]
 fn offsets_a_square_to_json_and_svg() {

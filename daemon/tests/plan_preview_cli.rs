@@ -1,18 +1,14 @@
 //! `machlink plan` and `machlink preview` as an operator runs them: shape files in, G-code
 //! and drawings out, and one clear sentence with a non-zero exit on bad input.
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
 fn machlink(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .args(args)
-        .output()
-        .expect("machlink runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
+    let out = common::cli::run(args);
+    (out.status.success(), common::cli::stderr(&out))
 }
 
 const PART_SVG: &str = r#"<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="40mm" viewBox="0 0 60 40">
@@ -170,13 +166,28 @@ fn a_gcode_preview_draws_the_program_s_own_geometry() {
     assert_eq!(img.width(), 900, "--width sets the drawing's width");
     let (lines, n_lines) = pixels_of(&bytes, offset_core::preview::LINEAR_COLOUR);
     let (arcs, n_arcs) = pixels_of(&bytes, offset_core::preview::ARC_COLOUR);
-    let (l, a) = (lines.expect("the lines are drawn"), arcs.expect("the arc is drawn"));
-    assert!(n_lines > 500 && n_arcs > 100, "{n_lines} line and {n_arcs} arc pixels");
+    let (l, a) = (
+        lines.expect("the lines are drawn"),
+        arcs.expect("the arc is drawn"),
+    );
+    assert!(
+        n_lines > 500 && n_arcs > 100,
+        "{n_lines} line and {n_arcs} arc pixels"
+    );
     let (lw, lh) = ((l[2] - l[0]) as f64, (l[3] - l[1]) as f64);
-    assert!((lw / lh - 1.5).abs() < 0.05, "the rectangle is drawn {lw} × {lh} px");
+    assert!(
+        (lw / lh - 1.5).abs() < 0.05,
+        "the rectangle is drawn {lw} × {lh} px"
+    );
     let (aw, ah) = ((a[2] - a[0]) as f64, (a[3] - a[1]) as f64);
-    assert!((aw / lw - 20.0 / 60.0).abs() < 0.02, "the circle is {aw} px across, the rectangle {lw}");
-    assert!((ah / aw - 1.0).abs() < 0.05, "the circle is drawn {aw} × {ah} px");
+    assert!(
+        (aw / lw - 20.0 / 60.0).abs() < 0.02,
+        "the circle is {aw} px across, the rectangle {lw}"
+    );
+    assert!(
+        (ah / aw - 1.0).abs() < 0.05,
+        "the circle is drawn {aw} × {ah} px"
+    );
     let centre = |b: [u32; 4]| ((b[0] + b[2]) as f64 / 2.0, (b[1] + b[3]) as f64 / 2.0);
     let ((lx, ly), (ax, ay)) = (centre(l), centre(a));
     assert!(

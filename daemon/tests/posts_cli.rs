@@ -11,24 +11,11 @@
 //! - `offset --join miter --miter-limit`: the square's corners are mitred, or bevelled once
 //!   the limit is below the miter's length.
 
+mod common;
+use common::cli::{ok, run as machlink};
+
 use std::path::Path;
 use std::process::{Command, Output};
-
-fn machlink(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .env("RUST_LOG", "warn")
-        .args(args)
-        .output()
-        .expect("machlink runs")
-}
-
-fn ok(o: &Output, what: &str) {
-    assert!(
-        o.status.success(),
-        "{what} failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
 
 /// The part: a 40 × 30 plate, corner at the origin.
 const W: f64 = 40.0;

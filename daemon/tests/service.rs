@@ -3,16 +3,16 @@
 //! (JSON lines, no colour off a terminal), the socket found without `--socket`, and
 //! `machlink events` with a webhook receiving the same events.
 
+mod common;
+
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 fn machlink() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_machlink"));
+    let mut c = common::cli::machlink();
     c.env("RUST_LOG", "info")
-        .env_remove("MACHLINK_SOCKET")
-        .env_remove("MACHLINK_CONFIG")
         .env_remove("NOTIFY_SOCKET")
         .env_remove("WATCHDOG_USEC");
     c

@@ -1,14 +1,10 @@
 //! Tool paths as `machlink plan` writes them for GRBL: a dense polyline from CAD comes out
 //! as arcs, and the planner's figures are printed.
 
-use std::process::Command;
+mod common;
+use common::cli::run as machlink;
 
-fn machlink(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .args(args)
-        .output()
-        .expect("machlink runs")
-}
+use std::process::Command;
 
 /// The moves of a GRBL program that go somewhere in XY: (G word, radius from I/J if an arc).
 fn xy_moves(gcode: &str) -> Vec<(u32, Option<f64>)> {

@@ -1,2 +1,4 @@
-//! Helpers shared by the daemon crate's tests.
+//! Helpers shared by the daemon crate's tests (each test file uses some of them).
+#![allow(dead_code)]
+pub mod cli;
 pub mod nats;

@@ -113,11 +113,15 @@ pub fn spawn_adapter(bus: &MemoryBus) -> std::io::Result<AdapterHandle> {
             decoder.push(&buf[..n], &mut lines);
             let mut reply = Vec::new();
             for line in lines.drain(..) {
-                if let Some(f) = adapter.on_line(line, &mut reply) {
+                let frame = adapter.on_line(line, &mut reply);
+                // open before the frame goes out: a host that opens the channel and sends a
+                // request in one write must get the answer (once the flag was stored after
+                // the whole batch, and a drive's quick reply was dropped as if closed)
+                open1.store(adapter.is_open(), Ordering::SeqCst);
+                if let Some(f) = frame {
                     port.send_now(&f);
                 }
             }
-            open1.store(adapter.is_open(), Ordering::SeqCst);
             if !reply.is_empty() && tx1.send(reply).is_err() {
                 return;
             }
@@ -163,5 +167,55 @@ mod tests {
         a.on_line(SlcanLine::Close, &mut r);
         assert_eq!(r, b"\x07\r\r\x07z\r\r\x07");
         assert_eq!(a.bitrate(), Some(500_000));
+    }
+
+    /// A host that opens the channel and sends its first request in one write (as python-can
+    /// does with `sleep_after_open=0`) gets the answer, however fast the drive replies.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_request_sent_with_the_open_command_is_answered() {
+        use machlink_protocols::canopen::CanBus;
+        use tokio_serial::SerialPortBuilderExt;
+        for round in 0..40u8 {
+            let bus = MemoryBus::new();
+            let mut drive = bus.attach();
+            tokio::spawn(async move {
+                while let Ok(f) = drive.recv().await {
+                    let reply = CanFrame::new(0x581, f.data()).unwrap();
+                    drive.send_now(&reply);
+                }
+            });
+            let adapter = spawn_adapter(&bus).unwrap();
+            let mut host = tokio_serial::new(&adapter.path, 115_200)
+                .open_native_async()
+                .unwrap();
+            let mut request = b"S8\rO\r".to_vec();
+            encode_frame(
+                &CanFrame::new(0x601, &[0x40, 0x00, 0x10, 0x00, round, 0, 0, 0]).unwrap(),
+                &mut request,
+            );
+            host.write_all(&request).await.unwrap();
+            let mut want = Vec::new();
+            encode_frame(
+                &CanFrame::new(0x581, &[0x40, 0x00, 0x10, 0x00, round, 0, 0, 0]).unwrap(),
+                &mut want,
+            );
+            let mut got = Vec::new();
+            let found = tokio::time::timeout(std::time::Duration::from_secs(2), async {
+                let mut buf = [0u8; 256];
+                loop {
+                    let n = host.read(&mut buf).await.unwrap();
+                    got.extend_from_slice(&buf[..n]);
+                    if got.windows(want.len()).any(|w| w == want) {
+                        return;
+                    }
+                }
+            })
+            .await;
+            assert!(
+                found.is_ok(),
+                "round {round}: no answer to the first request, the host read {:?}",
+                String::from_utf8_lossy(&got)
+            );
+        }
     }
 }

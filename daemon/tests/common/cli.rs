@@ -1,0 +1,29 @@
+//! Running the `machlink` binary as an operator does, from a clean environment.
+
+use std::process::{Command, Output};
+
+/// `machlink` with quiet logs and none of the caller's `MACHLINK_*` settings (socket,
+/// config, token), so a developer's shell cannot change what a test sees.
+pub fn machlink() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_machlink"));
+    c.env("RUST_LOG", "warn")
+        .env_remove("MACHLINK_SOCKET")
+        .env_remove("MACHLINK_CONFIG")
+        .env_remove("MACHLINK_TOKEN");
+    c
+}
+
+/// Runs `machlink ARGS` to the end.
+pub fn run<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    machlink().args(args).output().expect("machlink runs")
+}
+
+/// What the run printed on stderr, as text.
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Asserts the run succeeded, naming `what` and showing its stderr when it did not.
+pub fn ok(o: &Output, what: &str) {
+    assert!(o.status.success(), "{what} failed: {}", stderr(o));
+}
