@@ -264,3 +264,84 @@ fn a_3d_plan_is_previewed_over_the_shaded_mesh() {
         "{e}"
     );
 }
+
+/// Two blocks 5 mm high whose walls come within 1 mm of each other at the top (a V groove
+/// between them, as a height field of 0.5 mm cells makes it). Grown by the allowance, the
+/// sections of the two blocks overlap at every level: the rough must treat them as one
+/// island (grown alone, each block's section crossed the other's and the plan was refused),
+/// and still keep the allowance from both.
+#[test]
+fn roughing_blocks_whose_allowances_overlap_keeps_it_from_both() {
+    use offset_core::mesh::dropcutter::{Cutter, DropCutter};
+    let dir = tempfile::tempdir().unwrap();
+    let block = |x: f64, y: f64| {
+        if y.abs() <= 15.0 && (0.5..=20.0).contains(&x.abs()) {
+            5.0
+        } else {
+            0.0
+        }
+    };
+    let m = shapes::height_field_solid((-30.0, 30.0), (-25.0, 25.0), 120, 100, -5.0, block);
+    let stl = dir.path().join("blocks.stl");
+    std::fs::write(&stl, write_stl(&m)).unwrap();
+    let out = dir.path().join("rough.nc");
+    let o = machlink(&[
+        "plan",
+        stl.to_str().unwrap(),
+        "--op",
+        "rough3d",
+        "--tool-diameter",
+        "6",
+        "--stepdown",
+        "1",
+        "--stock-allowance",
+        "0.5",
+        "--stock-margin",
+        "4",
+        "--post",
+        "grbl",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    ok(&o, "plan rough3d of two close blocks");
+    let pts = cutting_points(&read_program(&out));
+    let levels: std::collections::BTreeSet<i64> =
+        pts.iter().map(|p| (p.z * 1000.0).round() as i64).collect();
+    assert!(levels.len() >= 4, "levels {levels:?}");
+    // the tool widened by the allowance (less the check's slack, so a wall exactly the
+    // allowance away is not counted) finds no material above its level (the allowance kept
+    // sideways), and the tool itself stands the allowance above what is under it
+    let wide = DropCutter::new(&m, Cutter::flat(7.0 - 2.0 * 0.02)).unwrap();
+    let tool = DropCutter::new(&m, Cutter::flat(6.0)).unwrap();
+    // (a cutter with nothing under it drops to the lowest Z it is given)
+    let nothing = -1e6;
+    let mut over_the_part = 0;
+    for p in &pts {
+        let side = wide.drop(p.x, p.y, nothing);
+        assert!(
+            side <= p.z + 0.02,
+            "at ({:.2}, {:.2}, {:.3}) material stands {:.3} mm above the cut within the allowance",
+            p.x,
+            p.y,
+            p.z,
+            side - p.z
+        );
+        let under = tool.drop(p.x, p.y, nothing);
+        if under == nothing {
+            continue;
+        }
+        over_the_part += 1;
+        assert!(
+            p.z >= under + 0.5 - 0.02,
+            "at ({:.2}, {:.2}, {:.3}) the tool is {:.3} mm above the part (allowance 0.5)",
+            p.x,
+            p.y,
+            p.z,
+            p.z - under
+        );
+    }
+    assert!(
+        over_the_part > 500,
+        "only {over_the_part} cutting points over the part"
+    );
+}

@@ -54,6 +54,41 @@ fn offsets_a_square_to_json_and_svg() {
     assert!(text.starts_with("<svg") && text.matches("<path").count() == 2);
 }
 
+/// Two squares 1 mm apart grown by 1 mm are one outline, as the offset of the two together
+/// is (each grown alone, they would overlap and cross each other).
+#[test]
+fn parts_that_grow_into_each_other_merge_into_one_outline() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("two.json");
+    std::fs::write(
+        &input,
+        r#"{"units":"mm","paths":[
+            {"closed":true,"vertices":[[0,0,0],[10,0,0],[10,10,0],[0,10,0]]},
+            {"closed":true,"vertices":[[11,0,0],[21,0,0],[21,10,0],[11,10,0]]}]}"#,
+    )
+    .unwrap();
+    let out = dir.path().join("grown.json");
+    let st = machlink()
+        .args(["offset", input.to_str().unwrap(), "--distance", "1", "-o"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let shape = offset_core::io::json::read(&std::fs::read(&out).unwrap(), "grown.json").unwrap();
+    assert_eq!(shape.paths.len(), 1, "one merged outline");
+    assert!(offset_core::offset::first_crossing(&shape.paths, 1e-3).is_none());
+    // each square grown alone is 100 + 40 + π; where they overlap: the 1 × 10 strip between
+    // them and the lens of two unit circles 1 apart (2 acos ½ − ½ √3), half above, half below
+    let alone = 140.0 + std::f64::consts::PI;
+    let lens = 2.0 * 0.5f64.acos() - 0.5 * 3f64.sqrt();
+    let union = 2.0 * alone - (10.0 + lens);
+    let area = shape.paths[0].area().abs();
+    assert!(
+        (area - union).abs() < 1e-6,
+        "area {area}, the union's {union}"
+    );
+}
+
 #[test]
 fn bad_input_exits_non_zero_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();

@@ -22,7 +22,7 @@
 use super::slice::{flat_heights, slice_at};
 use super::{Mesh, MeshError};
 use crate::geom::{Point, Polyline, Shape};
-use crate::offset::{offset_shape, Join, OffsetOptions};
+use crate::offset::{offset_shape, Join, OffsetError, OffsetOptions};
 use crate::ops::{pass_depths, pocket, Cutting, OpError, PocketParams, Stepover};
 use crate::toolpath::{Move, Tool, Toolpath, P3};
 use serde::{Deserialize, Serialize};
@@ -231,22 +231,40 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
 }
 
 /// The part's section just above `z`, grown by `allowance` in the plane.
+///
+/// A level that falls exactly where two walls meet (the bottom of a V groove between two
+/// blocks, on the plate's top) slices them into loops that share an edge, which the offset
+/// refuses as crossing; just above it they part. So such a level is sliced again a tenth,
+/// then half, of the tolerance higher (the section "just above" it, as this function
+/// promises); loops that still cross there are refused by name.
 fn section(solid: &Mesh, z: f64, allowance: f64, tol: f64) -> Result<Shape, MeshError> {
-    let cut = Shape::new(slice_at(solid, z)?);
-    if allowance <= 0.0 || cut.paths.is_empty() {
-        return Ok(cut);
-    }
     let opts = OffsetOptions {
         join: Join::Round,
         tolerance: tol,
         ..OffsetOptions::default()
     };
-    offset_shape(&cut, allowance, &opts).map_err(|e| {
-        MeshError::BadParam(format!(
-            "{}: the section at Z {z} cannot be grown by the allowance: {e}",
-            solid.name
-        ))
-    })
+    let mut first_error = None;
+    for lift in [0.0, 0.1 * tol, 0.5 * tol] {
+        let cut = Shape::new(slice_at(solid, z + lift)?);
+        if allowance <= 0.0 || cut.paths.is_empty() {
+            return Ok(cut);
+        }
+        match offset_shape(&cut, allowance, &opts) {
+            Ok(grown) => return Ok(grown),
+            Err(e @ OffsetError::SelfIntersecting { .. }) => {
+                first_error.get_or_insert(e);
+            }
+            Err(e) => {
+                first_error = Some(e);
+                break;
+            }
+        }
+    }
+    let e = first_error.expect("a failed try leaves its error");
+    Err(MeshError::BadParam(format!(
+        "{}: the section at Z {z} cannot be grown by the allowance: {e}",
+        solid.name
+    )))
 }
 
 /// Refuses a face that looks down above the floor (an undercut a 3-axis rough by slices
