@@ -302,8 +302,23 @@ impl Daemon {
     }
 
     /// Stops at once, as a crash would: no journal flush, jobs stay `running` in the
-    /// store and become interrupted at the next start. The simulators keep running.
-    pub fn crash(&mut self) {
+    /// store and become interrupted at the next start. The simulators keep running. Returns
+    /// once its servers are gone and their sockets closed, as a killed process's are, so a
+    /// daemon started next on the same socket finds it free (an aborted task lets go of its
+    /// listener only when the runtime next drops it).
+    pub async fn crash(mut self) {
+        self.scheduler.abort();
+        let servers: Vec<JoinHandle<()>> = self.servers.drain(..).collect();
+        for s in &servers {
+            s.abort();
+        }
+        for s in servers {
+            let _ = s.await;
+        }
+    }
+
+    /// Aborts the scheduler and every server task (what dropping the daemon does).
+    fn abort_all(&mut self) {
         self.scheduler.abort();
         for s in self.servers.drain(..) {
             s.abort();
@@ -317,14 +332,14 @@ impl Daemon {
         self.scheduler
             .shutdown(std::time::Duration::from_secs(10))
             .await;
-        self.crash();
+        self.abort_all();
         let _ = std::fs::remove_file(&self.socket);
     }
 }
 
 impl Drop for Daemon {
     fn drop(&mut self) {
-        self.crash();
+        self.abort_all();
     }
 }
 

@@ -186,13 +186,12 @@ async fn a_daemon_killed_mid_job_follows_the_device_to_completion_without_resend
         sim.addr().port()
     );
     let blocks = job(600);
-    let mut d = Daemon::start(config(dir.path(), &machine), StartOptions::default())
+    let d = Daemon::start(config(dir.path(), &machine), StartOptions::default())
         .await
         .unwrap();
     let id = submit(&d, &blocks).id;
     wait_for(&d, id, |j| j.acked_units >= 100).await;
-    d.crash();
-    drop(d);
+    d.crash().await;
     let consumed_at_crash = sim.trace().len();
     // the device goes on with the blocks already in its ring while the daemon is down
     let d = Daemon::start(config(dir.path(), &machine), StartOptions::default())

@@ -209,7 +209,7 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
     let stop_at = 777;
     let mut registry = machlink::registry::standard();
     registry.add_kind(StopAtKind);
-    let mut d = start_with(
+    let d = start_with(
         dir.path(),
         &format!(
             "[[machine]]\nname = \"mill\"\nlink = \"stop-at\"\nport = \"{}\"\nstop_at = {stop_at}\n",
@@ -236,8 +236,7 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     assert_eq!(journaled, stop_at);
-    d.crash();
-    drop(d);
+    d.crash().await;
     assert_eq!(
         store.job(job.id).unwrap().unwrap().state,
         JobState::Running,

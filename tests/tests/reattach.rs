@@ -51,12 +51,11 @@ async fn a_daemon_killed_while_the_machine_sews_follows_it_to_the_end_without_st
         "[[machine]]\nname = \"sewer\"\nlink = \"sewing\"\nport = \"{}\"\n",
         sim.path
     );
-    let mut d = start(dir.path(), &machine, StartOptions::default()).await;
+    let d = start(dir.path(), &machine, StartOptions::default()).await;
     let c = client(&d);
     let job = c.submit(&zigzag_stitches()).await.unwrap();
     wait_until(&c, job.id, |j| j.acked_units >= 100).await;
-    d.crash();
-    drop(d);
+    d.crash().await;
     let sewn_at_crash = sim.trace.lock().unwrap().drops.len();
     // the machine sews on while no daemon is there
     tokio::time::sleep(Duration::from_millis(200)).await;
