@@ -581,27 +581,7 @@ impl Scheduler {
             (
                 Request::Resume(from),
                 JobState::Interrupted | JobState::Failed | JobState::Cancelled,
-            ) => {
-                if self.inner.closing.load(Ordering::SeqCst) {
-                    return Err(SchedError::Conflict(
-                        "the daemon is shutting down; resume the job once it is back".into(),
-                    ));
-                }
-                if let Some(line) = from {
-                    if line == 0 || line > job.total_units {
-                        return Err(SchedError::Conflict(format!(
-                            "job {} has lines 1 to {}; it cannot resume from line {line}",
-                            job.id, job.total_units
-                        )));
-                    }
-                    store.set_resume_point(job.id, line - 1)?;
-                    store.set_restart_at(job.id, Some(line - 1))?;
-                } else {
-                    store.set_restart_at(job.id, None)?;
-                }
-                store.set_state(job.id, JobState::Queued, None)?;
-                let _ = m.queue.send(job.id);
-            }
+            ) => self.inner.requeue(m, job, from)?,
             (Request::Resume(None), JobState::Queued) => return Ok(()),
             (Request::Cancel, JobState::Interrupted | JobState::Failed) => {
                 store.set_state(job.id, JobState::Cancelled, job.error.as_deref())?;
@@ -709,6 +689,30 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 impl Inner {
+    /// Queues a stopped job again for `resume` (from its resume point, or from line `from`).
+    fn requeue(&self, m: &Machine, job: &JobRecord, from: Option<usize>) -> Result<(), SchedError> {
+        if self.closing.load(Ordering::SeqCst) {
+            return Err(SchedError::Conflict(
+                "the daemon is shutting down; resume the job once it is back".into(),
+            ));
+        }
+        if let Some(line) = from {
+            if line == 0 || line > job.total_units {
+                return Err(SchedError::Conflict(format!(
+                    "job {} has lines 1 to {}; it cannot resume from line {line}",
+                    job.id, job.total_units
+                )));
+            }
+            self.store.set_resume_point(job.id, line - 1)?;
+            self.store.set_restart_at(job.id, Some(line - 1))?;
+        } else {
+            self.store.set_restart_at(job.id, None)?;
+        }
+        self.store.set_state(job.id, JobState::Queued, None)?;
+        let _ = m.queue.send(job.id);
+        Ok(())
+    }
+
     fn broadcast_state(&self, j: &JobRecord) {
         let _ = self.events.send(Event::state_of(j));
     }

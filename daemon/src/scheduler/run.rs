@@ -144,12 +144,13 @@ pub(super) async fn run_job(
     if let Some(r) = j.shutdown_reply.take() {
         let _ = r.send(Ok(()));
     }
-    // refuse late commands with the final state
-    *lock(&m.active) = None;
-    while let Ok(c) = cmd_rx.try_recv() {
-        let _ = c.reply.send(Ok(()));
-    }
-    match outcome {
+    // A run that leaves the job waiting (interrupted) records that while the job still
+    // counts as active: a resume that then finds the machine free sees "interrupted" and
+    // queues it (settled as "queued" in between, it was overwritten and lost), and one that
+    // came to the run too late is queued below. A final state is recorded after, as before:
+    // a request in between finds the job still running and is refused, not lost.
+    let waits = matches!(outcome, Outcome::Waits(_));
+    let settle = |outcome: Outcome| match outcome {
         Outcome::Final(state, error) => {
             if let Some(e) = &error {
                 tracing::warn!("job {id} on {}: {e}", m.config.name);
@@ -163,6 +164,35 @@ pub(super) async fn run_job(
             let error = inner.store.job(id).ok().flatten().and_then(|j| j.error);
             inner.set_state(id, JobState::Interrupted, error.as_deref());
         }
+    };
+    let mut outcome = Some(outcome);
+    if waits {
+        settle(outcome.take().expect("the outcome"));
+    }
+    let late: Vec<Command> = {
+        let mut active = lock(&m.active);
+        *active = None;
+        std::iter::from_fn(|| cmd_rx.try_recv().ok()).collect()
+    };
+    if let Some(o) = outcome {
+        settle(o);
+    }
+    for c in late {
+        let answer = match c.request {
+            // a resume that came while the daemon was asking the device, too late for the
+            // run to take it: the job waits interrupted, so queue it as asked
+            Request::Resume(from) if waits => match inner.store.job(id) {
+                Ok(Some(j)) => inner.requeue(m, &j, from).inspect(|()| {
+                    if let Ok(Some(queued)) = inner.store.job(id) {
+                        inner.broadcast_state(&queued);
+                    }
+                }),
+                _ => Ok(()),
+            },
+            // the others find the job final: nothing left to do
+            _ => Ok(()),
+        };
+        let _ = c.reply.send(answer);
     }
 }
 
