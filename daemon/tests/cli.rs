@@ -5,7 +5,7 @@ mod common;
 use common::cli::{machlink, run, stderr};
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Output, Stdio};
 use std::time::{Duration, Instant};
 
 fn stdout(o: &Output) -> String {

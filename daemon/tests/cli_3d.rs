@@ -8,7 +8,6 @@ use common::cli::{ok, run as machlink};
 use offset_core::mesh::{shapes, write_stl};
 use offset_core::toolpath::{Move, Toolpath, P3};
 use std::path::Path;
-use std::process::{Command, Output};
 
 const R: f64 = 40.0;
 /// The cap's top is 10 mm above the plate: its centre is 30 mm below the plate.

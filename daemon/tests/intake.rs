@@ -13,7 +13,6 @@ use machlink_protocols::kind::{started, MachineKind, OpenLink};
 use machlink_protocols::post::PostFor;
 use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 use tokio::sync::{mpsc, watch};
 
 /// `link = "sink"`: a controller that takes LinuxCNC or generic G-code and acknowledges

@@ -3,8 +3,6 @@
 mod common;
 use common::cli::machlink;
 
-use std::process::Command;
-
 #[test]
 fn offsets_a_square_to_json_and_svg() {
     let dir = tempfile::tempdir().unwrap();

@@ -4,7 +4,6 @@
 mod common;
 
 use std::path::Path;
-use std::process::Command;
 
 fn machlink(args: &[&str]) -> (bool, String) {
     let out = common::cli::run(args);

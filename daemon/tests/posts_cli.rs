@@ -15,7 +15,7 @@ mod common;
 use common::cli::{ok, run as machlink};
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Command;
 
 /// The part: a 40 × 30 plate, corner at the origin.
 const W: f64 = 40.0;

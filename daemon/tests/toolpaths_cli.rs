@@ -4,8 +4,6 @@
 mod common;
 use common::cli::run as machlink;
 
-use std::process::Command;
-
 /// The moves of a GRBL program that go somewhere in XY: (G word, radius from I/J if an arc).
 fn xy_moves(gcode: &str) -> Vec<(u32, Option<f64>)> {
     let (mut x, mut y, mut motion) = (0.0f64, 0.0f64, 0u32);
