@@ -161,15 +161,7 @@ impl Client {
         body: Option<Vec<u8>>,
     ) -> Result<T, ClientError> {
         let (status, body) = self.send(method, path, body).await?;
-        let bytes = body
-            .collect()
-            .await
-            .map_err(|e| ClientError::Protocol(e.to_string()))?
-            .to_bytes();
-        if !status.is_success() {
-            return Err(refusal(status, &bytes));
-        }
-        serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))
+        answer(status, &whole(body).await?)
     }
 
     pub async fn machines(&self) -> Result<Vec<MachineInfo>, ClientError> {
@@ -229,15 +221,7 @@ impl Client {
         let (status, body) = self
             .send_body(Method::POST, &uri, body, Some("text/plain"))
             .await?;
-        let bytes = body
-            .collect()
-            .await
-            .map_err(|e| ClientError::Protocol(e.to_string()))?
-            .to_bytes();
-        if !status.is_success() {
-            return Err(refusal(status, &bytes));
-        }
-        serde_json::from_slice(&bytes).map_err(|e| ClientError::Protocol(e.to_string()))
+        answer(status, &whole(body).await?)
     }
 
     /// Takes machine `machine`'s control lock; `take_over` (admins) breaks someone else's.
@@ -289,12 +273,7 @@ impl Client {
         body: Option<Vec<u8>>,
     ) -> Result<(StatusCode, Bytes), ClientError> {
         let (status, body) = self.send(method, path, body).await?;
-        let bytes = body
-            .collect()
-            .await
-            .map_err(|e| ClientError::Protocol(e.to_string()))?
-            .to_bytes();
-        Ok((status, bytes))
+        Ok((status, whole(body).await?))
     }
 
     /// What a resume of the job would do (from `from_line`, 1-based, when given).
@@ -348,11 +327,7 @@ impl Client {
     /// A text resource such as `GET /metrics`.
     pub async fn text(&self, path: &str) -> Result<String, ClientError> {
         let (status, body) = self.send(Method::GET, path, None).await?;
-        let bytes = body
-            .collect()
-            .await
-            .map_err(|e| ClientError::Protocol(e.to_string()))?
-            .to_bytes();
+        let bytes = whole(body).await?;
         if !status.is_success() {
             return Err(refusal(status, &bytes));
         }
@@ -376,14 +351,9 @@ impl Client {
 
     /// A stream of JSON-line events at `path` (a refusal read whole as the daemon's error).
     async fn event_stream(&self, path: &str) -> Result<EventStream, ClientError> {
-        let (status, mut body) = self.send(Method::GET, path, None).await?;
+        let (status, body) = self.send(Method::GET, path, None).await?;
         if !status.is_success() {
-            let bytes = (&mut body)
-                .collect()
-                .await
-                .map_err(|e| ClientError::Protocol(e.to_string()))?
-                .to_bytes();
-            return Err(refusal(status, &bytes));
+            return Err(refusal(status, &whole(body).await?));
         }
         Ok(EventStream {
             body,
@@ -406,6 +376,23 @@ where
         let _ = conn.await;
     });
     Ok(sender)
+}
+
+/// The whole body of a reply.
+async fn whole(body: Incoming) -> Result<Bytes, ClientError> {
+    Ok(body
+        .collect()
+        .await
+        .map_err(|e| ClientError::Protocol(e.to_string()))?
+        .to_bytes())
+}
+
+/// A reply read as JSON, or the daemon's refusal when its status is not a success.
+fn answer<T: DeserializeOwned>(status: StatusCode, bytes: &[u8]) -> Result<T, ClientError> {
+    if !status.is_success() {
+        return Err(refusal(status, bytes));
+    }
+    serde_json::from_slice(bytes).map_err(|e| ClientError::Protocol(e.to_string()))
 }
 
 fn refusal(status: StatusCode, bytes: &[u8]) -> ClientError {

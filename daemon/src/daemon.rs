@@ -211,21 +211,11 @@ impl Daemon {
             planner,
             events::router(service.clone()),
         );
-        servers.push(tokio::spawn(async move {
-            let app = app.into_make_service_with_connect_info::<Peer>();
-            if let Err(e) = axum::serve(listener, app).await {
-                tracing::error!("the API on the Unix socket stopped: {e}");
-            }
-        }));
+        servers.push(serve_api(listener, app, "the Unix socket"));
         servers.push(tokio::spawn(give_back_after_jobs(scheduler.clone())));
         let mut tcp = None;
         if let Some(addr) = opts.listen {
-            let l = tokio::net::TcpListener::bind(&addr)
-                .await
-                .map_err(|source| DaemonError::Listen {
-                    what: addr.clone(),
-                    source,
-                })?;
+            let l = bind_tcp(&addr).await?;
             tcp = l.local_addr().ok();
             let app = api::router_with(
                 scheduler.clone(),
@@ -242,12 +232,7 @@ impl Daemon {
                         }
                     })?;
                     access.audit.daemon(&format!("listen tls {addr}"), "done");
-                    servers.push(tokio::spawn(async move {
-                        let app = app.into_make_service_with_connect_info::<Peer>();
-                        if let Err(e) = axum::serve(l, app).await {
-                            tracing::error!("the API on TCP stopped: {e}");
-                        }
-                    }));
+                    servers.push(serve_api(l, app, "TCP"));
                 }
                 None => {
                     let warning = format!(
@@ -258,23 +243,13 @@ impl Daemon {
                     access
                         .audit
                         .daemon(&format!("listen plaintext {addr}"), "done: insecure");
-                    servers.push(tokio::spawn(async move {
-                        let app = app.into_make_service_with_connect_info::<Peer>();
-                        if let Err(e) = axum::serve(l, app).await {
-                            tracing::error!("the API on TCP stopped: {e}");
-                        }
-                    }));
+                    servers.push(serve_api(l, app, "TCP"));
                 }
             }
         }
         let mut metrics_addr = None;
         if let Some(addr) = opts.metrics_listen {
-            let l = tokio::net::TcpListener::bind(&addr)
-                .await
-                .map_err(|source| DaemonError::Listen {
-                    what: addr.clone(),
-                    source,
-                })?;
+            let l = bind_tcp(&addr).await?;
             metrics_addr = l.local_addr().ok();
             let app = events::metrics_router(service.clone());
             servers.push(tokio::spawn(async move {
@@ -341,6 +316,32 @@ impl Drop for Daemon {
     fn drop(&mut self) {
         self.abort_all();
     }
+}
+
+/// Binds a TCP listener at `addr`, the error naming it.
+async fn bind_tcp(addr: &str) -> Result<tokio::net::TcpListener, DaemonError> {
+    tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| DaemonError::Listen {
+            what: addr.to_string(),
+            source,
+        })
+}
+
+/// Serves the API on `listener` until the daemon stops, each request knowing its peer;
+/// `what` names the listener in the log if it stops.
+fn serve_api<L>(listener: L, app: axum::Router, what: &'static str) -> JoinHandle<()>
+where
+    L: axum::serve::Listener,
+    L::Addr: std::fmt::Debug,
+    Peer: for<'a> axum::extract::connect_info::Connected<axum::serve::IncomingStream<'a, L>>,
+{
+    tokio::spawn(async move {
+        let app = app.into_make_service_with_connect_info::<Peer>();
+        if let Err(e) = axum::serve(listener, app).await {
+            tracing::error!("the API on {what} stopped: {e}");
+        }
+    })
 }
 
 /// Binds the Unix socket (its path cleared and its folder checked by `fsperm`) with its mode
