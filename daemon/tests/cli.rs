@@ -2,11 +2,11 @@
 //! `watch`, `demo`, and one clear sentence with a non-zero exit for every bad input.
 
 mod common;
-use common::cli::{machlink, run, stderr};
+use common::cli::{machlink, run, stderr, Serve};
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Output, Stdio};
+use std::time::Duration;
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
@@ -31,39 +31,18 @@ fn sample() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/plate-with-islands.json")
 }
 
-/// A `machlink serve` child, killed when dropped.
-struct Serve {
-    child: Child,
-    socket: PathBuf,
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
 fn serve(dir: &Path, config: &str) -> Serve {
     let cfg = dir.join("machlink.toml");
     std::fs::write(&cfg, config).unwrap();
     let socket = dir.join("ml.sock");
-    let child = machlink()
-        .args(["serve", "--config"])
+    let mut cmd = machlink();
+    cmd.args(["serve", "--config"])
         .arg(&cfg)
         .arg("--socket")
         .arg(&socket)
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("serve starts");
-    let s = Serve { child, socket };
-    let until = Instant::now() + Duration::from_secs(20);
-    while !s.socket.exists() {
-        assert!(Instant::now() < until, "the daemon never opened its socket");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    s
+        .stderr(Stdio::null());
+    Serve::spawn(cmd, &socket, Duration::from_secs(20))
 }
 
 fn client(s: &Serve, args: &[&str]) -> Output {

@@ -3,26 +3,13 @@
 //! tokens made once, locks, exit statuses, and a closed stdout that is no crash.
 
 mod common;
-use common::cli::{machlink, stderr};
+use common::cli::{machlink, stderr, Serve};
 
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-/// A `machlink serve` child, killed when dropped.
-struct Serve {
-    child: Child,
-    socket: PathBuf,
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
 
 const CELL: &str = "[[machine]]\nname = \"bench\"\nlink = \"sim-grbl\"\ntime_scale = 100.0\n";
 
@@ -56,16 +43,8 @@ fn serve(dir: &Path, socket: &Path, umask: u32) -> Serve {
             Ok(())
         });
     }
-    let child = cmd.spawn().expect("serve starts");
-    let s = Serve {
-        child,
-        socket: socket.to_path_buf(),
-    };
+    let s = Serve::spawn(cmd, socket, Duration::from_secs(30));
     let until = Instant::now() + Duration::from_secs(30);
-    while !s.socket.exists() {
-        assert!(Instant::now() < until, "the daemon never opened its socket");
-        std::thread::sleep(Duration::from_millis(20));
-    }
     // the socket exists a moment before its mode is set; wait for an answer
     while !machlink()
         .args(["machines", "--socket"])

@@ -4,11 +4,12 @@
 //! `machlink events` with a webhook receiving the same events.
 
 mod common;
+use common::cli::Serve;
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
 
 fn machlink() -> Command {
     let mut c = common::cli::machlink();
@@ -222,27 +223,6 @@ fn the_unit_file_passes_systemd_analyze_verify() {
     );
 }
 
-/// A `machlink serve` child in `dir`, killed when dropped.
-struct Serve {
-    child: Child,
-    socket: PathBuf,
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-fn wait_for(path: &Path) {
-    let until = Instant::now() + Duration::from_secs(30);
-    while !path.exists() {
-        assert!(Instant::now() < until, "{} never appeared", path.display());
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
 fn serve(dir: &Path, extra: &str, args: &[&str], env: &[(&str, &str)]) -> Serve {
     let cfg = dir.join("machlink.toml");
     std::fs::write(
@@ -258,17 +238,9 @@ fn serve(dir: &Path, extra: &str, args: &[&str], env: &[(&str, &str)]) -> Serve 
     for (k, v) in env {
         c.env(k, v);
     }
-    let child = c
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(dir.join("serve.log")).unwrap())
-        .spawn()
-        .unwrap();
-    let s = Serve {
-        child,
-        socket: dir.join("ml.sock"),
-    };
-    wait_for(&s.socket);
-    s
+    c.stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("serve.log")).unwrap());
+    Serve::spawn(c, &dir.join("ml.sock"), Duration::from_secs(30))
 }
 
 fn gcode(dir: &Path) -> PathBuf {

@@ -27,3 +27,36 @@ pub fn stderr(o: &Output) -> String {
 pub fn ok(o: &Output, what: &str) {
     assert!(o.status.success(), "{what} failed: {}", stderr(o));
 }
+
+/// A `machlink serve` child, killed when dropped.
+pub struct Serve {
+    pub child: std::process::Child,
+    pub socket: std::path::PathBuf,
+}
+
+impl Serve {
+    /// Spawns `cmd` (a `machlink serve …`) and waits up to `within` for it to make `socket`.
+    pub fn spawn(mut cmd: Command, socket: &std::path::Path, within: std::time::Duration) -> Serve {
+        let s = Serve {
+            child: cmd.spawn().expect("machlink serve starts"),
+            socket: socket.to_path_buf(),
+        };
+        let until = std::time::Instant::now() + within;
+        while !s.socket.exists() {
+            assert!(
+                std::time::Instant::now() < until,
+                "the daemon never opened its socket {}",
+                s.socket.display()
+            );
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        s
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
