@@ -379,55 +379,36 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
     let foot = a + dir * s0;
     let hd = foot.norm();
     let r = c.r;
-    let mut cands: [(f64, bool); 2] = [(0.0, false); 2];
     if hd > r + eps {
         return h;
     }
-    let el = eps / len;
-    let ea = slack(c, eps);
+    let (el, ea) = (eps / len, slack(c, eps));
+    // the point `s` along the line, with its parameters in the caller's order, when it lies
+    // on both
+    let on_both = |s: f64| -> Option<(Point, f64, f64)> {
+        let t = accept(s / len, el)?;
+        let p = l.point_at(t);
+        let u = accept(c.param(p), ea)?;
+        Some(if swap { (p, u, t) } else { (p, t, u) })
+    };
+    // the two crossings lie k either side of the foot
+    let k = ((r - hd) * (r + hd)).max(0.0).sqrt();
     if hd >= r - eps {
         // tangent within eps: one point
-        cands[0] = (s0, true);
-    } else {
-        let k = ((r - hd) * (r + hd)).max(0.0).sqrt();
-        cands[0] = (s0 - k, true);
-        cands[1] = (s0 + k, true);
-    }
-    for (s, ok) in cands {
-        if !ok {
-            continue;
-        }
-        let t = s / len;
-        let Some(t) = accept(t, el) else { continue };
-        let p = l.point_at(t);
-        let Some(u) = accept(c.param(p), ea) else {
-            continue;
-        };
-        if swap {
-            h.push(p, u, t);
-        } else {
+        if let Some((p, t, u)) = on_both(s0) {
             h.push(p, t, u);
-        }
-    }
-    if h.n == 0 && hd < r && hd >= r - eps {
-        // a graze taken as one touching point that lies just off an end: the two crossings
-        // it stands for lie up to √(2 r ε) either side of it, and one of them may still lie
-        // on both (a line through an arc's end at a shallow angle, as where an offset arc
-        // meets the offset of a line it was nearly tangent to)
-        let k = ((r - hd) * (r + hd)).sqrt();
-        for s in [s0 - k, s0 + k] {
-            let Some(t) = accept(s / len, el) else {
-                continue;
-            };
-            let p = l.point_at(t);
-            if let Some(u) = accept(c.param(p), ea) {
-                if swap {
-                    h.push(p, u, t);
-                } else {
-                    h.push(p, t, u);
-                }
-                break;
+        } else if hd < r {
+            // a graze taken as one touching point that lies just off an end: the two
+            // crossings it stands for lie up to √(2 r ε) either side of it, and one of them
+            // may still lie on both (a line through an arc's end at a shallow angle, as
+            // where an offset arc meets the offset of a line it was nearly tangent to)
+            if let Some((p, t, u)) = [s0 - k, s0 + k].into_iter().find_map(on_both) {
+                h.push(p, t, u);
             }
+        }
+    } else {
+        for (p, t, u) in [s0 - k, s0 + k].into_iter().filter_map(on_both) {
+            h.push(p, t, u);
         }
     }
     h
