@@ -50,12 +50,12 @@ pub struct Config {
     pub daemon: DaemonConfig,
     pub machines: Vec<MachineConfig>,
     /// `[fleet]`: the daemon shares a queue and a view with others on NATS JetStream.
-    pub fleet: Option<crate::fleet::FleetConfig>,
+    pub fleet: Option<crate::services::fleet::FleetConfig>,
     /// `[[webhook]]`: URLs that get a POST of chosen events.
-    pub webhooks: Vec<crate::webhooks::WebhookConfig>,
+    pub webhooks: Vec<crate::services::webhooks::WebhookConfig>,
     /// The `[access]` table: tokens, local users and groups, socket group, audit log
-    /// (`crate::access`).
-    pub access: crate::access::AccessConfig,
+    /// (`crate::services::access`).
+    pub access: crate::services::access::AccessConfig,
 }
 
 /// The `[daemon]` table, resolved.
@@ -184,11 +184,11 @@ struct RawConfig {
     #[serde(default)]
     machine: Vec<toml::Spanned<RawMachine>>,
     #[serde(default)]
-    fleet: Option<toml::Spanned<crate::fleet::FleetConfig>>,
+    fleet: Option<toml::Spanned<crate::services::fleet::FleetConfig>>,
     #[serde(default)]
-    webhook: Vec<toml::Spanned<crate::webhooks::WebhookConfig>>,
+    webhook: Vec<toml::Spanned<crate::services::webhooks::WebhookConfig>>,
     #[serde(default)]
-    access: crate::access::RawAccess,
+    access: crate::services::access::RawAccess,
 }
 
 #[derive(Default, Deserialize)]
@@ -232,7 +232,7 @@ impl Config {
 
     /// Reads and checks a config file with the standard machine kinds.
     pub fn load(path: &Path) -> Result<Config, ConfigError> {
-        Config::load_with(path, &crate::registry::standard())
+        Config::load_with(path, &crate::core::registry::standard())
     }
 
     /// Reads and checks a config file whose machines are of the kinds in `registry`.
@@ -247,7 +247,7 @@ impl Config {
     /// Parses config text with the standard machine kinds; `path` names the file in errors
     /// and anchors relative paths.
     pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
-        Config::parse_with(text, path, &crate::registry::standard())
+        Config::parse_with(text, path, &crate::core::registry::standard())
     }
 
     /// Parses config text whose machines are of the kinds in `registry`.

@@ -4,7 +4,7 @@
 
 use machlink::config::Config;
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::store::{JobRecord, JobState, NewJob};
+use machlink::core::store::{JobRecord, JobState, NewJob};
 use machlink_protocols::modbus::{post_blocks, MotionBlock};
 use machlink_protocols::Program;
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig, TraceEvent};
@@ -57,7 +57,7 @@ fn submit(d: &Daemon, blocks: &[MotionBlock]) -> JobRecord {
 
 async fn wait_for(
     d: &Daemon,
-    id: machlink::store::JobId,
+    id: machlink::core::store::JobId,
     done: impl Fn(&JobRecord) -> bool,
 ) -> JobRecord {
     let t = tokio::time::Instant::now();

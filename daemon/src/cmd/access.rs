@@ -3,7 +3,7 @@
 
 use super::connect::ClientArgs;
 use super::operate::runtime;
-use machlink::access::{hex, new_token, token_hash, Role};
+use machlink::services::access::{hex, new_token, token_hash, Role};
 
 #[derive(clap::Args)]
 pub struct TokenArgs {

@@ -2,8 +2,8 @@
 //! running job. Each is refused in a sentence when the machine's kind cannot do it.
 
 use super::operate::{runtime, ClientArgs};
-use machlink::scheduler::OverridePatch;
-use machlink::store::JobId;
+use machlink::core::scheduler::OverridePatch;
+use machlink::core::store::JobId;
 use machlink_protocols::Operation;
 
 #[derive(clap::Args)]

@@ -2,7 +2,7 @@
 //! interrupted, for scripts and dashboards.
 
 use super::operate::{runtime, ClientArgs};
-use machlink::scheduler::Event;
+use machlink::core::scheduler::Event;
 use std::io::Write;
 
 #[derive(clap::Args)]

@@ -2,9 +2,9 @@
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use machlink::client::Client;
-use machlink::scheduler::Event;
-use machlink::store::{JobId, JobRecord, JobState};
+use machlink::core::scheduler::Event;
+use machlink::core::store::{JobId, JobRecord, JobState};
+use machlink::faces::client::Client;
 use std::io::{IsTerminal, Write};
 use std::time::Duration;
 

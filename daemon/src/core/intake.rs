@@ -3,8 +3,8 @@
 //! post for `machlink plan`) become a checked program. `plan`, `submit` (through the API),
 //! `preview` and `demo` all go through [`plan`], so the same flags make the same bytes.
 
-use crate::check;
 use crate::config::MachineConfig;
+use crate::core::check;
 use base64::Engine;
 use machlink_protocols::{AnyPost, Program};
 use offset_core::mesh::{Finish3dParams, Mesh, MeshOptions, Rough3dParams, WaterlineParams};
@@ -348,10 +348,10 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
     )
     .map_err(|e| IntakeError::Input(e.to_string()))?;
     let vertices: usize = shape.paths.iter().map(|p| p.vertices.len()).sum();
-    if vertices > crate::limits::MAX_SHAPE_VERTICES {
+    if vertices > crate::faces::api::limits::MAX_SHAPE_VERTICES {
         return Err(IntakeError::Input(format!(
             "{file} has {vertices} vertices, more than the daemon's limit of {} per job",
-            crate::limits::MAX_SHAPE_VERTICES
+            crate::faces::api::limits::MAX_SHAPE_VERTICES
         )));
     }
     Ok((

@@ -10,9 +10,9 @@
 //! the machine's lock. A route missing from the table is refused for everyone (403), so a new
 //! route cannot slip through unguarded: add its line here (see docs/security.md).
 
-use crate::audit::{Audit, Record};
-use crate::scheduler::Scheduler;
-use crate::store::{now_ms, JobId};
+use crate::core::scheduler::Scheduler;
+use crate::core::store::{now_ms, JobId};
+use crate::services::audit::{Audit, Record};
 use axum::extract::{ConnectInfo, MatchedPath, Request, State};
 use axum::http::{header, Method, StatusCode};
 use axum::middleware::Next;
@@ -593,7 +593,7 @@ pub struct Denied(pub StatusCode, pub String);
 
 impl IntoResponse for Denied {
     fn into_response(self) -> Response {
-        crate::api::ApiError(self.0, self.1).into_response()
+        crate::faces::api::ApiError(self.0, self.1).into_response()
     }
 }
 

@@ -2,9 +2,9 @@
 //! the service routes beside the API (`/metrics`, `/events`), and the log lines of each
 //! job's start, pause, end and fault.
 
-use crate::metrics::Metrics;
-use crate::scheduler::{Event, Scheduler};
-use crate::store::{JobId, JobState};
+use crate::core::scheduler::{Event, Scheduler};
+use crate::core::store::{JobId, JobState};
+use crate::services::metrics::Metrics;
 use axum::body::Body;
 use axum::extract::{Query, State};
 use axum::http::{header, StatusCode};
@@ -98,7 +98,7 @@ async fn events(
     let Ok(Query(q)) = query else {
         return (
             StatusCode::BAD_REQUEST,
-            axum::Json(crate::api::ErrorBody {
+            axum::Json(crate::faces::api::ErrorBody {
                 error: "GET /events takes only ?machine=NAME".into(),
             }),
         )
@@ -106,7 +106,7 @@ async fn events(
     };
     if let Some(m) = &q.machine {
         if let Err(e) = s.sched.machine_config(m) {
-            return crate::api::ApiError::from(e).into_response();
+            return crate::faces::api::ApiError::from(e).into_response();
         }
     }
     let rx = s.sched.subscribe();

@@ -12,8 +12,8 @@
 mod run;
 
 use crate::config::MachineConfig;
-use crate::resume::ResumePreview;
-use crate::store::{JobId, JobRecord, JobState, NewJob, NewJobUnits, Store, StoreError};
+use crate::core::resume::ResumePreview;
+use crate::core::store::{JobId, JobRecord, JobState, NewJob, NewJobUnits, Store, StoreError};
 use machlink_protocols::kind::{Device, MachineLink};
 use machlink_protocols::{Control, DeviceState, LinkError, MachineStatus, Operation, Overrides};
 use serde::{Deserialize, Serialize};
@@ -145,7 +145,7 @@ struct Inner {
     /// Set by a graceful shutdown: no new jobs, nothing new starts.
     closing: AtomicBool,
     /// The metrics attached with `Scheduler::attach_metrics` (each machine holds them too).
-    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
+    metrics: std::sync::OnceLock<Arc<crate::services::metrics::Metrics>>,
 }
 
 struct Machine {
@@ -162,7 +162,7 @@ struct Machine {
     /// Its slot in the store's progress file.
     slot: usize,
     /// Where link openings and failures are counted (`Scheduler::attach_metrics`).
-    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
+    metrics: std::sync::OnceLock<Arc<crate::services::metrics::Metrics>>,
     /// A link to the machine has been opened before (a later opening is a reconnect).
     opened: AtomicBool,
 }
@@ -363,12 +363,12 @@ impl Scheduler {
     }
 
     /// The metrics attached with `attach_metrics`, for the intake to count into.
-    pub fn metrics(&self) -> Option<&Arc<crate::metrics::Metrics>> {
+    pub fn metrics(&self) -> Option<&Arc<crate::services::metrics::Metrics>> {
         self.inner.metrics.get()
     }
 
     /// Counts link openings and failures into `metrics` from now on.
-    pub fn attach_metrics(&self, metrics: Arc<crate::metrics::Metrics>) {
+    pub fn attach_metrics(&self, metrics: Arc<crate::services::metrics::Metrics>) {
         let _ = self.inner.metrics.set(metrics.clone());
         for m in self.inner.machines.values() {
             let _ = m.metrics.set(metrics.clone());
@@ -502,7 +502,7 @@ impl Scheduler {
             Some(a) if a.job == id => Some(a.waits_at),
             _ => None,
         };
-        crate::resume::preview(&self.inner.store, &m.config, &job, from_line, active)
+        crate::core::resume::preview(&self.inner.store, &m.config, &job, from_line, active)
     }
 
     /// Carries out an operator's operation on a machine between jobs (unlock, home, jog);

@@ -5,8 +5,8 @@
 //! confirmation (`--yes` for scripts) before it posts the resume.
 
 use crate::config::MachineConfig;
-use crate::scheduler::SchedError;
-use crate::store::{JobId, JobRecord, JobState, Store};
+use crate::core::scheduler::SchedError;
+use crate::core::store::{JobId, JobRecord, JobState, Store};
 use serde::{Deserialize, Serialize};
 
 /// A resume, described before it is made.

@@ -11,17 +11,21 @@
 //! | `POST /machines/{name}/unlock`, `/home`, `/jog` | the operator at the machine, between jobs |
 //! | `GET /jobs/{id}/events` | newline-delimited JSON events until the job ends |
 //! | `POST /machines/{name}/gcode?file_name=F` | a G-code file streamed into the store (`upload`) |
-//! | `POST /machines/{name}/lock`, `/release`, `GET /locks` | the control lock (`access_api`) |
+//! | `POST /machines/{name}/lock`, `/release`, `GET /locks` | the control lock (`api::access`) |
 //! | `GET /whoami`, `POST /access/reload` | the caller's role; reload the access table |
 //!
 //! Who may call what is the route table of `access` (`access::ROUTES`); every route added
 //! here needs its line there. Refusals are 4xx with `{ "error": "one sentence" }`.
 
-use crate::access::{Access, Acted, Gate, Principal};
-use crate::intake::{IntakeError, JobSpec};
-use crate::planner::{PlanError, PlanFn};
-use crate::scheduler::{Event, SchedError, Scheduler};
-use crate::store::{JobId, NewJob};
+pub mod access;
+pub mod limits;
+pub mod upload;
+
+use crate::core::intake::{IntakeError, JobSpec};
+use crate::core::planner::{PlanError, PlanFn};
+use crate::core::scheduler::{Event, SchedError, Scheduler};
+use crate::core::store::{JobId, NewJob};
+use crate::services::access::{Access, Acted, Gate, Principal};
 use axum::body::Body;
 use axum::extract::{Extension, Path, Request, State};
 use axum::http::{header, StatusCode};
@@ -95,7 +99,7 @@ pub fn router_with(
         access: access.clone(),
         planner,
         plans: Arc::new(tokio::sync::Semaphore::new(
-            crate::limits::MAX_CONCURRENT_PLANS,
+            crate::faces::api::limits::MAX_CONCURRENT_PLANS,
         )),
     };
     let gate = Gate {
@@ -114,20 +118,23 @@ pub fn router_with(
         .route("/machines/{name}/{op}", post(operate))
         .route("/jobs/{id}/cancel", post(cancel))
         .route("/jobs/{id}/events", get(events))
-        .route("/machines/{name}/gcode", post(crate::upload::gcode))
-        .merge(crate::access_api::routes())
+        .route(
+            "/machines/{name}/gcode",
+            post(crate::faces::api::upload::gcode),
+        )
+        .merge(crate::faces::api::access::routes())
         .route_layer(middleware::from_fn_with_state(
             gate,
-            crate::access::authorize,
+            crate::services::access::authorize,
         ))
         .fallback(|| async { bad("no such request: see docs/daemon.md for the API") })
         .layer(middleware::from_fn_with_state(
             access,
-            crate::access::authenticate,
+            crate::services::access::authenticate,
         ))
-        .layer(middleware::from_fn(crate::limits::json_errors))
+        .layer(middleware::from_fn(crate::faces::api::limits::json_errors))
         .layer(axum::extract::DefaultBodyLimit::max(
-            crate::limits::MAX_JSON_BODY,
+            crate::faces::api::limits::MAX_JSON_BODY,
         ))
         .with_state(state)
 }
@@ -168,7 +175,7 @@ async fn resume(
     req: Request,
 ) -> Result<Response, ApiError> {
     let id = job_id(&id)?;
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let req: ResumeRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
         ResumeRequest::default()
     } else {
@@ -191,7 +198,7 @@ async fn submit(
     Extension(who): Extension<Principal>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let spec: JobSpec = serde_json::from_slice(&body)
         .map_err(|e| bad(format!("the request is not a valid job: {e}")))?;
     drop(body);
@@ -222,10 +229,15 @@ pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiEr
                 format!("the daemon is stopping: {e}"),
             )
         })?;
-        crate::planner::plan_isolated(spec, machine, st.planner, crate::planner::PLAN_TIME_LIMIT)
-            .await
+        crate::core::planner::plan_isolated(
+            spec,
+            machine,
+            st.planner,
+            crate::core::planner::PLAN_TIME_LIMIT,
+        )
+        .await
     };
-    crate::memory::give_back();
+    crate::services::memory::give_back();
     let planned = planned.map_err(|e| match e {
         PlanError::Intake(IntakeError::Refused(m)) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
         PlanError::Intake(other) => bad(other.to_string()),
@@ -234,13 +246,13 @@ pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiEr
         }
         other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, other.to_string()),
     })?;
-    if planned.program.len() > crate::limits::MAX_PROGRAM_UNITS {
+    if planned.program.len() > crate::faces::api::limits::MAX_PROGRAM_UNITS {
         return Err(ApiError(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!(
                 "the program has {} units, more than the daemon's limit of {}",
                 planned.program.len(),
-                crate::limits::MAX_PROGRAM_UNITS
+                crate::faces::api::limits::MAX_PROGRAM_UNITS
             ),
         ));
     }
@@ -359,7 +371,7 @@ async fn resume_preview(
 /// The answer to `POST /jobs/{id}/override`: the job and the overrides now in force.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct OverrideAnswer {
-    pub job: crate::store::JobRecord,
+    pub job: crate::core::store::JobRecord,
     pub overrides: machlink_protocols::Overrides,
 }
 
@@ -368,7 +380,7 @@ async fn override_job(
     Path(id): Path<String>,
     body: axum::body::Bytes,
 ) -> Result<Response, ApiError> {
-    let patch: crate::scheduler::OverridePatch = serde_json::from_slice(&body)
+    let patch: crate::core::scheduler::OverridePatch = serde_json::from_slice(&body)
         .map_err(|e| bad(format!("the override request is not valid: {e}")))?;
     let (job, overrides) = st.sched.override_job(job_id(&id)?, patch).await?;
     Ok(Json(OverrideAnswer { job, overrides }).into_response())

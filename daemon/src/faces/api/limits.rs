@@ -26,8 +26,8 @@ pub fn mib(bytes: u64) -> String {
 }
 
 /// The refusal of a body over `limit`.
-pub fn too_large(what: &str, limit: u64) -> crate::api::ApiError {
-    crate::api::ApiError(
+pub fn too_large(what: &str, limit: u64) -> crate::faces::api::ApiError {
+    crate::faces::api::ApiError(
         StatusCode::PAYLOAD_TOO_LARGE,
         format!(
             "{what} is larger than the daemon's limit of {} (docs/daemon.md, Limits)",
@@ -37,7 +37,7 @@ pub fn too_large(what: &str, limit: u64) -> crate::api::ApiError {
 }
 
 /// Reads a whole JSON body of at most [`MAX_JSON_BODY`] bytes.
-pub async fn json_body(req: Request) -> Result<axum::body::Bytes, crate::api::ApiError> {
+pub async fn json_body(req: Request) -> Result<axum::body::Bytes, crate::faces::api::ApiError> {
     let limit = MAX_JSON_BODY as u64;
     if content_length(&req).is_some_and(|n| n > limit) {
         return Err(too_large("the request body", limit));
@@ -48,7 +48,7 @@ pub async fn json_body(req: Request) -> Result<axum::body::Bytes, crate::api::Ap
         Err(e) if e.is::<http_body_util::LengthLimitError>() => {
             Err(too_large("the request body", limit))
         }
-        Err(e) => Err(crate::api::ApiError(
+        Err(e) => Err(crate::faces::api::ApiError(
             StatusCode::BAD_REQUEST,
             format!("the request body could not be read: {e}"),
         )),
@@ -96,7 +96,7 @@ pub async fn json_errors(req: Request, next: Next) -> Response {
         (_, true) => reason.to_string(),
         (_, false) => format!("{reason}: {text}"),
     };
-    let mut r = crate::api::ApiError(status, sentence).into_response();
+    let mut r = crate::faces::api::ApiError(status, sentence).into_response();
     for (k, v) in parts.headers.iter() {
         if k != header::CONTENT_TYPE && k != header::CONTENT_LENGTH {
             r.headers_mut().insert(k, v.clone());

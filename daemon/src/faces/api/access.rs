@@ -2,8 +2,8 @@
 //! `GET /locks`), who the caller is (`GET /whoami`), and reloading the access table
 //! (`POST /access/reload`). Their lines in the route table are in `access::ROUTES`.
 
-use crate::access::{Acted, Principal, Role};
-use crate::api::{ApiError, AppState};
+use crate::faces::api::{ApiError, AppState};
+use crate::services::access::{Acted, Principal, Role};
 use axum::extract::{Extension, Path, Request, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
@@ -29,7 +29,7 @@ pub struct LockRequest {
     pub take_over: bool,
 }
 
-fn denied(d: crate::access::Denied) -> ApiError {
+fn denied(d: crate::services::access::Denied) -> ApiError {
     ApiError(d.0, d.1)
 }
 
@@ -50,7 +50,7 @@ async fn lock(
     req: Request,
 ) -> Result<Response, ApiError> {
     st.sched.machine_config(&name)?;
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let r: LockRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
         LockRequest::default()
     } else {
