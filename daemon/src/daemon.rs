@@ -4,6 +4,7 @@ use crate::config::Config;
 use crate::core::scheduler::{JournalPolicy, MachineSetup, Scheduler};
 use crate::core::store::{Store, StoreError};
 use crate::faces::api;
+use crate::faces::api::service;
 use crate::services::access::{Access, Peer};
 use crate::services::audit::Audit;
 use crate::services::events;
@@ -92,7 +93,7 @@ pub struct Daemon {
     /// The address `GET /metrics` is served on alone, when asked (`metrics_listen`).
     pub metrics_addr: Option<SocketAddr>,
     /// The daemon's metrics and events (`GET /metrics`, `GET /events`).
-    pub service: events::Service,
+    pub service: service::Service,
     /// Who may do what, the machines' locks and the audit log.
     pub access: Arc<Access>,
     servers: Vec<JoinHandle<()>>,
@@ -189,7 +190,7 @@ impl Daemon {
         scheduler.attach_metrics(metrics.clone());
         servers.push(tokio::spawn(metrics.clone().follow(scheduler.subscribe())));
         servers.push(tokio::spawn(events::log_jobs(scheduler.subscribe())));
-        let service = events::Service {
+        let service = service::Service {
             sched: scheduler.clone(),
             metrics,
         };
@@ -209,7 +210,7 @@ impl Daemon {
             scheduler.clone(),
             access.clone(),
             planner,
-            events::router(service.clone()),
+            service::router(service.clone()),
         );
         servers.push(serve_api(listener, app, "the Unix socket"));
         servers.push(tokio::spawn(give_back_after_jobs(scheduler.clone())));
@@ -221,7 +222,7 @@ impl Daemon {
                 scheduler.clone(),
                 access.clone(),
                 planner,
-                events::router(service.clone()),
+                service::router(service.clone()),
             );
             match tls {
                 Some(cfg) => {
@@ -251,7 +252,7 @@ impl Daemon {
         if let Some(addr) = opts.metrics_listen {
             let l = bind_tcp(&addr).await?;
             metrics_addr = l.local_addr().ok();
-            let app = events::metrics_router(service.clone());
+            let app = service::metrics_router(service.clone());
             servers.push(tokio::spawn(async move {
                 if let Err(e) = axum::serve(l, app).await {
                     tracing::error!("the metrics listener stopped: {e}");

@@ -4,9 +4,9 @@
 //! checked as it streams in is refused or taken exactly as the whole file is.
 //! Cases per property: 4000, scaled by `PROPTEST_CASES / 256`.
 
-use machlink::config::{MachineConfig, WorkArea};
 use machlink::core::check::{gcode_program, GcodeCheck};
 use machlink::core::intake::{self, Input, JobSpec};
+use machlink::core::machine::{MachineConfig, WorkArea};
 use proptest::prelude::*;
 
 /// 4000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).

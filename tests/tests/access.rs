@@ -4,10 +4,10 @@
 mod common;
 
 use common::*;
-use machlink::services::access::{hex, new_token, token_hash, ROUTES};
-use machlink::faces::client::{Client, Endpoint};
-use machlink::daemon::{Daemon, StartOptions};
 use machlink::core::store::{JobId, JobState};
+use machlink::daemon::{Daemon, StartOptions};
+use machlink::faces::client::{Client, Endpoint};
+use machlink::services::access::{hex, new_token, token_hash, ROUTES};
 use std::path::Path;
 
 /// The tokens of the test cell, by name.

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
-use machlink::daemon::StartOptions;
 use machlink::core::scheduler::OverridePatch;
 use machlink::core::store::JobState;
+use machlink::daemon::StartOptions;
 use machlink_protocols::{DeviceState, Operation};
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter, Motion};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
-use machlink::daemon::StartOptions;
 use machlink::core::intake::Operation;
 use machlink::core::store::JobState;
+use machlink::daemon::StartOptions;
 use machlink_protocols::DeviceState;
 use machlink_sim::canopen::kind::SimCanopen;
 use offset_core::ops::{Cutting, PocketParams, Stepover};

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
-use machlink::daemon::{Daemon, StartOptions};
 use machlink::core::intake::{IntakeError, JobSpec, Planned, Target};
 use machlink::core::store::JobState;
+use machlink::daemon::{Daemon, StartOptions};
 
 /// The planner of this test: the real one, except for two files whose planning really
 /// overflows its stack or panics (the fault a pathological shape can cause).
@@ -38,7 +38,9 @@ const SQUARE: &str =
 
 fn shape_job(machine: &str, file_name: &str) -> JobSpec {
     let mut j = job(machine, file_name, SQUARE);
-    j.operation = Some(machlink::core::intake::Operation::Profile(Default::default()));
+    j.operation = Some(machlink::core::intake::Operation::Profile(
+        Default::default(),
+    ));
     j
 }
 

@@ -3,8 +3,8 @@
 //! and a daemon crash in the middle of a job resumes without losing or repeating a block.
 
 use machlink::config::Config;
-use machlink::daemon::{Daemon, StartOptions};
 use machlink::core::store::{JobRecord, JobState, NewJob};
+use machlink::daemon::{Daemon, StartOptions};
 use machlink_protocols::modbus::{post_blocks, MotionBlock};
 use machlink_protocols::Program;
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig, TraceEvent};

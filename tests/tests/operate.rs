@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use futures::future::BoxFuture;
-use machlink::daemon::StartOptions;
 use machlink::core::store::{JobState, Store};
+use machlink::daemon::StartOptions;
 use machlink_protocols::grbl::resume::{reposition, ResumeOptions};
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
 use machlink_protocols::kind::{started, MachineKind, OpenLink};

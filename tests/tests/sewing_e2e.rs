@@ -4,9 +4,9 @@
 mod common;
 
 use common::*;
-use machlink::daemon::StartOptions;
 use machlink::core::intake::{self, JobSpec, Operation, Target};
 use machlink::core::store::JobState;
+use machlink::daemon::StartOptions;
 use machlink_protocols::sewing::{StitchKind, StitchRecord};
 use machlink_sim::sewing::SewingSim;
 use offset_core::stitch::StitchParams;

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
-use machlink::services::access::new_token;
-use machlink::faces::client::{Client, ClientError, Endpoint};
 use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
+use machlink::faces::client::{Client, ClientError, Endpoint};
+use machlink::services::access::new_token;
 use std::path::{Path, PathBuf};
 
 const MACHINE: &str = "[[machine]]\nname = \"bench\"\nlink = \"sim-grbl\"\ntime_scale = 100.0\n";

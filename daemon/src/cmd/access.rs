@@ -2,7 +2,7 @@
 //! it), `lock` / `release` (a machine's control lock), `locks`, `whoami`, `reload`.
 
 use super::connect::ClientArgs;
-use super::operate::runtime;
+use super::runtime;
 use machlink::services::access::{hex, new_token, token_hash, Role};
 
 #[derive(clap::Args)]

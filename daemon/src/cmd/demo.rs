@@ -4,8 +4,9 @@
 
 use super::operate::watch_job;
 use anyhow::Context;
-use machlink::config::{Config, MachineConfig};
+use machlink::config::Config;
 use machlink::core::intake::{self, Input, JobSpec, Operation};
+use machlink::core::machine::MachineConfig;
 use machlink::daemon::{Daemon, StartOptions};
 use machlink::faces::client::{Client, Endpoint};
 use machlink_sim::grbl::GrblSimHandle;

@@ -1,6 +1,6 @@
 //! `--fleet nats://…` on `submit` and `jobs`: the fleet of daemons from any host.
 
-use super::operate::runtime;
+use super::runtime;
 use machlink::core::intake::JobSpec;
 use machlink::services::fleet::client::FleetClient;
 use std::path::PathBuf;

@@ -48,7 +48,7 @@ pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
     } else {
         Some(a.job.spec(&a.file, Some(a.machine.clone()), a.post)?)
     };
-    super::operate::runtime()?.block_on(async {
+    super::runtime()?.block_on(async {
         let job = match &spec {
             Some(spec) => client.submit(spec).await?,
             None => client.submit_gcode_file(&a.machine, &a.file).await?,

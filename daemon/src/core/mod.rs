@@ -7,6 +7,7 @@
 
 pub mod check;
 pub mod intake;
+pub mod machine;
 pub mod planner;
 pub mod registry;
 pub mod resume;

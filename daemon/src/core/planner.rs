@@ -9,8 +9,8 @@
 //! held at the fork (it allocates, which glibc keeps safe across fork, and computes); its
 //! panics go through a hook installed once in the parent that stays silent in a child.
 
-use crate::config::MachineConfig;
 use crate::core::intake::{IntakeError, JobSpec, Planned, Target};
+use crate::core::machine::MachineConfig;
 use machlink_protocols::Program;
 use std::io::{Read, Write};
 use std::os::fd::OwnedFd;

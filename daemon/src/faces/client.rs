@@ -3,7 +3,7 @@
 use crate::core::intake::JobSpec;
 use crate::core::scheduler::{Event, MachineInfo};
 use crate::core::store::{JobId, JobRecord};
-use crate::faces::api::ErrorBody;
+use crate::faces::api::error::ErrorBody;
 use http_body_util::{BodyExt, Full};
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, StatusCode};
@@ -189,7 +189,7 @@ impl Client {
 
     /// Restarts a stopped job from program line `line` (1-based).
     pub async fn resume_from_line(&self, id: JobId, line: usize) -> Result<JobRecord, ClientError> {
-        let body = serde_json::to_vec(&crate::faces::api::ResumeRequest {
+        let body = serde_json::to_vec(&crate::faces::api::jobs::ResumeRequest {
             from_line: Some(line),
         })
         .map_err(|e| ClientError::Protocol(e.to_string()))?;
@@ -292,7 +292,7 @@ impl Client {
         &self,
         id: JobId,
         patch: &crate::core::scheduler::OverridePatch,
-    ) -> Result<crate::faces::api::OverrideAnswer, ClientError> {
+    ) -> Result<crate::faces::api::jobs::OverrideAnswer, ClientError> {
         let body = serde_json::to_vec(patch).map_err(|e| ClientError::Protocol(e.to_string()))?;
         self.call(Method::POST, &format!("/jobs/{id}/override"), Some(body))
             .await
@@ -303,7 +303,7 @@ impl Client {
         &self,
         machine: &str,
         op: &machlink_protocols::Operation,
-    ) -> Result<crate::faces::api::OperateAnswer, ClientError> {
+    ) -> Result<crate::faces::api::jobs::OperateAnswer, ClientError> {
         use machlink_protocols::Operation;
         let (name, body) = match op {
             Operation::Unlock => ("unlock", None),

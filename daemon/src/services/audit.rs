@@ -1,7 +1,7 @@
 //! The audit log: one JSON line per state change (and per refused attempt at one), saying who,
 //! when, what, from where and with which token. The file is created 0600 and only appended to.
 
-use crate::services::access::Role;
+use crate::services::role::Role;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -69,6 +69,19 @@ impl Default for Metrics {
     }
 }
 
+/// The scheduler's counters are these metrics.
+impl crate::core::scheduler::Counters for Metrics {
+    fn link_opened(&self, machine: &str, reopened: bool) {
+        Metrics::link_opened(self, machine, reopened)
+    }
+    fn link_failed(&self, machine: &str, error: &LinkError) {
+        Metrics::link_failed(self, machine, error)
+    }
+    fn job_submitted(&self, machine: &str, planning: Duration) {
+        Metrics::job_submitted(self, machine, planning)
+    }
+}
+
 impl Metrics {
     pub fn new() -> Metrics {
         let planning = [

@@ -11,6 +11,7 @@ pub mod fleet;
 pub mod fsperm;
 pub mod memory;
 pub mod metrics;
+pub mod role;
 pub mod systemd;
 pub mod tls;
 pub mod webhooks;

@@ -1,10 +1,9 @@
 //! The daemon's bounds on what a request may hold, and JSON for every refusal (docs/daemon.md,
-//! "Limits"). Each limit is refused with a sentence naming it, never with a plain-text page.
+//! "Limits"). Each limit is refused with a sentence naming it (`LimitError`, which the API
+//! answers with 413 or 400 in `error`), never with a plain-text page.
 
 use axum::extract::Request;
-use axum::http::{header, StatusCode};
-use axum::middleware::Next;
-use axum::response::{IntoResponse, Response};
+use axum::http::header;
 use http_body_util::BodyExt;
 
 /// A JSON request body (`POST /jobs` with its file inside, `/resume`, …).
@@ -15,8 +14,8 @@ pub const MAX_GCODE_BODY: u64 = 512 << 20;
 pub const MAX_GCODE_LINE: usize = 4096;
 /// Units of one program (G-code lines, motion blocks, stitches), planned or handed in.
 pub const MAX_PROGRAM_UNITS: usize = 20_000_000;
-/// Vertices of one job's shape, all paths together.
-pub const MAX_SHAPE_VERTICES: usize = 2_000_000;
+/// Vertices of one job's shape, all paths together (the intake's own bound).
+pub use crate::core::intake::MAX_SHAPE_VERTICES;
 /// Jobs planned at once; more requests wait their turn.
 pub const MAX_CONCURRENT_PLANS: usize = 2;
 
@@ -25,19 +24,25 @@ pub fn mib(bytes: u64) -> String {
     format!("{} MiB", bytes >> 20)
 }
 
+/// A request over one of the bounds, or one whose body could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum LimitError {
+    #[error("{what} is larger than the daemon's limit of {} (docs/daemon.md, Limits)", mib(*.limit))]
+    TooLarge { what: String, limit: u64 },
+    #[error("the request body could not be read: {0}")]
+    Unreadable(String),
+}
+
 /// The refusal of a body over `limit`.
-pub fn too_large(what: &str, limit: u64) -> crate::faces::api::ApiError {
-    crate::faces::api::ApiError(
-        StatusCode::PAYLOAD_TOO_LARGE,
-        format!(
-            "{what} is larger than the daemon's limit of {} (docs/daemon.md, Limits)",
-            mib(limit)
-        ),
-    )
+pub fn too_large(what: &str, limit: u64) -> LimitError {
+    LimitError::TooLarge {
+        what: what.to_string(),
+        limit,
+    }
 }
 
 /// Reads a whole JSON body of at most [`MAX_JSON_BODY`] bytes.
-pub async fn json_body(req: Request) -> Result<axum::body::Bytes, crate::faces::api::ApiError> {
+pub async fn json_body(req: Request) -> Result<axum::body::Bytes, LimitError> {
     let limit = MAX_JSON_BODY as u64;
     if content_length(&req).is_some_and(|n| n > limit) {
         return Err(too_large("the request body", limit));
@@ -48,10 +53,7 @@ pub async fn json_body(req: Request) -> Result<axum::body::Bytes, crate::faces::
         Err(e) if e.is::<http_body_util::LengthLimitError>() => {
             Err(too_large("the request body", limit))
         }
-        Err(e) => Err(crate::faces::api::ApiError(
-            StatusCode::BAD_REQUEST,
-            format!("the request body could not be read: {e}"),
-        )),
+        Err(e) => Err(LimitError::Unreadable(e.to_string())),
     }
 }
 
@@ -61,46 +63,4 @@ pub fn content_length(req: &Request) -> Option<u64> {
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse().ok())
-}
-
-/// Middleware: any refusal that is not JSON yet (axum's own 404, 405, 413, 415 …) becomes
-/// `{ "error": "one sentence" }` with the same status.
-pub async fn json_errors(req: Request, next: Next) -> Response {
-    let resp = next.run(req).await;
-    let status = resp.status();
-    if !(status.is_client_error() || status.is_server_error()) {
-        return resp;
-    }
-    let is_json = resp
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with("application/json"));
-    if is_json {
-        return resp;
-    }
-    let (parts, body) = resp.into_parts();
-    let text = match http_body_util::Limited::new(body, 4096).collect().await {
-        Ok(c) => String::from_utf8_lossy(&c.to_bytes()).trim().to_string(),
-        Err(_) => String::new(),
-    };
-    let reason = status.canonical_reason().unwrap_or("refused");
-    let sentence = match (status, text.is_empty()) {
-        (StatusCode::PAYLOAD_TOO_LARGE, _) => format!(
-            "the request body is larger than the daemon's limit of {} (docs/daemon.md, Limits)",
-            mib(MAX_JSON_BODY as u64)
-        ),
-        (StatusCode::METHOD_NOT_ALLOWED, _) => {
-            "this path does not take that method: see docs/daemon.md for the API".to_string()
-        }
-        (_, true) => reason.to_string(),
-        (_, false) => format!("{reason}: {text}"),
-    };
-    let mut r = crate::faces::api::ApiError(status, sentence).into_response();
-    for (k, v) in parts.headers.iter() {
-        if k != header::CONTENT_TYPE && k != header::CONTENT_LENGTH {
-            r.headers_mut().insert(k, v.clone());
-        }
-    }
-    r
 }

@@ -8,10 +8,11 @@
 
 use crate::core::check::GcodeCheck;
 use crate::core::store::NewJobUnits;
+use crate::faces::api::error::ApiError;
 use crate::faces::api::limits::{
-    too_large, MAX_GCODE_BODY, MAX_GCODE_LINE, MAX_JSON_BODY, MAX_PROGRAM_UNITS,
+    too_large, LimitError, MAX_GCODE_BODY, MAX_GCODE_LINE, MAX_JSON_BODY, MAX_PROGRAM_UNITS,
 };
-use crate::faces::api::{ApiError, AppState};
+use crate::faces::api::state::AppState;
 use crate::services::access::Acted;
 use axum::extract::{Path, Query, Request, State};
 use axum::http::StatusCode;
@@ -49,7 +50,7 @@ pub async fn gcode(
     }
     let declared = crate::faces::api::limits::content_length(&req);
     if declared.is_some_and(|n| n > MAX_GCODE_BODY) {
-        return Err(too_large(&file, MAX_GCODE_BODY));
+        return Err(too_large(&file, MAX_GCODE_BODY).into());
     }
     if !machine.kind.gcode_lines_are_units() {
         return whole_file(st, name, file, req).await;
@@ -101,7 +102,7 @@ pub async fn gcode(
         let chunk = chunk.map_err(|e| bad(format!("{file} could not be received: {e}")))?;
         received += chunk.len() as u64;
         if received > MAX_GCODE_BODY {
-            return Err(too_large(&file, MAX_GCODE_BODY));
+            return Err(too_large(&file, MAX_GCODE_BODY).into());
         }
         let mut rest: &[u8] = &chunk;
         while let Some(i) = rest.iter().position(|&b| b == b'\n') {
@@ -195,12 +196,9 @@ async fn whole_file(
 ) -> Result<Response, ApiError> {
     let bytes = crate::faces::api::limits::json_body(req)
         .await
-        .map_err(|e| {
-            if e.0 == StatusCode::PAYLOAD_TOO_LARGE {
-                too_large(&file, MAX_JSON_BODY as u64)
-            } else {
-                e
-            }
+        .map_err(|e| match e {
+            LimitError::TooLarge { .. } => too_large(&file, MAX_JSON_BODY as u64),
+            e => e,
         })?;
     let spec = crate::core::intake::JobSpec {
         machine: Some(machine),
@@ -211,5 +209,5 @@ async fn whole_file(
         post: None,
     };
     drop(bytes);
-    crate::faces::api::submit_spec(&st, spec).await
+    crate::faces::api::jobs::submit_spec(&st, spec).await
 }

@@ -257,7 +257,7 @@ impl Node {
                 return;
             }
         };
-        let mut params = crate::faces::api::params_of(&spec);
+        let mut params = crate::core::intake::params_of(&spec);
         if let Some(o) = params.as_object_mut() {
             o.insert("fleet_id".into(), sub.id.clone().into());
         }

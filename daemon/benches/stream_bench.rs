@@ -155,7 +155,7 @@ async fn main() {
 /// SQLite store in a temporary folder; returns the time from the job's start to its last
 /// acknowledged line, and how many journal commits the store made for it.
 async fn through_the_daemon(port: &std::path::Path, lines: &[String]) -> (Duration, u64) {
-    use machlink::config::MachineConfig;
+    use machlink::core::machine::MachineConfig;
     use machlink::core::scheduler::{Event, JournalPolicy, MachineSetup, Scheduler};
     use machlink::core::store::{JobState, NewJob, Store};
     use machlink_protocols::Program;
