@@ -1068,3 +1068,4 @@ mod tests {
             .fold(path.start.dist(p), f64::min)
     }
 }
+
