@@ -7,10 +7,13 @@
 //! Each segment has a speed cap (the feed, every axis's velocity for its direction, and on
 //! arcs the centripetal acceleration and jerk). Along the path the speed follows a
 //! jerk-limited profile chosen cycle by cycle with look-ahead: each cycle takes the largest
-//! change of acceleration after which braking at the limits (jerk, then acceleration, then
-//! jerk back to zero) still meets every cap ahead and stops before the next stop point (a
-//! dwell, the end). So a straight run reaches its feed, a corner slows to what the limits
-//! allow, and a hold brakes along the path the same way.
+//! change of acceleration after which braking still meets every cap ahead and stops before
+//! the next stop point (a dwell, the end). Braking is an exact stop in discrete time: full
+//! jerk down (to the acceleration limit) while an exact stop stays possible after it, then
+//! one cycle of adjustment and a constant jerk that brings speed and acceleration to zero at
+//! the same cycle's end, so no stop ends with its deceleration dropping to zero in one
+//! cycle. A straight run reaches its feed, a corner slows to what the limits allow, and a
+//! hold or a cancel brakes along the path the same way.
 //!
 //! Budget per axis: the speed along the path changes at most at half the smallest axis's
 //! acceleration (and jerk), leaving the other half for the centripetal acceleration of arcs
