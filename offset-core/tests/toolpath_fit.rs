@@ -220,6 +220,21 @@ fn check_fitted(tp: &Toolpath, tol: f64) -> Result<(), TestCaseError> {
     Ok(())
 }
 
+/// A pocket and an outside profile of `shape` at tolerance `tol`, each fitted and checked.
+fn check_pocket_and_profile(shape: &Shape, tol: f64) -> Result<(), TestCaseError> {
+    let cut = Cutting {
+        tool: Tool::flat(3.0),
+        depth: 1.0,
+        stepdown: 0.5,
+        tolerance: tol,
+        ..Default::default()
+    };
+    let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
+    check_fitted(&pocket(shape, &pk).unwrap(), tol)?;
+    let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
+    check_fitted(&profile(shape, &pr).unwrap(), tol)
+}
+
 /// A blob r = r0 + Σ a sin(kθ + φ) sampled at n points, with sharp notches pressed in.
 fn blob(r0: f64, wob: &[(f64, f64)], n: usize, notches: &[f64]) -> Polyline {
     let mut pts: Vec<Point> = (0..n)
@@ -257,17 +272,7 @@ proptest! {
         let tol = 10f64.powf(tol_exp);
         let shape = Shape::new(vec![blob(r0, &wob, n, &notches)]);
         prop_assume!(offset_core::check::first_crossing(&shape.paths, tol).is_none());
-        let cut = Cutting {
-            tool: Tool::flat(3.0),
-            depth: 1.0,
-            stepdown: 0.5,
-            tolerance: tol,
-            ..Default::default()
-        };
-        let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
-        check_fitted(&pocket(&shape, &pk).unwrap(), tol)?;
-        let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
-        check_fitted(&profile(&shape, &pr).unwrap(), tol)?;
+        check_pocket_and_profile(&shape, tol)?;
     }
 }
 
@@ -341,15 +346,5 @@ fn the_fitted_blob_of_radius_12_7_keeps_each_arc_on_one_circle() {
         &[0.37795308427431223],
     )]);
     assert!(offset_core::check::first_crossing(&shape.paths, tol).is_none());
-    let cut = Cutting {
-        tool: Tool::flat(3.0),
-        depth: 1.0,
-        stepdown: 0.5,
-        tolerance: tol,
-        ..Default::default()
-    };
-    let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
-    check_fitted(&pocket(&shape, &pk).unwrap(), tol).unwrap();
-    let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
-    check_fitted(&profile(&shape, &pr).unwrap(), tol).unwrap();
+    check_pocket_and_profile(&shape, tol).unwrap();
 }
