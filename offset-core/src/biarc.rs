@@ -463,16 +463,21 @@ fn join_arcs_of_one_circle(moves: Vec<Move>, eps: f64) -> Vec<Move> {
                 + crate::toolpath::arc_segment(a.xy(), to.xy(), *center, *ccw)
                     .sweep()
                     .abs();
+            // the joined arc's centre: on the bisector of its ends (so that both lie on
+            // one circle, to rounding), nearest the first arc's centre; within `eps` of
+            // both arcs' centres, or the arcs stay apart
+            let joined_center = on_the_bisector(s0.xy(), to.xy(), *pc);
             if level
                 && ccw == pccw
                 && feed == pf
                 && center.dist(*pc) <= eps
                 && (r0 - r1).abs() <= eps
                 && sweep < std::f64::consts::TAU - 1e-6
+                && joined_center.is_some_and(|c| c.dist(*pc) <= eps && c.dist(*center) <= eps)
             {
                 let joined = Move::Arc {
                     to: *to,
-                    center: *pc,
+                    center: joined_center.expect("checked above"),
                     ccw: *ccw,
                     feed: *feed,
                 };
@@ -491,6 +496,19 @@ fn join_arcs_of_one_circle(moves: Vec<Move>, eps: f64) -> Vec<Move> {
         out.push(m);
     }
     out
+}
+
+/// The point of the perpendicular bisector of `a`–`b` nearest `near`: the centre of a
+/// circle through both ends, moved as little as may be. `None` for a zero chord.
+fn on_the_bisector(a: Point, b: Point, near: Point) -> Option<Point> {
+    let chord = b - a;
+    if chord.len() == 0.0 {
+        return None;
+    }
+    let mid = a.lerp(b, 0.5);
+    let n = chord.unit().perp();
+    let t = (near - mid).dot(n);
+    Some(mid + n * t)
 }
 
 /// The knots of one run: where pieces may start and end, with their tangents.

@@ -175,11 +175,27 @@ fn kept(tp: &Toolpath) -> Vec<Move> {
     out
 }
 
+/// The first arc the fitting pass made (one not among the input's moves) whose ends lie on
+/// circles about its centre differing by more than 1e-9 of the radius: (from, to, centre).
+fn arc_off_its_circle(input: &Toolpath, fitted: &Toolpath) -> Option<(P3, P3, Point)> {
+    let mut bad = None;
+    fitted.walk(P3::default(), |from, m, to| {
+        if let Move::Arc { center, .. } = m {
+            let (r0, r1) = (from.xy().dist(*center), to.xy().dist(*center));
+            if (r0 - r1).abs() > 1e-9 * r0.max(r1) && !input.moves.contains(m) && bad.is_none() {
+                bad = Some((from, to, *center));
+            }
+        }
+    });
+    bad
+}
+
 fn check_fitted(tp: &Toolpath, tol: f64) -> Result<(), TestCaseError> {
     let (fitted, rep) = fit_toolpath(tp, &BiarcOptions::with_tolerance(tol));
     prop_assert!(rep.segments_out <= rep.segments_in);
     prop_assert_eq!(pocket_support::disjoint_arc(tp), None);
     prop_assert_eq!(pocket_support::disjoint_arc(&fitted), None);
+    prop_assert_eq!(arc_off_its_circle(tp, &fitted), None);
     prop_assert_eq!(
         kept(&fitted),
         kept(tp),
@@ -202,6 +218,21 @@ fn check_fitted(tp: &Toolpath, tol: f64) -> Result<(), TestCaseError> {
         );
     }
     Ok(())
+}
+
+/// A pocket and an outside profile of `shape` at tolerance `tol`, each fitted and checked.
+fn check_pocket_and_profile(shape: &Shape, tol: f64) -> Result<(), TestCaseError> {
+    let cut = Cutting {
+        tool: Tool::flat(3.0),
+        depth: 1.0,
+        stepdown: 0.5,
+        tolerance: tol,
+        ..Default::default()
+    };
+    let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
+    check_fitted(&pocket(shape, &pk).unwrap(), tol)?;
+    let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
+    check_fitted(&profile(shape, &pr).unwrap(), tol)
 }
 
 /// A blob r = r0 + Σ a sin(kθ + φ) sampled at n points, with sharp notches pressed in.
@@ -241,17 +272,7 @@ proptest! {
         let tol = 10f64.powf(tol_exp);
         let shape = Shape::new(vec![blob(r0, &wob, n, &notches)]);
         prop_assume!(offset_core::check::first_crossing(&shape.paths, tol).is_none());
-        let cut = Cutting {
-            tool: Tool::flat(3.0),
-            depth: 1.0,
-            stepdown: 0.5,
-            tolerance: tol,
-            ..Default::default()
-        };
-        let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
-        check_fitted(&pocket(&shape, &pk).unwrap(), tol)?;
-        let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
-        check_fitted(&profile(&shape, &pr).unwrap(), tol)?;
+        check_pocket_and_profile(&shape, tol)?;
     }
 }
 
@@ -311,4 +332,19 @@ fn the_fitting_pass_turns_the_profile_of_a_circle_given_as_points_into_arcs() {
             assert!((r - 350.0).abs() <= tol, "a cut at radius {r}");
         }
     }
+}
+
+/// The draw a fresh seed found (docs/testing.md): the fitting pass emitted an arc whose ends
+/// lay on circles about its centre differing by more than 1e-6 of the radius.
+#[test]
+fn the_fitted_blob_of_radius_12_7_keeps_each_arc_on_one_circle() {
+    let tol = 10f64.powf(-1.8542966460846235);
+    let shape = Shape::new(vec![blob(
+        12.719994657464817,
+        &[(0.013099907771876763, 0.38115626201492403)],
+        190,
+        &[0.37795308427431223],
+    )]);
+    assert!(offset_core::check::first_crossing(&shape.paths, tol).is_none());
+    check_pocket_and_profile(&shape, tol).unwrap();
 }

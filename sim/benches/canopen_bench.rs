@@ -2,10 +2,13 @@
 //! 1. set-points per second the master sustains in lockstep with three simulated drives on
 //!    the in-memory bus, against what the bus could carry at 1 Mbit/s and 500 kbit/s (every
 //!    frame counted in bits, stuffing included), and the planner alone;
-//! 2. SYNC period jitter of the master at a 1 ms period over CANOPEN_JITTER_SECS (60 by
-//!    default), against a tokio interval at the same period measured in the same run.
+//! 2. SYNC period jitter of the master at 1, 2 and 4 ms periods over CANOPEN_JITTER_SECS
+//!    (60 by default) each, against a tokio interval at 1 ms measured in the same run, with
+//!    the CPU time of the SYNC clock's thread (`canopen-sync`, from
+//!    /proc/self/task/TID/schedstat) and of the whole process over the same stretch.
 //!
-//! `cargo bench -p machlink-sim --bench canopen_bench`
+//! `cargo bench -p machlink-sim --bench canopen_bench` (`CANOPEN_PERIODS_MS=2` for one
+//! period)
 
 use machlink_protocols::canopen::master::{Axis, CanopenLink, CanopenOptions, Pace};
 use machlink_protocols::canopen::trajectory::{AxisLimits, Limits, Planner};
@@ -58,8 +61,12 @@ fn serpentine(rows: usize) -> Vec<Move> {
 }
 
 fn options(pace: Pace, log: Arc<Mutex<Vec<Instant>>>) -> CanopenOptions {
+    options_at(pace, log, Duration::from_millis(1))
+}
+
+fn options_at(pace: Pace, log: Arc<Mutex<Vec<Instant>>>, period: Duration) -> CanopenOptions {
     let mut o = CanopenOptions::new(axes());
-    o.period = Duration::from_millis(1);
+    o.period = period;
     o.pace = pace;
     o.heartbeat_timeout = Duration::from_secs(2);
     o.report_timeout = Duration::from_secs(2);
@@ -151,9 +158,45 @@ async fn throughput() {
     }
 }
 
-async fn sync_jitter(secs: u64) {
+/// The CPU time the thread named `name` of this process has had, from its schedstat (ns).
+fn thread_cpu(name: &str) -> Option<Duration> {
+    for t in std::fs::read_dir("/proc/self/task").ok()?.flatten() {
+        let comm = std::fs::read_to_string(t.path().join("comm")).unwrap_or_default();
+        if comm.trim() == name {
+            let st = std::fs::read_to_string(t.path().join("schedstat")).ok()?;
+            let ns: u64 = st.split_whitespace().next()?.parse().ok()?;
+            return Some(Duration::from_nanos(ns));
+        }
+    }
+    None
+}
+
+/// The CPU time of every thread of this process now alive, from their schedstat.
+fn process_cpu() -> Duration {
+    let mut ns = 0u64;
+    for t in std::fs::read_dir("/proc/self/task").into_iter().flatten().flatten() {
+        let st = std::fs::read_to_string(t.path().join("schedstat")).unwrap_or_default();
+        ns += st
+            .split_whitespace()
+            .next()
+            .and_then(|x| x.parse::<u64>().ok())
+            .unwrap_or(0);
+    }
+    Duration::from_nanos(ns)
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+async fn anchor_jitter(secs: u64) {
     let period = Duration::from_millis(1);
-    // anchor: a tokio interval at the same period, same process, same load
+    // anchor: a tokio interval at 1 ms, same process, same load
     let anchor_secs = (secs / 4).max(5);
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
@@ -167,36 +210,70 @@ async fn sync_jitter(secs: u64) {
     println!(
         "anchor: tokio::time::interval at 1 ms for {anchor_secs} s ({n} ticks): |jitter| p50 {p50:.1} µs, p99 {p99:.1} µs, max {max:.1} µs"
     );
+}
 
+async fn sync_jitter(secs: u64, period: Duration) {
     let bus = MemoryBus::new();
     let _drives = SimDrives::spawn(&bus, &[1, 2, 3], 1.0);
     let log = Arc::new(Mutex::new(Vec::new()));
-    let opts = options(Pace::RealTime { scale: 1.0 }, log.clone());
+    let opts = options_at(Pace::RealTime { scale: 1.0 }, log.clone(), period);
     let mut link = CanopenLink::new(Box::new(bus.attach()), opts);
     let (tx, _rx) = mpsc::unbounded_channel();
     let (ctl, ctl_rx) = watch::channel(Control::Run);
     // long enough to outlast the measurement; cancelled when it is over
     let moves = serpentine(400);
+    let load_before = load_average();
     let stop = {
         let log = log.clone();
         async move {
+            // the CPU counters from the first SYNC to the end of the measured stretch
+            let mut first: Option<(Instant, Duration, Duration)> = None;
             loop {
-                tokio::time::sleep(Duration::from_millis(200)).await;
-                let l = log.lock().unwrap();
-                if l.len() > 1 && (*l.last().unwrap() - l[0]) >= Duration::from_secs(secs) {
-                    break;
+                tokio::time::sleep(Duration::from_millis(100)).await;
+                let (len, first_at, last_at) = {
+                    let l = log.lock().unwrap();
+                    (l.len(), l.first().copied(), l.last().copied())
+                };
+                if first.is_none() && len > 0 {
+                    if let Some(c) = thread_cpu("canopen-sync") {
+                        first = Some((Instant::now(), c, process_cpu()));
+                    }
+                }
+                if let (Some(a), Some(b)) = (first_at, last_at) {
+                    if len > 1 && b - a >= Duration::from_secs(secs) {
+                        break;
+                    }
                 }
             }
+            let clock = thread_cpu("canopen-sync");
+            let all = process_cpu();
             let _ = ctl.send(Control::Cancel);
+            first.zip(clock).map(|((t0, c0, p0), c1)| {
+                let wall = t0.elapsed().as_secs_f64();
+                (
+                    (c1 - c0).as_secs_f64() / wall,
+                    (all.saturating_sub(p0)).as_secs_f64() / wall,
+                )
+            })
         }
     };
-    let (end, ()) = tokio::join!(link.stream(&moves, 0, tx, ctl_rx), stop);
+    let (end, cpu) = tokio::join!(link.stream(&moves, 0, tx, ctl_rx), stop);
     end.expect("the serpentine runs until cancelled");
     let syncs = log.lock().unwrap().clone();
     let (p50, p99, max, n) = jitter(&syncs, period);
+    let ms = period.as_millis();
     println!(
-        "master SYNC at 1 ms for {secs} s ({n} periods, 3 simulated drives): |jitter| p50 {p50:.1} µs, p99 {p99:.1} µs, max {max:.1} µs"
+        "master SYNC at {ms} ms for {secs} s ({n} periods, 3 simulated drives): |jitter| p50 {p50:.1} µs, p99 {p99:.1} µs, max {max:.1} µs; load average {load_before} before, {} after",
+        load_average()
     );
+    match cpu {
+        Some((clock, all)) => println!(
+            "CPU at {ms} ms: SYNC clock thread {:.1} % of one core; every thread of the process (session, drives, clock) {:.1} %",
+            clock * 100.0,
+            all * 100.0
+        ),
+        None => println!("CPU at {ms} ms: the SYNC clock thread was not found"),
+    }
 }
 
 fn main() {
@@ -211,6 +288,13 @@ fn main() {
         .unwrap();
     rt.block_on(async {
         throughput().await;
-        sync_jitter(secs).await;
+        anchor_jitter(secs).await;
+        let periods: Vec<u64> = std::env::var("CANOPEN_PERIODS_MS")
+            .ok()
+            .map(|v| v.split(',').filter_map(|p| p.trim().parse().ok()).collect())
+            .unwrap_or_else(|| vec![1, 2, 4]);
+        for ms in periods {
+            sync_jitter(secs, Duration::from_millis(ms)).await;
+        }
     });
 }

@@ -60,6 +60,11 @@ pub const STATUSWORD: Entry = Entry::new(0x6041, 0);
 pub const MODES_OF_OPERATION: Entry = Entry::new(0x6060, 0);
 /// 0x6061 modes of operation display (i8).
 pub const MODES_DISPLAY: Entry = Entry::new(0x6061, 0);
+/// 0x605A quick stop option code (i16): machlink writes 2, brake on the quick stop ramp
+/// and then go to switch on disabled.
+pub const QUICK_STOP_OPTION: Entry = Entry::new(0x605A, 0);
+/// The quick stop option code machlink asks for.
+pub const QUICK_STOP_THEN_DISABLED: i16 = 2;
 /// 0x6064 position actual value (i32, counts).
 pub const POSITION_ACTUAL: Entry = Entry::new(0x6064, 0);
 /// 0x6065 following error window (u32, counts).

@@ -7,10 +7,13 @@
 //! Each segment has a speed cap (the feed, every axis's velocity for its direction, and on
 //! arcs the centripetal acceleration and jerk). Along the path the speed follows a
 //! jerk-limited profile chosen cycle by cycle with look-ahead: each cycle takes the largest
-//! change of acceleration after which braking at the limits (jerk, then acceleration, then
-//! jerk back to zero) still meets every cap ahead and stops before the next stop point (a
-//! dwell, the end). So a straight run reaches its feed, a corner slows to what the limits
-//! allow, and a hold brakes along the path the same way.
+//! change of acceleration after which braking still meets every cap ahead and stops before
+//! the next stop point (a dwell, the end). Braking is an exact stop in discrete time: full
+//! jerk down (to the acceleration limit) while an exact stop stays possible after it, then
+//! one cycle of adjustment and a constant jerk that brings speed and acceleration to zero at
+//! the same cycle's end, so no stop ends with its deceleration dropping to zero in one
+//! cycle. A straight run reaches its feed, a corner slows to what the limits allow, and a
+//! hold or a cancel brakes along the path the same way.
 //!
 //! Budget per axis: the speed along the path changes at most at half the smallest axis's
 //! acceleration (and jerk), leaving the other half for the centripetal acceleration of arcs
@@ -477,6 +480,9 @@ pub struct Planner {
 
 /// How close to a stop counts as there, mm.
 const AT_STOP: f64 = 1e-5;
+/// A speed (mm/s) and an acceleration (mm/s²) this small at a cycle's end are rest.
+const REST_V: f64 = 1e-9;
+const REST_A: f64 = 1e-6;
 
 impl Planner {
     /// A planner for `moves` starting at `start`, one set-point every `period` seconds.
@@ -571,6 +577,14 @@ impl Planner {
         }
         let je = (a1 - m.a) / t;
         let v1 = m.v + m.a * t + je * t * t / 2.0;
+        if v1 <= REST_V && a1.abs() <= REST_A {
+            // an exact stop's last cycle
+            return Motion {
+                s: m.s + (m.v * t + m.a * t * t / 2.0 + je * t * t * t / 6.0).max(0.0),
+                v: 0.0,
+                a: 0.0,
+            };
+        }
         if v1 <= 1e-12 {
             // comes to rest within the step: the distance to rest at the mean speed
             return Motion {
@@ -586,14 +600,99 @@ impl Planner {
         }
     }
 
-    /// The jerk of braking: down to the acceleration limit, and back up just in time to
-    /// reach zero acceleration at zero speed.
-    fn brake_jerk(&self, m: Motion) -> f64 {
-        if m.a < 0.0 && m.v <= m.a * m.a / (2.0 * self.jerk) {
-            self.jerk
-        } else {
-            -self.jerk
+    /// The jerk of braking, chosen cycle by cycle so that speed and acceleration reach zero
+    /// together at a cycle's end: the full jerk down (to the acceleration limit) while an
+    /// exact stop stays possible after it, else the first cycle of the shortest exact stop
+    /// from here ([`Planner::exact_stop`]). None where no exact stop is left (a state the
+    /// planner never chooses: braking from it would end with acceleration dropping to zero
+    /// in one cycle).
+    fn brake_jerk(&self, m: Motion) -> Option<f64> {
+        if m.v == 0.0 && m.a == 0.0 {
+            return Some(0.0);
         }
+        let down = self.advance(m, -self.jerk);
+        let je = ((m.a - self.jerk * self.period).clamp(-self.accel, self.accel) - m.a) / self.period;
+        if (down.v == 0.0 && down.a == 0.0 && self.rests_exactly(m, je))
+            || (down.v > 0.0 && self.can_stop_exactly(down))
+        {
+            return Some(-self.jerk);
+        }
+        self.exact_stop(m)
+    }
+
+    /// Whether an exact stop is possible from `m`: at once, or after the cycles of full
+    /// jerk down that bring a rising acceleration below zero.
+    fn can_stop_exactly(&self, mut m: Motion) -> bool {
+        for _ in 0..100_000 {
+            if (m.v == 0.0 && m.a == 0.0) || self.exact_stop(m).is_some() {
+                return true;
+            }
+            if m.a <= 0.0 || m.v == 0.0 {
+                return false;
+            }
+            m = self.advance(m, -self.jerk);
+        }
+        false
+    }
+
+    /// Whether one step of jerk `j` from `m` ends at rest with the speed and acceleration
+    /// of that step's own end (not by the rest clamp of [`Planner::advance`]).
+    fn rests_exactly(&self, m: Motion, j: f64) -> bool {
+        let t = self.period;
+        let a1 = m.a + j * t;
+        let v1 = m.v + m.a * t + j * t * t / 2.0;
+        a1.abs() <= REST_A && v1.abs() <= REST_V
+    }
+
+    /// The first cycle's jerk of the shortest exact stop from `m`: one cycle of jerk j1,
+    /// then N − 1 cycles of one constant jerk j2 that bring the speed and the acceleration
+    /// to zero at the same instant, every jerk within the limit, the acceleration within
+    /// its limit and the speed never below zero. With N cycles in all and
+    /// c = (2v + aT)/T²: j1 = −a/T − c/N, the acceleration after it −cT/N, and
+    /// j2 = c/(N(N−1)); the shortest N meeting every bound is taken.
+    fn exact_stop(&self, m: Motion) -> Option<f64> {
+        let (t, jmax, amax) = (self.period, self.jerk, self.accel);
+        let (v, a) = (m.v, m.a);
+        let mut c = (2.0 * v + a * t) / (t * t);
+        if c.abs() <= 1e-9 * (2.0 * v.abs() + a.abs() * t) / (t * t) {
+            c = 0.0;
+        }
+        if c < 0.0 {
+            return None;
+        }
+        if c == 0.0 {
+            // one cycle of jerk −a/T ends at rest
+            let j = -a / t;
+            return (j.abs() <= jmax * (1.0 + 1e-12)).then_some(j);
+        }
+        if jmax - a / t <= 0.0 {
+            return None;
+        }
+        let mut n = 2.0f64
+            .max((c * t / amax).ceil())
+            .max((c / (jmax - a / t)).ceil());
+        // N(N − 1) ≥ c / J
+        let q = c / jmax;
+        n = n.max(((1.0 + (1.0 + 4.0 * q).sqrt()) / 2.0).ceil());
+        // rounding: step up past a bound missed by a hair
+        for _ in 0..3 {
+            if c / (n * (n - 1.0)) <= jmax * (1.0 + 1e-12) && c * t / n <= amax * (1.0 + 1e-12) {
+                break;
+            }
+            n += 1.0;
+        }
+        let j1 = -a / t - c / n;
+        if j1 < -jmax * (1.0 + 1e-12) || j1 > jmax * (1.0 + 1e-12) {
+            return None;
+        }
+        if j1 > 0.0 && a < 0.0 {
+            // the lowest speed within the first cycle, where the acceleration crosses zero
+            let tz = -a / j1;
+            if tz < t && v - a * a / (2.0 * j1) < -REST_V {
+                return None;
+            }
+        }
+        Some(j1)
     }
 
     /// Whether braking from `m` meets every cap ahead and stops before the next stop.
@@ -630,8 +729,11 @@ impl Planner {
             if cur.v == 0.0 {
                 return true;
             }
+            let Some(j) = self.brake_jerk(cur) else {
+                return false;
+            };
             prev = cur;
-            cur = self.advance(cur, self.brake_jerk(cur));
+            cur = self.advance(cur, j);
         }
         false
     }
@@ -663,7 +765,8 @@ impl Planner {
         if self.dwell_left > 0 {
             self.dwell_left -= 1;
         } else if self.hold {
-            self.m = self.advance(self.m, self.brake_jerk(self.m));
+            let j = self.brake_jerk(self.m).unwrap_or(-self.jerk);
+            self.m = self.advance(self.m, j);
         } else {
             self.m = self.choose();
         }
@@ -701,7 +804,7 @@ impl Planner {
             self.creep = 0;
             return up;
         }
-        let jb = self.brake_jerk(m);
+        let jb = self.brake_jerk(m).unwrap_or(-self.jerk);
         let (mut lo, mut hi) = (jb, self.jerk);
         if !self.safe(m, self.advance(m, lo)) {
             // nothing is safe (only after a change of caps): brake
@@ -882,6 +985,85 @@ mod tests {
         assert_eq!(c.last().unwrap().position, P3::new(80.0, 60.0, 0.0));
     }
 
+    /// Every axis's speed, acceleration and jerk, as the set-points' first, second and
+    /// third differences over the period, within its limits (`from` the cycle given).
+    fn check_jerk(cycles: &[Cycle], l: &Limits, t: f64, what: &str) {
+        let pos: Vec<[f64; 3]> = std::iter::repeat_n([0.0; 3], 3)
+            .chain(cycles.iter().map(|c| [c.position.x, c.position.y, c.position.z]))
+            .collect();
+        for ax in 0..3 {
+            let lim = l.axes[ax].unwrap();
+            for (k, w) in pos.windows(4).enumerate() {
+                let v = (w[3][ax] - w[2][ax]).abs() / t;
+                let a = (w[3][ax] - 2.0 * w[2][ax] + w[1][ax]).abs() / (t * t);
+                let j = (w[3][ax] - 3.0 * w[2][ax] + 3.0 * w[1][ax] - w[0][ax]).abs() / (t * t * t);
+                assert!(v <= lim.velocity * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: v {v}");
+                assert!(a <= lim.acceleration * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: a {a}");
+                assert!(j <= lim.jerk * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: jerk {j}");
+            }
+        }
+    }
+
+    fn diagonal() -> [Move; 1] {
+        [Move::Linear {
+            to: P3::new(80.0, 60.0, -3.0),
+            feed: 6000.0,
+        }]
+    }
+
+    #[test]
+    fn the_end_of_a_run_is_jerk_limited_to_standstill_at_every_period() {
+        for period in [0.001, 0.002, 0.004] {
+            for feed in [60.0, 600.0, 3000.0, 6000.0] {
+                let moves = [Move::Linear {
+                    to: P3::new(30.0, 20.0, -2.0),
+                    feed,
+                }];
+                let mut p = Planner::new(&moves, P3::default(), &limits(), period).unwrap();
+                let mut c = Vec::new();
+                while let Some(cy) = p.next_cycle() {
+                    c.push(cy);
+                    assert!(c.len() < 400_000, "never ends");
+                }
+                // standing still at the end for three cycles more
+                let last = *c.last().unwrap();
+                c.extend([last; 3]);
+                check_jerk(&c, &limits(), period, &format!("{period} s, F{feed}"));
+                assert_eq!(last.position, P3::new(30.0, 20.0, -2.0));
+            }
+        }
+    }
+
+    #[test]
+    fn a_hold_at_any_moment_brakes_jerk_limited_and_resumes_jerk_limited() {
+        for hold_at in [3, 10, 40, 77, 150, 400] {
+            let (c, p) = run(&diagonal(), Some((hold_at, hold_at + 300)));
+            check_jerk(&c, &limits(), 0.002, &format!("hold at cycle {hold_at}"));
+            for cy in &c {
+                assert!(distance_to_path(&p.path, cy.position) < 1e-9);
+            }
+            assert_eq!(c.last().unwrap().position, P3::new(80.0, 60.0, -3.0));
+        }
+    }
+
+    #[test]
+    fn an_exact_stop_brings_speed_and_acceleration_to_zero_together() {
+        let p = Planner::new(&diagonal(), P3::default(), &limits(), 0.002).unwrap();
+        for (v, a) in [(50.0, 0.0), (50.0, -250.0), (4.0, -250.0), (0.4, -40.0), (10.0, 200.0), (1e-3, 0.0)] {
+            let mut m = Motion { s: 0.0, v, a };
+            let mut n = 0;
+            while !(m.v == 0.0 && m.a == 0.0) {
+                let j = p.brake_jerk(m).unwrap_or_else(|| panic!("no stop from v {v} a {a}: {m:?}"));
+                assert!(j.abs() <= p.jerk * (1.0 + 1e-9), "v {v} a {a}: jerk {j}");
+                let next = p.advance(m, j);
+                assert!(p.rests_exactly(m, j) || next.v > 0.0, "v {v} a {a}: clamped to rest from {m:?}");
+                m = next;
+                n += 1;
+                assert!(n < 100_000);
+            }
+        }
+    }
+
     pub(crate) fn distance_to_path(path: &Path, p: P3) -> f64 {
         path.segs
             .iter()
@@ -889,3 +1071,4 @@ mod tests {
             .fold(path.start.dist(p), f64::min)
     }
 }
+

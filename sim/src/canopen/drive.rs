@@ -164,6 +164,7 @@ impl Drive {
             od.insert((0x603F, 0), obj(vec![0; 2], Ro, false));
             od.insert((0x6040, 0), obj(vec![0; 2], Rw, true));
             od.insert((0x6041, 0), obj(vec![0; 2], Ro, true));
+            od.insert((0x605A, 0), obj(2i16.to_le_bytes().to_vec(), Rw, false));
             od.insert((0x6060, 0), obj(vec![0], Rw, true));
             od.insert((0x6061, 0), obj(vec![0], Ro, true));
             od.insert((0x6064, 0), obj(vec![0; 4], Ro, true));
@@ -282,6 +283,15 @@ impl Drive {
                 self.demand = self.actual.round() as i32;
             }
             self.power = next;
+            if next == PowerState::QuickStopActive {
+                // the motor stops where it is (the model's quick stop ramp takes no time);
+                // option codes 1–4 then go to switch on disabled, 5–8 stay in quick stop
+                self.demand = self.actual.round() as i32;
+                let code = i16::from_le_bytes([self.get(0x605A, 0)[0], self.get(0x605A, 0)[1]]);
+                if (1..=4).contains(&code) {
+                    self.power = PowerState::SwitchOnDisabled;
+                }
+            }
         }
         self.update_statusword();
     }

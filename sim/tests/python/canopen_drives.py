@@ -1,10 +1,12 @@
 """Three CiA 402 drives made of python `canopen` LocalNodes behind an SLCAN port: they take
 machlink's SDO configuration and NMT commands, follow the CiA 402 power state machine, read
 set-points from RPDOs with the mapping machlink wrote, apply them at each SYNC and report the
-position by TPDO. Every SDO write, NMT command and applied set-point goes to --trace as one
-JSON object per line.
+position by TPDO. Every SDO write, NMT command, power state change and applied set-point
+goes to --trace as one JSON object per line. A quick stop ends in switch on disabled when
+0x605A is 1-4 (docs/canopen.md). A node given to --stuck never leaves ready to switch on
+(it ignores "switch on"), so machlink's start-up fails on it.
 
-    python3 canopen_drives.py --port /dev/pts/N --nodes 1,2,3 --trace FILE
+    python3 canopen_drives.py --port /dev/pts/N --nodes 1,2,3 --trace FILE [--stuck 3]
 """
 
 import argparse
@@ -59,8 +61,9 @@ TRANSITIONS = {
 
 
 class Drive:
-    def __init__(self, network, node_id, trace):
+    def __init__(self, network, node_id, trace, stuck=False):
         self.id = node_id
+        self.stuck = stuck
         self.trace = trace
         self.node = canopen.LocalNode(node_id, drive_od(node_id))
         network.add_node(self.node)
@@ -90,10 +93,19 @@ class Drive:
         if index == 0x6040:
             cw = struct.unpack("<H", bytes(data)[:2])[0]
             with self.lock:
-                nxt = TRANSITIONS.get((self.state, command(cw, self.cw)))
+                cmd = command(cw, self.cw)
+                nxt = TRANSITIONS.get((self.state, cmd))
+                if self.stuck and cmd == "switch on":
+                    nxt = None
                 self.cw = cw
-                if nxt is not None:
+                if nxt == QUICK_STOP:
+                    code = struct.unpack("<h", self.node.get_data(0x605A, 0)[:2])[0]
+                    if 1 <= code <= 4:
+                        # the ramp, then switch on disabled (0x605A = 1-4)
+                        nxt = SWITCH_ON_DISABLED
+                if nxt is not None and nxt != self.state:
                     self.state = nxt
+                    self.trace({"event": "state", "node": self.id, "state": self.state})
                 sw = self.state | 0x0210
                 if self.state == ENABLED and cw & 0x10:
                     sw |= 0x1000
@@ -152,6 +164,7 @@ def main():
     ap.add_argument("--port", required=True)
     ap.add_argument("--nodes", default="1,2,3")
     ap.add_argument("--trace", required=True)
+    ap.add_argument("--stuck", type=int, default=0)
     a = ap.parse_args()
     out = open(a.trace, "w")
     lock = threading.Lock()
@@ -163,7 +176,7 @@ def main():
 
     network = canopen.Network()
     network.connect(interface="slcan", channel=a.port, bitrate=1000000, sleep_after_open=0)
-    drives = [Drive(network, int(n), trace) for n in a.nodes.split(",")]
+    drives = [Drive(network, int(n), trace, int(n) == a.stuck) for n in a.nodes.split(",")]
     network.subscribe(0x080, lambda can_id, data, ts: [d.on_sync() for d in drives])
     print("READY", flush=True)
     try:

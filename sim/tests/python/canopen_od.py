@@ -4,7 +4,7 @@
 import canopen
 from canopen.objectdictionary import ODRecord, ODVariable
 from canopen.objectdictionary.datatypes import (
-    INTEGER8, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32, VISIBLE_STRING)
+    INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32, VISIBLE_STRING)
 
 
 def var(index, sub, name, dtype, access="rw", default=0, pdo=False):
@@ -41,6 +41,7 @@ def drive_od(node):
                              + [var(mapping, s, "entry %d" % s, UNSIGNED32, "rw", 0) for s in range(1, 9)]))
     od.add_object(var(0x6040, 0, "Controlword", UNSIGNED16, "rw", 0, pdo=True))
     od.add_object(var(0x6041, 0, "Statusword", UNSIGNED16, "ro", 0x0240, pdo=True))
+    od.add_object(var(0x605A, 0, "Quick stop option code", INTEGER16, "rw", 2))
     od.add_object(var(0x6060, 0, "Modes of operation", INTEGER8, "rw", 0, pdo=True))
     od.add_object(var(0x6061, 0, "Modes of operation display", INTEGER8, "ro", 0, pdo=True))
     od.add_object(var(0x6064, 0, "Position actual value", INTEGER32, "ro", 0, pdo=True))
