@@ -18,6 +18,7 @@
 //!   regions that the tool could reach (a tool disc that fits touches it) and that stands
 //!   above the floor is material left.
 
+pub mod feed;
 pub mod grid;
 pub mod picture;
 
@@ -265,6 +266,20 @@ impl Report {
     pub fn time(&self) -> f64 {
         self.moves.iter().map(|m| m.time).sum()
     }
+}
+
+/// How often the tool goes up to the safe height (the path's highest Z) from below it by a
+/// rapid: the retracts between passes, regions and levels.
+pub fn retracts(tp: &Toolpath) -> usize {
+    let Some(b) = tp.bounds() else { return 0 };
+    let top = b.max.z;
+    let mut n = 0;
+    tp.walk(P3::default(), |from, m, to| {
+        if matches!(m, Move::Rapid { .. }) && from.z < top - 1e-9 && to.z >= top - 1e-9 {
+            n += 1;
+        }
+    });
+    n
 }
 
 /// Probes per half circle (one degree apart).
