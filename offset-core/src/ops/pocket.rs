@@ -432,7 +432,9 @@ fn plan(
     let depths = pass_depths(p.cut.depth, p.cut.stepdown);
     for tree in &trees {
         let root = Geo::new(std::iter::once(&tree[0].region));
-        em.p0 = links_at_depth.then(|| tree[0].region.clone());
+        // a pocket of depth 0 (a level of 3D roughing) does not know where the stock's
+        // top is: it links at the safe height
+        em.p0 = (links_at_depth && p.cut.depth > 0.0).then(|| tree[0].region.clone());
         for (k, &z) in depths.iter().enumerate() {
             em.z = z;
             em.z_top = if k == 0 { 0.0 } else { depths[k - 1] };
