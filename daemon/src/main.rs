@@ -54,6 +54,8 @@ enum Command {
     Plan(cmd::plan::PlanCmdArgs),
     /// Draw a shape, a plan or a program as SVG or PNG.
     Preview(cmd::preview::PreviewArgs),
+    /// Replay a program against the stock: engagement, air cuts, removal rate, gouges.
+    Simulate(cmd::simulate::SimulateArgs),
     /// Follow every job's state changes (for scripts and dashboards).
     Events(cmd::events::EventsArgs),
     /// Check a configuration file offline: every mistake with its line and key.
@@ -154,6 +156,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Offset(a) => cmd::offset::run(a),
         Command::Plan(a) => cmd::plan::run(a),
         Command::Preview(a) => cmd::preview::run(a),
+        Command::Simulate(a) => cmd::simulate::run(a),
         Command::Events(a) => cmd::events::run(a),
         Command::CheckConfig(a) => cmd::check_config::run(a),
         Command::Completions(a) => cmd::completions::completions(a, Cli::command()),

@@ -15,6 +15,7 @@
 
 pub mod biarc;
 pub mod check;
+pub mod cutsim;
 pub mod flatten;
 pub mod geom;
 pub mod io;

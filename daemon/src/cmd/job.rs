@@ -104,6 +104,13 @@ pub struct JobArgs {
     /// diameter (40%); at most the diameter [40%].
     #[arg(long, value_parser = parse_stepover)]
     pub stepover: Option<Stepover>,
+    /// Pocket: scale each cut's feed to the simulated engagement so the chip stays as thick
+    /// as the feed makes it at the step-over, up to --max-feed (docs/toolpaths.md).
+    #[arg(long)]
+    pub feed_control: bool,
+    /// Feed control: the largest feed the machine runs, mm/min [5000].
+    #[arg(long)]
+    pub max_feed: Option<f64>,
     /// Profile: holding tabs per closed loop, evenly spaced [0].
     #[arg(long)]
     pub tabs: Option<usize>,
@@ -222,10 +229,22 @@ impl JobArgs {
             }
             Op::Pocket => {
                 let d = PocketParams::default();
-                Operation::Pocket(PocketParams {
+                let pocket = PocketParams {
                     cut: self.cutting(d.cut),
                     stepover: self.stepover.unwrap_or(d.stepover),
-                })
+                };
+                if self.feed_control {
+                    let f = offset_core::cutsim::feed::FeedControl::default();
+                    Operation::PocketFeedControl(offset_core::cutsim::feed::FeedControlledPocket {
+                        pocket,
+                        feed_control: offset_core::cutsim::feed::FeedControl {
+                            max_feed: self.max_feed.unwrap_or(f.max_feed),
+                            ..f
+                        },
+                    })
+                } else {
+                    Operation::Pocket(pocket)
+                }
             }
             Op::Stitch => {
                 let d = StitchParams::default();

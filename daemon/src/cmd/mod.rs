@@ -14,6 +14,7 @@ pub mod operate;
 pub mod plan;
 pub mod preview;
 pub mod serve;
+pub mod simulate;
 pub mod submit;
 
 /// Writes `text` to stdout; a reader that went away (`machlink jobs --json | head`) is no

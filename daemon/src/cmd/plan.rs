@@ -65,9 +65,15 @@ pub fn figures(tp: &offset_core::Toolpath) -> String {
         |r| format!("{r:.2} arcs per line"),
     );
     out.push_str(&format!(
-        "  cutting {:.1} mm in {} lines and {} arcs ({ratio}); rapids {:.1} mm in {} moves\n",
-        s.cutting_length, s.lines, s.arcs, s.rapid_length, s.rapids
+        "  cutting {:.1} mm in {} lines and {} arcs ({ratio}); rapids {:.1} mm in {} moves; {} retracts to the safe height\n",
+        s.cutting_length, s.lines, s.arcs, s.rapid_length, s.rapids, offset_core::cutsim::retracts(tp)
     ));
+    // what feed control found (offset_core::cutsim::feed), first in the tool path
+    if let Some(offset_core::toolpath::Move::Comment { text }) = tp.moves.first() {
+        if text.starts_with("feed control:") {
+            out.push_str(&format!("  {text}\n"));
+        }
+    }
     out.push_str(&format!(
         "  estimated time {} (cutting {}, rapids {}) at rapids {} mm/min, {} mm/s², junction deviation {} mm\n",
         clock(s.time()),
@@ -81,7 +87,7 @@ pub fn figures(tp: &offset_core::Toolpath) -> String {
 }
 
 /// Seconds as `1 h 02 min`, `4 min 07 s` or `12.3 s`.
-fn clock(secs: f64) -> String {
+pub fn clock(secs: f64) -> String {
     let s = secs.max(0.0);
     if s >= 3600.0 {
         format!(

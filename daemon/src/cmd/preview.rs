@@ -38,12 +38,6 @@ pub struct PreviewArgs {
 }
 
 pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
-    let ext = |p: &PathBuf| {
-        p.extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase())
-            .unwrap_or_default()
-    };
     let input = Input::from_path(&a.file)?;
     let opts = preview::PreviewOptions {
         width_px: a.width as f64,
@@ -95,21 +89,27 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             None => preview::svg_with(Some(&shape), None, &opts),
         }
     };
-    match ext(&a.output).as_str() {
-        "svg" => std::fs::write(&a.output, svg)
-            .with_context(|| format!("cannot write {}", a.output.display()))?,
-        "png" => {
-            let png = render_png(&svg)?;
-            std::fs::write(&a.output, png)
-                .with_context(|| format!("cannot write {}", a.output.display()))?
-        }
-        other => anyhow::bail!(
-            "cannot write a .{other} drawing to {} (use .svg or .png)",
-            a.output.display()
-        ),
-    }
+    write_drawing(&a.output, &svg)?;
     eprintln!("wrote {}", a.output.display());
     Ok(())
+}
+
+/// Writes a drawing as SVG, or rendered to PNG, by the output's extension.
+pub fn write_drawing(out: &std::path::Path, svg: &str) -> anyhow::Result<()> {
+    let ext = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    let bytes = match ext.as_str() {
+        "svg" => svg.as_bytes().to_vec(),
+        "png" => render_png(svg)?,
+        other => anyhow::bail!(
+            "cannot write a .{other} drawing to {} (use .svg or .png)",
+            out.display()
+        ),
+    };
+    std::fs::write(out, bytes).with_context(|| format!("cannot write {}", out.display()))
 }
 
 /// The embroidery format of a file name (dst or jef), if it is one.

@@ -154,6 +154,8 @@ pub enum Operation {
     Profile(ProfileParams),
     /// Clear the inside of closed shapes, around their islands.
     Pocket(PocketParams),
+    /// Pocket whose feed follows the simulated load (`--op pocket --feed-control`).
+    PocketFeedControl(offset_core::cutsim::feed::FeedControlledPocket),
     /// Sew stitches along the shape.
     Stitch(StitchParams),
     /// 3D: clear a mesh's stock level by level (z-level pockets), leaving an allowance.
@@ -169,7 +171,7 @@ impl Operation {
     pub fn name(&self) -> &'static str {
         match self {
             Operation::Profile(_) => "profile",
-            Operation::Pocket(_) => "pocket",
+            Operation::Pocket(_) | Operation::PocketFeedControl(_) => "pocket",
             Operation::Stitch(_) => "stitch",
             Operation::Rough3d(_) => "rough3d",
             Operation::Finish3d(_) => "finish3d",
@@ -385,6 +387,12 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
             let mut p = p.clone();
             p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
             offset_core::ops::pocket(shape, &p).map_err(|e| format!("cannot plan the pocket: {e}"))
+        }
+        Operation::PocketFeedControl(p) => {
+            let mut p = p.clone();
+            p.pocket.cut.tolerance = spec.tolerance.unwrap_or(p.pocket.cut.tolerance);
+            offset_core::cutsim::feed::pocket(shape, &p)
+                .map_err(|e| format!("cannot plan the pocket with feed control: {e}"))
         }
         Operation::Stitch(p) => offset_core::stitch::stitch(shape, p)
             .map_err(|e| format!("cannot plan the stitches: {e}")),

@@ -5,7 +5,7 @@ pub mod pocket;
 pub mod profile;
 
 pub use entry::Entry;
-pub use pocket::{pocket, pocket_with, PocketParams, Stepover};
+pub use pocket::{pocket, pocket_safe_links, pocket_with, PocketParams, Stepover};
 pub use profile::{profile, ProfileParams, Side};
 
 use crate::offset::OffsetError;
@@ -19,6 +19,9 @@ pub enum OpError {
     BadParam(String),
     #[error("the shape has nothing to cut: {0}")]
     Empty(String),
+    /// The simulation an operation plans by (feed control) could not run.
+    #[error(transparent)]
+    Simulation(#[from] crate::cutsim::SimError),
     #[error("path {path} reaches ({}, {}) mm, beyond the ±{} mm (10 km) a shape may span; check its units", at.x, at.y, crate::io::MAX_COORDINATE)]
     OutOfRange { path: usize, at: crate::geom::Point },
 }

@@ -19,7 +19,10 @@
 //!   one inside it starts over floor the last pass has just cleared. A link is cut at depth
 //!   when it is a short hop (at most 1.5 step-overs) that stays inside the area the tool
 //!   centre may visit (the parent pass's region, so it never touches a wall or an island);
-//!   otherwise the tool retracts to the safe height, rapids, and goes down by the entry.
+//!   otherwise, when the straight link keeps the tool centre inside the tree's first pass
+//!   P0, the tool lifts 0.5 mm over the last level's floor (all of P0 swept by the tool was
+//!   cleared there) and feeds across, else it retracts to the safe height and rapids; then
+//!   it goes down by the entry.
 //! - Entries ([`super::entry`]): the tool descends through air to the floor of the last
 //!   depth pass, then into the material by a helix tangent to the pass at its start (or at
 //!   one of 16 points along it) whose circle lies inside P0, the area the tool centre may
@@ -339,6 +342,30 @@ pub fn pocket_with(
     p: &PocketParams,
     off: &RegionOffset,
 ) -> Result<Toolpath, OpError> {
+    plan(shape, p, off, true)
+}
+
+/// The pocket as it was planned before links at depth: every link that is not a short hop
+/// goes up to the safe height (for comparison: retract counts, machine time).
+pub fn pocket_safe_links(shape: &Shape, p: &PocketParams) -> Result<Toolpath, OpError> {
+    let opts = OffsetOptions {
+        tolerance: p.cut.tolerance,
+        ..Default::default()
+    };
+    plan(
+        shape,
+        p,
+        &|r: &Region, d: f64| offset_region(r, d, &opts),
+        false,
+    )
+}
+
+fn plan(
+    shape: &Shape,
+    p: &PocketParams,
+    off: &RegionOffset,
+    links_at_depth: bool,
+) -> Result<Toolpath, OpError> {
     p.check()?;
     super::check_range(shape)?;
     let r = p.cut.tool.radius();
@@ -394,6 +421,7 @@ pub fn pocket_with(
         z_top: 0.0,
         slope: p.cut.ramp_angle.to_radians().tan(),
         plunges: Plunges::default(),
+        p0: None,
     };
     em.tp.push(Move::Rapid { to: em.at });
     if p.cut.spindle_rpm > 0.0 {
@@ -404,10 +432,15 @@ pub fn pocket_with(
     let depths = pass_depths(p.cut.depth, p.cut.stepdown);
     for tree in &trees {
         let root = Geo::new(std::iter::once(&tree[0].region));
+        // a pocket of depth 0 (a level of 3D roughing) does not know where the stock's
+        // top is: it links at the safe height
+        em.p0 = (links_at_depth && p.cut.depth > 0.0).then(|| tree[0].region.clone());
         for (k, &z) in depths.iter().enumerate() {
             em.z = z;
             em.z_top = if k == 0 { 0.0 } else { depths[k - 1] };
-            em.retract();
+            if !em.link_low(em.at.xy()) {
+                em.retract();
+            }
             em.tree(tree, &root);
         }
     }
@@ -433,7 +466,12 @@ struct Emitter<'a> {
     /// tan of the ramp angle
     slope: f64,
     plunges: Plunges,
+    /// The first pass (P0) of the tree being cut, for links at depth.
+    p0: Option<Region>,
 }
+
+/// How far over the last level's floor a link at depth lifts the tool, mm.
+pub const LINK_LIFT: f64 = 0.5;
 
 impl Emitter<'_> {
     fn push(&mut self, m: Move) {
@@ -451,8 +489,16 @@ impl Emitter<'_> {
         }
     }
 
-    /// Over `q` at the safe height, then down to `z` at the plunge feed.
+    /// Over `q`, then down to `z` at the plunge feed: low over the floor of the last level
+    /// when the straight link stays inside this tree's first pass (see `link_low`), else
+    /// at the safe height.
     fn down_to(&mut self, q: Point, z: f64) {
+        if self.link_low(q) {
+            return self.push(Move::Linear {
+                to: P3::at_z(q, z),
+                feed: self.p.cut.plunge_feed,
+            });
+        }
         self.retract();
         if self.at.xy().dist(q) > 1e-12 {
             self.push(Move::Rapid {
@@ -463,6 +509,34 @@ impl Emitter<'_> {
             to: P3::at_z(q, z),
             feed: self.p.cut.plunge_feed,
         });
+    }
+
+    /// Links at depth: from a pass of this level to the start `q` of the next, the tool
+    /// lifts to [`LINK_LIFT`] over the last level's floor and feeds across there, when the
+    /// straight link keeps the tool centre inside the tree's first pass P0: every point
+    /// within R of P0 was cleared by the last level (the pocket's coverage), so the tool
+    /// moves through air. Returns whether it did (then it stands over `q` at the lift).
+    fn link_low(&mut self, q: Point) -> bool {
+        let lift = self.z_top + LINK_LIFT;
+        let here = self.at;
+        let Some(p0) = self.p0.as_ref() else {
+            return false;
+        };
+        if here.z > lift + 1e-9 || here.z < self.z - 1e-9 || lift >= self.p.cut.safe_z {
+            return false;
+        }
+        if here.xy().dist(q) > 1e-9 && !segment_inside(here.xy(), q, p0) {
+            return false;
+        }
+        self.push(Move::Linear {
+            to: P3::at_z(here.xy(), lift),
+            feed: self.p.cut.plunge_feed,
+        });
+        self.push(Move::Linear {
+            to: P3::at_z(q, lift),
+            feed: self.p.cut.feed,
+        });
+        true
     }
 
     /// One tree of passes at the current depth: each pass, then its clean-up, then the
