@@ -1,16 +1,27 @@
 //! Offset kernel benchmark: machlink against cavalier_contours and Clipper2 on the same
-//! inputs (wavy gears whose teeth self-intersect at the offset distance, with and without
-//! islands, a dense circle offset to near-collapse, 20 pocket passes). Prints a markdown
-//! table: time, output vertices and arcs, and the worst deviation the checker finds.
+//! inputs, every anchor beside every row, measured in rounds that interleave the kernels
+//! (round k runs each kernel once, in an order that rotates from round to round, so a
+//! burst of load from elsewhere falls on all of them alike); each time cell is the best
+//! and the median of the rounds, and the load average is printed before and after each
+//! case.
 //!
-//! Run: `cargo bench -p offset-core --bench offset_bench` (add `-- quick` to skip 1M rows).
+//! Inputs (issue 25's): a gear of n vertices, r(θ) = n/10 + 3 sin(n/20 · θ) (teeth 12.6 mm
+//! apart whatever n, with tips of curvature radius ≈ 1.3 mm, so a 2 mm shrink folds each
+//! into a swallowtail), with and without 10 round islands (r = n/125 on a ring of radius
+//! 0.6 · n/10); the 10k gear with islands offset once at 2, 20, 200 and 400 mm; 21 pocket
+//! passes of it at 20, 40, … 420 mm, each from the original and each from the previous
+//! pass; two dense circles offset to near collapse (30,000 points of radius 10 to 1e-3 of
+//! the inradius, 100,000 points to d = -9.999).
+//!
+//! Run: `cargo bench -p offset-core --bench offset_bench` (add `-- quick` to skip the 1M
+//! rows, `-- rounds N` for N rounds instead of the defaults).
 
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
 use offset_core::check::Checker;
 use offset_core::geom::{Point, Polyline, Region, Vertex};
-use offset_core::offset::{offset_region, OffsetOptions};
-use std::time::{Duration, Instant};
+use offset_core::offset::{offset_regions, OffsetOptions};
+use std::time::Instant;
 
 #[derive(Debug, Default, Copy, Clone, PartialEq, Hash)]
 struct Fine;
@@ -19,36 +30,41 @@ impl clipper2::PointScaler for Fine {
 }
 
 fn gear(n: usize) -> Polyline {
-    let teeth = 60.0;
+    let (r0, teeth) = (n as f64 / 10.0, n as f64 / 20.0);
     let pts: Vec<Point> = (0..n)
         .map(|i| {
             let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            let r = 50.0 + 2.0 * (teeth * a).sin();
+            let r = r0 + 3.0 * (teeth * a).sin();
             Point::new(r * a.cos(), r * a.sin())
         })
         .collect();
     Polyline::from_points(&pts, true)
 }
 
-fn islands() -> Vec<Polyline> {
+fn islands(n: usize) -> Vec<Polyline> {
+    let r0 = n as f64 / 10.0;
     (0..10)
         .map(|k| {
             let a = k as f64 / 10.0 * std::f64::consts::TAU;
-            Polyline::circle(Point::new(a.cos(), a.sin()) * 30.0, 4.0).reversed()
+            Polyline::circle(Point::new(a.cos(), a.sin()) * (0.6 * r0), 0.08 * r0).reversed()
         })
         .collect()
 }
 
-fn dense_circle(n: usize) -> (Polyline, f64) {
-    let r = 10.0;
+fn gear_with_islands(n: usize) -> Vec<Polyline> {
+    let mut b = vec![gear(n)];
+    b.extend(islands(n));
+    b
+}
+
+fn dense_circle(n: usize) -> Polyline {
     let pts: Vec<Point> = (0..n)
         .map(|i| {
             let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            Point::new(r * a.cos(), r * a.sin())
+            Point::new(10.0 * a.cos(), 10.0 * a.sin())
         })
         .collect();
-    let inr = r * (std::f64::consts::PI / n as f64).cos();
-    (Polyline::from_points(&pts, true), -(inr - 1e-3))
+    Polyline::from_points(&pts, true)
 }
 
 fn to_cav(p: &Polyline) -> CPline<f64> {
@@ -87,10 +103,129 @@ fn flatten(p: &Polyline, tol: f64) -> Vec<(f64, f64)> {
     out
 }
 
-struct Row {
-    case: String,
-    lib: &'static str,
-    time: Duration,
+/// The offsets one case asks for: each (input, distance) pair's result is what is checked.
+#[derive(Clone)]
+enum Plan {
+    /// one offset by d
+    Once(f64),
+    /// one offset of the original per distance
+    FromOriginal(Vec<f64>),
+    /// `count` offsets by d, each of the one before
+    Incremental(f64, usize),
+}
+
+impl Plan {
+    fn distances(&self) -> Vec<f64> {
+        match self {
+            Plan::Once(d) => vec![*d],
+            Plan::FromOriginal(ds) => ds.clone(),
+            Plan::Incremental(d, k) => vec![*d; *k],
+        }
+    }
+    fn chained(&self) -> bool {
+        matches!(self, Plan::Incremental(..))
+    }
+}
+
+/// A kernel: offsets the boundaries (outer counter-clockwise, islands clockwise) of one
+/// set by `d` (negative shrinks), as boundaries again.
+trait Kernel {
+    type Set: Clone;
+    fn load(&self, b: &[Polyline]) -> Self::Set;
+    fn offset(&self, s: &Self::Set, d: f64) -> Self::Set;
+    fn unload(&self, s: &Self::Set) -> Vec<Polyline>;
+}
+
+struct Machlink;
+impl Kernel for Machlink {
+    type Set = Vec<Region>;
+    fn load(&self, b: &[Polyline]) -> Vec<Region> {
+        vec![Region::new(b[0].clone(), b[1..].to_vec())]
+    }
+    fn offset(&self, s: &Vec<Region>, d: f64) -> Vec<Region> {
+        offset_regions(s, d, &OffsetOptions::default()).expect("valid input")
+    }
+    fn unload(&self, s: &Vec<Region>) -> Vec<Polyline> {
+        s.iter().flat_map(|r| r.boundaries().cloned()).collect()
+    }
+}
+
+struct Cavalier;
+impl Kernel for Cavalier {
+    type Set = CShape<f64>;
+    fn load(&self, b: &[Polyline]) -> CShape<f64> {
+        CShape::from_plines(b.iter().map(to_cav))
+    }
+    // positive offsets go inward of counter-clockwise loops
+    fn offset(&self, s: &CShape<f64>, d: f64) -> CShape<f64> {
+        s.parallel_offset(-d, &ShapeOffsetOptions::default())
+    }
+    fn unload(&self, s: &CShape<f64>) -> Vec<Polyline> {
+        s.ccw_plines
+            .iter()
+            .chain(s.cw_plines.iter())
+            .map(|p| from_cav(&p.polyline))
+            .collect()
+    }
+}
+
+/// Clipper2: polygons (arcs flattened to 1e-4), round joins at its default arc tolerance.
+struct Clipper;
+impl Kernel for Clipper {
+    type Set = clipper2::Paths<Fine>;
+    fn load(&self, b: &[Polyline]) -> clipper2::Paths<Fine> {
+        let flat: Vec<Vec<(f64, f64)>> = b.iter().map(|p| flatten(p, 1e-4)).collect();
+        flat.into()
+    }
+    fn offset(&self, s: &clipper2::Paths<Fine>, d: f64) -> clipper2::Paths<Fine> {
+        clipper2::inflate(
+            s.clone(),
+            d,
+            clipper2::JoinType::Round,
+            clipper2::EndType::Polygon,
+            2.0,
+        )
+    }
+    fn unload(&self, s: &clipper2::Paths<Fine>) -> Vec<Polyline> {
+        let v: Vec<Vec<(f64, f64)>> = s.clone().into();
+        v.iter()
+            .map(|p| {
+                let pts: Vec<Point> = p.iter().map(|&(x, y)| Point::new(x, y)).collect();
+                Polyline::from_points(&pts, true)
+            })
+            .collect()
+    }
+}
+
+/// One kernel's part of a case: its times and, from its last round, the (input, distance,
+/// output) of every offset.
+struct Measured {
+    times: Vec<f64>,
+    last: Vec<(Vec<Polyline>, f64, Vec<Polyline>)>,
+}
+
+/// Runs the plan once; returns the time (ms) and the sets to check.
+fn run_once<K: Kernel>(k: &K, original: &K::Set, plan: &Plan) -> (f64, Vec<(K::Set, f64, K::Set)>) {
+    let t = Instant::now();
+    let mut done = Vec::new();
+    let mut cur = original.clone();
+    for d in plan.distances() {
+        let from = if plan.chained() {
+            cur.clone()
+        } else {
+            original.clone()
+        };
+        let out = k.offset(&from, d);
+        done.push((from, d, out.clone()));
+        cur = out;
+    }
+    (t.elapsed().as_secs_f64() * 1e3, done)
+}
+
+struct Cell {
+    best: f64,
+    median: f64,
+    rounds: usize,
     verts: usize,
     arcs: usize,
     dev: Option<f64>,
@@ -109,203 +244,242 @@ fn count(ps: &[Polyline]) -> (usize, usize) {
     (v, a)
 }
 
-/// Best of `reps` runs.
-fn time<T>(reps: usize, mut f: impl FnMut() -> T) -> (Duration, T) {
-    let mut best = Duration::MAX;
-    let mut out = None;
-    for _ in 0..reps {
-        let t = Instant::now();
-        let r = f();
-        best = best.min(t.elapsed());
-        out = Some(r);
-    }
-    (best, out.expect("at least one run"))
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().map(str::to_string))
+        .unwrap_or_else(|| "?".into())
 }
 
-fn deviation(input: &[Polyline], out: &[Polyline], d: f64, check: bool) -> Option<f64> {
-    if !check {
-        return None;
-    }
-    Some(Checker::new(input).check(out, d, 1e-3).worst())
-}
-
-/// One case through the three kernels; `passes` > 1 offsets each pass from the previous.
-#[allow(clippy::too_many_arguments)]
-fn case(
-    rows: &mut Vec<Row>,
-    name: &str,
+/// What each kernel takes part in: machlink and cavalier_contours always; Clipper2 with
+/// its own number of rounds (0: left out, with the reason).
+struct Case {
+    name: String,
     boundaries: Vec<Polyline>,
-    d: f64,
-    passes: usize,
-    reps: usize,
+    plan: Plan,
+    rounds: usize,
+    clipper_rounds: usize,
     check: bool,
-    clipper: bool,
-) {
-    let region = Region::new(boundaries[0].clone(), boundaries[1..].to_vec());
-    let verts_in: usize = boundaries.iter().map(|p| p.len()).sum();
-    let opts = OffsetOptions::default();
-    // machlink
-    let (t, (out, last_in)) = time(reps, || {
-        let mut cur = vec![region.clone()];
-        let mut prev = cur.clone();
-        for _ in 0..passes {
-            prev = cur.clone();
-            cur = cur
-                .iter()
-                .flat_map(|r| offset_region(r, d, &opts).expect("valid input"))
-                .collect();
-        }
-        (cur, prev)
-    });
-    let out: Vec<Polyline> = out.iter().flat_map(|r| r.boundaries().cloned()).collect();
-    let last_in: Vec<Polyline> = last_in
+}
+
+fn measure<K: Kernel>(
+    k: &K,
+    set: &K::Set,
+    plan: &Plan,
+) -> (f64, Vec<(Vec<Polyline>, f64, Vec<Polyline>)>) {
+    let (t, done) = run_once(k, set, plan);
+    let done = done
         .iter()
-        .flat_map(|r| r.boundaries().cloned())
+        .map(|(i, d, o)| (k.unload(i), *d, k.unload(o)))
         .collect();
-    let (verts, arcs) = count(&out);
-    eprintln!("{name}: machlink {t:?}");
-    push(
-        rows,
-        Row {
-            case: name.into(),
-            lib: "machlink",
-            time: t,
-            verts,
-            arcs,
-            dev: deviation(&last_in, &out, d, check),
-        },
-    );
-    // cavalier_contours: positive offsets go inward of counter-clockwise loops
-    let shape = CShape::from_plines(region.boundaries().map(to_cav));
-    let copts = ShapeOffsetOptions::default();
-    let (t, (out, last_in)) = time(reps, || {
-        let mut cur = shape.clone();
-        let mut prev = cur.clone();
-        for _ in 0..passes {
-            prev = cur.clone();
-            cur = cur.parallel_offset(-d, &copts);
-        }
-        (cur, prev)
-    });
-    let plines = |s: &CShape<f64>| -> Vec<Polyline> {
-        s.ccw_plines
+    (t, done)
+}
+
+fn summarise(mut m: Measured, check: bool) -> Cell {
+    m.times.sort_by(f64::total_cmp);
+    let rounds = m.times.len();
+    let median = if rounds % 2 == 1 {
+        m.times[rounds / 2]
+    } else {
+        0.5 * (m.times[rounds / 2 - 1] + m.times[rounds / 2])
+    };
+    let out = &m.last.last().expect("one offset at least").2;
+    let (verts, arcs) = count(out);
+    let dev = check.then(|| {
+        m.last
             .iter()
-            .chain(s.cw_plines.iter())
-            .map(|p| from_cav(&p.polyline))
-            .collect()
-    };
-    let (out, last_in) = (plines(&out), plines(&last_in));
-    let (verts, arcs) = count(&out);
-    eprintln!("{name}: cavalier {t:?}");
-    push(
-        rows,
-        Row {
-            case: name.into(),
-            lib: "cavalier_contours 0.9",
-            time: t,
-            verts,
-            arcs,
-            dev: deviation(&last_in, &out, d, check),
-        },
-    );
-    if !clipper {
-        return;
-    }
-    // Clipper2: polygons (arcs flattened to 1e-4), round joins at its default arc tolerance
-    let flat: Vec<Vec<(f64, f64)>> = region.boundaries().map(|p| flatten(p, 1e-4)).collect();
-    let paths: clipper2::Paths<Fine> = flat.into();
-    let (t, (out, last_in)) = time(reps.min(if verts_in < 50_000 { 3 } else { 1 }), || {
-        let mut cur = paths.clone();
-        let mut prev = cur.clone();
-        for _ in 0..passes {
-            prev = cur.clone();
-            cur = clipper2::inflate(
-                cur.clone(),
-                d,
-                clipper2::JoinType::Round,
-                clipper2::EndType::Polygon,
-                2.0,
-            );
-        }
-        (cur, prev)
+            .map(|(i, d, o)| Checker::new(i).check(o, *d, 1e-3).worst())
+            .fold(0.0, f64::max)
     });
-    let back = |ps: clipper2::Paths<Fine>| -> Vec<Polyline> {
-        let v: Vec<Vec<(f64, f64)>> = ps.into();
-        v.iter()
-            .map(|p| {
-                Polyline::from_points(
-                    &p.iter().map(|&(x, y)| Point::new(x, y)).collect::<Vec<_>>(),
-                    true,
-                )
-            })
-            .collect()
-    };
-    let (out, last_in) = (back(out), back(last_in));
-    let (verts, arcs) = count(&out);
-    eprintln!("{name}: clipper {t:?}");
-    push(
-        rows,
-        Row {
-            case: name.into(),
-            lib: "Clipper2 (clipper2 0.6)",
-            time: t,
-            verts,
-            arcs,
-            dev: deviation(&last_in, &out, d, check),
-        },
-    );
+    Cell {
+        best: m.times[0],
+        median,
+        rounds,
+        verts,
+        arcs,
+        dev,
+    }
 }
 
-fn push(rows: &mut Vec<Row>, r: Row) {
-    print(&r);
-    rows.push(r);
+fn run_case(c: &Case) -> Vec<Option<Cell>> {
+    let (ml, cav, clip) = (Machlink, Cavalier, Clipper);
+    let sets = (
+        ml.load(&c.boundaries),
+        cav.load(&c.boundaries),
+        clip.load(&c.boundaries),
+    );
+    let mut ms: [Option<Measured>; 3] = [None, None, None];
+    let rounds = c.rounds.max(c.clipper_rounds);
+    for round in 0..rounds {
+        for j in 0..3 {
+            let which = (round + j) % 3;
+            let wanted = match which {
+                2 => round < c.clipper_rounds,
+                _ => round < c.rounds,
+            };
+            if !wanted {
+                continue;
+            }
+            let (t, last) = match which {
+                0 => measure(&ml, &sets.0, &c.plan),
+                1 => measure(&cav, &sets.1, &c.plan),
+                _ => measure(&clip, &sets.2, &c.plan),
+            };
+            let e = ms[which].get_or_insert(Measured {
+                times: Vec::new(),
+                last: Vec::new(),
+            });
+            e.times.push(t);
+            e.last = last;
+        }
+    }
+    ms.into_iter()
+        .map(|m| m.map(|m| summarise(m, c.check)))
+        .collect()
 }
 
-fn print(r: &Row) {
-    println!(
-        "| {} | {} | {:.1} ms | {} | {} | {} |",
-        r.case,
-        r.lib,
-        r.time.as_secs_f64() * 1e3,
-        r.verts,
-        r.arcs,
-        r.dev
-            .map_or("not checked".to_string(), |d| format!("{d:.2e}"))
-    );
+fn fmt_time(c: &Option<Cell>) -> String {
+    match c {
+        Some(c) if c.rounds > 1 => format!("{:.1} / {:.1}", c.best, c.median),
+        Some(c) => format!("{:.1} (1 round)", c.best),
+        None => "not run".into(),
+    }
 }
 
 fn main() {
-    println!("| case | kernel | time | output vertices | arcs | worst deviation (mm) |");
-    println!("|---|---|---:|---:|---:|---:|");
-    let quick = std::env::args().any(|a| a == "quick");
-    let mut rows = Vec::new();
+    let args: Vec<String> = std::env::args().collect();
+    let quick = args.iter().any(|a| a == "quick");
+    let forced: Option<usize> = args
+        .iter()
+        .position(|a| a == "rounds")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|s| s.parse().ok());
+    let only: Option<String> = args
+        .iter()
+        .position(|a| a == "only")
+        .and_then(|i| args.get(i + 1))
+        .cloned();
+    let mut cases = Vec::new();
     let mut sizes = vec![1_000usize, 10_000, 100_000];
     if !quick {
         sizes.push(1_000_000);
     }
     for &n in &sizes {
-        let reps = if n <= 10_000 {
-            5
-        } else if n <= 100_000 {
-            3
-        } else {
-            1
+        let rounds = match n {
+            ..=10_000 => 9,
+            ..=100_000 => 5,
+            _ => 3,
         };
-        let check = n <= 100_000;
-        let clip = n < 1_000_000;
-        let name = format!("gear {n}, d = -1");
-        case(&mut rows, &name, vec![gear(n)], -1.0, 1, reps, check, clip);
-        let mut b = vec![gear(n)];
-        b.extend(islands());
-        let name = format!("gear {n} + 10 islands, d = -1");
-        case(&mut rows, &name, b, -1.0, 1, reps, check, clip);
+        // Clipper2 takes ≈ 9 s a run at 100k and minutes at 1M
+        let clipper_rounds = match n {
+            ..=10_000 => 5,
+            ..=100_000 => 1,
+            _ => 0,
+        };
+        for with_islands in [false, true] {
+            cases.push(Case {
+                name: format!(
+                    "gear {n}{}, d = -2",
+                    if with_islands { " + 10 islands" } else { "" }
+                ),
+                boundaries: if with_islands {
+                    gear_with_islands(n)
+                } else {
+                    vec![gear(n)]
+                },
+                plan: Plan::Once(-2.0),
+                rounds,
+                clipper_rounds,
+                check: n <= 100_000,
+            });
+        }
     }
-    let (c, d) = dense_circle(30_000);
-    // Clipper2 did not finish this one within minutes: left out
-    let name = "dense circle 30k, to 1e-3 of collapse";
-    case(&mut rows, name, vec![c], d, 1, 3, false, false);
-    let mut b = vec![gear(10_000)];
-    b.extend(islands());
-    let name = "20 pocket passes, gear 10k + islands, d = -1";
-    case(&mut rows, name, b, -1.0, 20, 1, true, true);
+    for d in [2.0, 20.0, 200.0, 400.0] {
+        cases.push(Case {
+            name: format!("gear 10000 + 10 islands, d = -{d}"),
+            boundaries: gear_with_islands(10_000),
+            plan: Plan::Once(-d),
+            rounds: 7,
+            clipper_rounds: 3,
+            check: true,
+        });
+    }
+    cases.push(Case {
+        name: "21 pocket passes of gear 10000 + 10 islands, each from the original, d = -20 … -420"
+            .into(),
+        boundaries: gear_with_islands(10_000),
+        plan: Plan::FromOriginal((1..=21).map(|k| -20.0 * k as f64).collect()),
+        rounds: 5,
+        clipper_rounds: 1,
+        check: true,
+    });
+    cases.push(Case {
+        name: "21 pocket passes of gear 10000 + 10 islands, each from the previous, d = -20".into(),
+        boundaries: gear_with_islands(10_000),
+        plan: Plan::Incremental(-20.0, 21),
+        rounds: 9,
+        clipper_rounds: 1,
+        check: true,
+    });
+    let inr = |n: usize| 10.0 * (std::f64::consts::PI / n as f64).cos();
+    cases.push(Case {
+        name: "dense circle 30000, r = 10, to 1e-3 of its inradius".into(),
+        boundaries: vec![dense_circle(30_000)],
+        plan: Plan::Once(-(inr(30_000) - 1e-3)),
+        rounds: 9,
+        // Clipper2 did not finish this one within minutes
+        clipper_rounds: 0,
+        check: true,
+    });
+    cases.push(Case {
+        name: "dense circle 100000, r = 10, d = -9.999".into(),
+        boundaries: vec![dense_circle(100_000)],
+        plan: Plan::Once(-9.999),
+        rounds: 9,
+        clipper_rounds: 0,
+        check: true,
+    });
+    println!("load average (1 min) at the start: {}", load_average());
+    println!();
+    println!("| case | machlink (ms, best / median) | cavalier_contours 0.9 | Clipper2 0.6 | cavalier_contours ÷ machlink (best, median) | output vertices (arcs): machlink / cavalier_contours | worst deviation (mm): machlink / cavalier_contours / Clipper2 | load |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    for mut c in cases {
+        if only.as_ref().is_some_and(|o| !c.name.contains(o.as_str())) {
+            continue;
+        }
+        if let Some(r) = forced {
+            c.rounds = r;
+            c.clipper_rounds = c.clipper_rounds.min(r);
+        }
+        let cells = run_case(&c);
+        let dev = |x: &Option<Cell>| match x {
+            Some(Cell { dev: Some(d), .. }) => format!("{d:.1e}"),
+            Some(_) => "not checked".into(),
+            None => "–".into(),
+        };
+        let ratio = match (&cells[0], &cells[1]) {
+            (Some(m), Some(cv)) => {
+                format!("{:.2}×, {:.2}×", cv.best / m.best, cv.median / m.median)
+            }
+            _ => "–".into(),
+        };
+        let outs = |x: &Option<Cell>| {
+            x.as_ref()
+                .map_or("–".into(), |c| format!("{} ({})", c.verts, c.arcs))
+        };
+        println!(
+            "| {} | {} | {} | {} | {} | {} / {} | {} / {} / {} | {} |",
+            c.name,
+            fmt_time(&cells[0]),
+            fmt_time(&cells[1]),
+            fmt_time(&cells[2]),
+            ratio,
+            outs(&cells[0]),
+            outs(&cells[1]),
+            dev(&cells[0]),
+            dev(&cells[1]),
+            dev(&cells[2]),
+            load_average(),
+        );
+    }
 }

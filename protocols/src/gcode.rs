@@ -92,13 +92,77 @@ const MAX_SAGITTA_AS_LINE: f64 = 0.0002;
 /// A written arc may stray this far (mm) from the planned one before it is flattened.
 const MAX_ARC_DEVIATION: f64 = 0.005;
 
-/// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc.
-fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &Segment) -> f64 {
-    let r = a.dist(c);
-    let a0 = (a - c).y.atan2((a - c).x);
-    let a1 = (b - c).y.atan2((b - c).x);
+/// The planned arc, ready for distance questions without trigonometry: whether a point's
+/// direction from the centre lies within the sweep is decided by cross products.
+struct PlannedArc {
+    c: Point,
+    r: f64,
+    /// start and end, as vectors from the centre
+    va: Point,
+    vb: Point,
+    a: Point,
+    b: Point,
+    /// +1 counter-clockwise, -1 clockwise
+    s: f64,
+    /// the sweep exceeds a half turn (a full turn when the ends coincide, as
+    /// `Segment::sweep` measures it)
+    long: bool,
+}
+
+impl PlannedArc {
+    fn new(seg: &Segment) -> Option<PlannedArc> {
+        let Segment::Arc {
+            a,
+            b,
+            center,
+            radius,
+            ccw,
+        } = *seg
+        else {
+            return None;
+        };
+        let (va, vb) = (a - center, b - center);
+        let s = if ccw { 1.0 } else { -1.0 };
+        Some(PlannedArc {
+            c: center,
+            r: radius,
+            va,
+            vb,
+            a,
+            b,
+            s,
+            long: a == b || s * va.cross(vb) < 0.0,
+        })
+    }
+
+    /// Distance from `p` to the arc (what `Segment::distance_to` answers).
+    fn distance_to(&self, p: Point) -> f64 {
+        let v = p - self.c;
+        let len = v.len();
+        if len > 0.0 {
+            let after_start = self.s * self.va.cross(v) >= 0.0;
+            let before_end = self.s * v.cross(self.vb) >= 0.0;
+            let within = if self.long {
+                self.a == self.b || after_start || before_end
+            } else {
+                after_start && before_end
+            };
+            if within {
+                return (len - self.r).abs();
+            }
+        }
+        p.dist(self.a).min(p.dist(self.b))
+    }
+}
+
+/// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc: 25
+/// points along it, stepped by one rotation (one `atan2` and one `sin_cos` per arc, not a
+/// `sin_cos` and four `atan2` per point).
+fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &PlannedArc) -> f64 {
+    let (va, vb) = (a - c, b - c);
+    let r = va.len();
     let tau = std::f64::consts::TAU;
-    let mut s = a1 - a0;
+    let mut s = va.cross(vb).atan2(va.dot(vb));
     if ccw {
         while s <= 1e-12 {
             s += tau;
@@ -108,29 +172,97 @@ fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &Segm
             s -= tau;
         }
     }
-    (0..=24)
-        .map(|i| {
-            let ang = a0 + s * i as f64 / 24.0;
-            planned.distance_to(c + Point::new(ang.cos(), ang.sin()) * r)
-        })
-        .fold(0.0, f64::max)
+    let (sin, cos) = (s / 24.0).sin_cos();
+    let mut u = if r > 0.0 {
+        va * (1.0 / r)
+    } else {
+        Point::new(1.0, 0.0)
+    };
+    let mut worst: f64 = 0.0;
+    for _ in 0..=24 {
+        worst = worst.max(planned.distance_to(c + u * r));
+        u = Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos);
+    }
+    worst
+}
+
+/// `v` in thousandths, rounded as `format!("{v:.3}")` rounds it (to nearest, from the
+/// exact decimal value of the double): v × 1000 is off the exact product by at most half an
+/// ulp, so it rounds the same way unless it lies within 1e-6 of a half (then None, and the
+/// formatter decides). None too beyond ±2³¹ thousandths.
+fn thousandths(v: f64) -> Option<i64> {
+    let x = v * 1000.0;
+    if !(x.abs() < 2_147_483_648.0) {
+        return None;
+    }
+    let frac = (x - x.trunc()).abs();
+    if (frac - 0.5).abs() <= 1e-6 {
+        return None;
+    }
+    Some(x.round() as i64)
+}
+
+/// Appends `v` as written: three decimals, no exponent, no negative zero. A fixed-decimal
+/// writer (an integer count of thousandths, digit by digit); the general float formatter
+/// only where the rounding is a near tie or the number is huge.
+pub fn push_num(out: &mut String, v: f64) {
+    let Some(k) = thousandths(v) else {
+        let s = format!("{v:.DECIMALS$}");
+        if s.strip_prefix('-')
+            .is_some_and(|r| r.bytes().all(|b| b == b'0' || b == b'.'))
+        {
+            out.push_str(&s[1..]);
+        } else {
+            out.push_str(&s);
+        }
+        return;
+    };
+    if k < 0 {
+        out.push('-');
+    }
+    let m = k.unsigned_abs();
+    let (mut int, frac) = (m / 1000, m % 1000);
+    let mut digits = [0u8; 20];
+    let mut i = digits.len();
+    loop {
+        i -= 1;
+        digits[i] = b'0' + (int % 10) as u8;
+        int /= 10;
+        if int == 0 {
+            break;
+        }
+    }
+    for &d in &digits[i..] {
+        out.push(d as char);
+    }
+    out.push('.');
+    for d in [frac / 100, frac / 10 % 10, frac % 10] {
+        out.push((b'0' + d as u8) as char);
+    }
 }
 
 /// A coordinate as written: three decimals, no exponent, no negative zero.
 pub fn num(v: f64) -> String {
-    let s = format!("{v:.DECIMALS$}");
-    if s.strip_prefix('-')
-        .is_some_and(|r| r.bytes().all(|b| b == b'0' || b == b'.'))
-    {
-        s[1..].to_string()
-    } else {
-        s
+    let mut s = String::with_capacity(12);
+    push_num(&mut s, v);
+    s
+}
+
+/// Whether two coordinates are written alike.
+fn same_written(a: f64, b: f64) -> bool {
+    match (thousandths(a), thousandths(b)) {
+        (Some(x), Some(y)) => x == y,
+        _ => num(a) == num(b),
     }
 }
 
-/// The value a coordinate has once written.
+/// The value a coordinate has once written: k / 1000 is the double nearest the decimal k
+/// thousandths, which is what parsing the written text gives.
 fn q(v: f64) -> f64 {
-    num(v).parse().unwrap_or(v)
+    match thousandths(v) {
+        Some(k) => k as f64 / 1000.0,
+        None => num(v).parse().unwrap_or(v),
+    }
 }
 
 /// A feed, speed or time: up to three decimals, trailing zeros dropped.
@@ -171,27 +303,28 @@ impl Writer {
         self.lines.push(l);
     }
 
-    fn axes(&self, to: [f64; 3], all_xy: bool) -> String {
-        let mut s = String::new();
+    /// Appends the words of the axes that change (X and Y always with `all_xy`); returns
+    /// whether any was written.
+    fn axes(&self, line: &mut String, to: [f64; 3], all_xy: bool) -> bool {
+        let before = line.len();
         for (k, letter) in ['X', 'Y', 'Z'].into_iter().enumerate() {
-            let v = num(to[k]);
-            let changed = self.pos[k].is_none_or(|p| num(p) != v);
+            let changed = self.pos[k].is_none_or(|p| !same_written(p, to[k]));
             if changed || (all_xy && k < 2) {
-                s.push(' ');
-                s.push(letter);
-                s.push_str(&v);
+                line.push(' ');
+                line.push(letter);
+                push_num(line, to[k]);
             }
         }
-        s
+        line.len() > before
     }
 
-    fn feed_word(&mut self, feed: f64) -> String {
+    /// Appends the feed word when the feed written changes.
+    fn feed_word(&mut self, line: &mut String, feed: f64) {
         let f = short(feed);
-        if self.feed.as_deref() == Some(f.as_str()) {
-            String::new()
-        } else {
-            self.feed = Some(f.clone());
-            format!(" F{f}")
+        if self.feed.as_deref() != Some(f.as_str()) {
+            line.push_str(" F");
+            line.push_str(&f);
+            self.feed = Some(f);
         }
     }
 
@@ -201,18 +334,20 @@ impl Writer {
     }
 
     fn rapid(&mut self, to: [f64; 3]) {
-        let a = self.axes(to, false);
-        if !a.is_empty() {
-            self.push(format!("G0{a}"));
+        let mut line = String::with_capacity(32);
+        line.push_str("G0");
+        if self.axes(&mut line, to, false) {
+            self.push(line);
         }
         self.set_pos(to);
     }
 
     fn linear(&mut self, to: [f64; 3], feed: f64) {
-        let a = self.axes(to, false);
-        if !a.is_empty() {
-            let f = self.feed_word(feed);
-            self.push(format!("G1{a}{f}"));
+        let mut line = String::with_capacity(40);
+        line.push_str("G1");
+        if self.axes(&mut line, to, false) {
+            self.feed_word(&mut line, feed);
+            self.push(line);
         }
         self.set_pos(to);
     }
@@ -225,6 +360,9 @@ impl Writer {
         let a = Point::new(ax, ay);
         let b = Point::new(q(to.x), q(to.y));
         let seg = arc_segment(from.xy(), to.xy(), center, ccw);
+        let Some(planned) = PlannedArc::new(&seg) else {
+            unreachable!("arc_segment makes an arc");
+        };
         let sweep = seg.sweep();
         let r = 0.5 * (from.xy().dist(center) + to.xy().dist(center));
         let chord = a.dist(b);
@@ -254,7 +392,7 @@ impl Writer {
         let planned_ij = Point::new(q(center.x - a.x), q(center.y - a.y));
         let mut best: Option<(f64, Point)> = None;
         if grbl_arc_ok(a, b, planned_ij) && planned_ij.len() >= MIN_ARC_RADIUS {
-            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &seg);
+            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &planned);
             if dev <= 1e-3 {
                 best = Some((dev, planned_ij));
                 bases.clear();
@@ -268,7 +406,7 @@ impl Writer {
                     if !grbl_arc_ok(a, b, ij) || ij.len() < MIN_ARC_RADIUS {
                         continue;
                     }
-                    let dev = written_arc_deviation(a, b, a + ij, ccw, &seg);
+                    let dev = written_arc_deviation(a, b, a + ij, ccw, &planned);
                     if best.is_none_or(|(d, _)| dev < d) {
                         best = Some((dev, ij));
                     }
@@ -283,20 +421,21 @@ impl Writer {
                 return;
             }
         };
-        let g = if ccw { "G3" } else { "G2" };
-        let z = if self.pos[2].is_none_or(|p| num(p) != num(to.z)) {
-            format!(" Z{}", num(to.z))
-        } else {
-            String::new()
-        };
-        let f = self.feed_word(feed);
-        self.push(format!(
-            "{g} X{} Y{}{z} I{} J{}{f}",
-            num(b.x),
-            num(b.y),
-            num(ij.x),
-            num(ij.y)
-        ));
+        let mut line = String::with_capacity(56);
+        line.push_str(if ccw { "G3 X" } else { "G2 X" });
+        push_num(&mut line, b.x);
+        line.push_str(" Y");
+        push_num(&mut line, b.y);
+        if self.pos[2].is_none_or(|p| !same_written(p, to.z)) {
+            line.push_str(" Z");
+            push_num(&mut line, to.z);
+        }
+        line.push_str(" I");
+        push_num(&mut line, ij.x);
+        line.push_str(" J");
+        push_num(&mut line, ij.y);
+        self.feed_word(&mut line, feed);
+        self.push(line);
         self.set_pos([to.x, to.y, to.z]);
     }
 
@@ -667,6 +806,36 @@ mod tests {
         assert_eq!(num(-2.5), "-2.500");
         assert_eq!(short(1200.0), "1200");
         assert_eq!(short(0.25), "0.25");
+    }
+
+    #[test]
+    fn the_fixed_decimal_writer_writes_what_the_formatter_writes() {
+        // ties and near ties (0.0005, 1.0005, 2.675), negative zero, big and huge values,
+        // and a sweep of values on and between the 0.001 mm grid
+        let mut vals = vec![
+            0.0005, -0.0005, 1.0005, 2.675, -2.675, 0.0015, 1e-300, -1e-300, 999.9995,
+            2147483.6475, -2147483.6485, 1e9 + 0.1234, -3.1e12, 12345.6785, 0.1 + 0.2,
+        ];
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for i in 0..200_000 {
+            // a xorshift walk over magnitudes from 1e-4 to 1e6
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let m = (x >> 11) as f64 / (1u64 << 53) as f64;
+            let v = 10f64.powf(m * 10.0 - 4.0) * if i % 2 == 0 { 1.0 } else { -1.0 };
+            vals.push(v);
+            vals.push((v * 1000.0).round() / 1000.0 + 0.0005);
+        }
+        for v in vals {
+            let s = format!("{v:.3}");
+            let want = match s.strip_prefix('-') {
+                Some(r) if r.bytes().all(|b| b == b'0' || b == b'.') => r.to_string(),
+                _ => s,
+            };
+            assert_eq!(num(v), want, "{v:e}");
+            assert_eq!(q(v), want.parse::<f64>().unwrap(), "{v:e}");
+        }
     }
 
     #[test]

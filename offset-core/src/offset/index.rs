@@ -197,6 +197,36 @@ impl BoxIndex {
         }
     }
 
+    /// Calls `f(item)` for every item whose box comes nearer (x, y) than `r` (a disc, not
+    /// its square: a point that keeps its distance |d| from a boundary sees only the few
+    /// nodes by the boundary's nearest stretch, where the square of side 2|d| about it
+    /// would hold a large part of the boundary); `f` returns false to stop.
+    pub fn query_disc(&self, x: f64, y: f64, r: f64, mut f: impl FnMut(usize) -> bool) {
+        if self.items.is_empty() {
+            return;
+        }
+        let r2 = r * r;
+        let top = self.levels.len() - 1;
+        let mut stack: Vec<(usize, usize)> = Vec::with_capacity(64);
+        stack.push((top, self.levels[top]));
+        while let Some((lvl, slot)) = stack.pop() {
+            if box_dist2(&self.boxes[slot], x, y) >= r2 {
+                continue;
+            }
+            if lvl == 0 {
+                if !f(self.items[slot] as usize) {
+                    return;
+                }
+                continue;
+            }
+            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
+            let last = (first + NODE).min(self.levels[lvl]);
+            for c in first..last {
+                stack.push((lvl - 1, c));
+            }
+        }
+    }
+
     /// The nearest items to (x, y) by `dist(item)` (an exact distance no smaller than the
     /// box distance), best first; stops when `f(item, distance)` returns false or when no
     /// box is nearer than `max`.
@@ -291,22 +321,30 @@ pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize
     // (level, node a, node b) with a <= b and overlapping boxes
     let mut stack: Vec<(usize, usize, usize)> = vec![(levels.len(), 0, 0)];
     while let Some((k, a, b)) = stack.pop() {
-        if k == 0 {
-            f(a, b);
-            continue;
-        }
         let below = level(k - 1);
         let (a1, b1) = (
             ((a + 1) * FAN).min(below.len()),
             ((b + 1) * FAN).min(below.len()),
         );
+        if k == 1 {
+            // the boxes themselves: report the pairs here rather than through the stack
+            for i in a * FAN..a1 {
+                let bi = below[i];
+                let first = if a == b { i + 1 } else { b * FAN };
+                for j in first..b1 {
+                    if overlap(&bi, &below[j]) {
+                        f(i, j);
+                    }
+                }
+            }
+            continue;
+        }
         for i in a * FAN..a1 {
             let first = if a == b { i } else { b * FAN };
             for j in first..b1 {
-                if (k == 1 && i == j) || !overlap(&below[i], &below[j]) {
-                    continue;
+                if overlap(&below[i], &below[j]) {
+                    stack.push((k - 1, i, j));
                 }
-                stack.push((k - 1, i, j));
             }
         }
     }
@@ -366,6 +404,19 @@ mod tests {
         overlapping_pairs_in_order(&boxes, |i, j| walked.push((i, j)));
         walked.sort();
         assert_eq!(walked, brute);
+        // the disc query: exactly the boxes nearer the point than the radius
+        for (x, y, r) in [(50.2, 7.3, 4.0), (0.0, 0.0, 0.5), (120.0, 60.0, 30.0)] {
+            let mut got = Vec::new();
+            idx.query_disc(x, y, r, |i| {
+                got.push(i);
+                true
+            });
+            got.sort();
+            let want: Vec<usize> = (0..boxes.len())
+                .filter(|&i| box_dist2(&boxes[i], x, y) < r * r)
+                .collect();
+            assert_eq!(got, want, "disc about ({x}, {y}) of radius {r}");
+        }
         let mut best = None;
         idx.nearest(
             50.2,

@@ -6,6 +6,7 @@ mod joins;
 mod prune;
 mod raw;
 pub mod seg;
+mod stages;
 mod zigzag;
 
 use crate::geom::{Bounds, Point, Polyline, Region, Shape, Vertex};
@@ -96,7 +97,7 @@ pub fn offset_polyline(
         if shrinks_away(&segs, distance) {
             return Ok(Vec::new());
         }
-        let loops = run(&[(segs, true)], &[], -distance, opts, eps);
+        let loops = run_closed(vec![(segs, true)], -distance, opts, eps);
         Ok(loops
             .into_iter()
             .map(|l| if ccw { l.poly } else { l.poly.reversed() })
@@ -206,7 +207,7 @@ pub fn offset_regions(
             .filter_map(|(s, c)| build(s, c, eps))
             .collect()
     } else {
-        run(&loops, &[], -distance, opts, eps)
+        run_closed(loops, -distance, opts, eps)
     };
     Ok(assemble(polys))
 }
@@ -649,6 +650,40 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
     ]
 }
 
+/// Closed, oriented loops (outers counter-clockwise, islands clockwise) offset by `o` to
+/// the left: in one stage, or with round joins and a distance much larger than the
+/// loops' features in several (see `stages`), each from the loops the one before left.
+fn run_closed(
+    mut loops: Vec<(Vec<Seg>, bool)>,
+    o: f64,
+    opts: &OffsetOptions,
+    eps: f64,
+) -> Vec<Loop> {
+    let mut rest = o;
+    loop {
+        let step = match opts.join {
+            Join::Round => stages::first_stage(&loops, rest),
+            Join::Miter | Join::Chamfer => None,
+        };
+        let Some(step) = step else {
+            return run(&loops, &[], rest, opts, eps);
+        };
+        // the stage's loops as regions, so an island left without its outer goes, then
+        // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
+        let regions = assemble(run(&loops, &[], step, opts, eps));
+        rest -= step;
+        loops = regions
+            .iter()
+            .flat_map(|r| r.boundaries())
+            .map(|p| (clean(p, eps), true))
+            .filter(|(s, _)| !s.is_empty())
+            .collect();
+        if loops.is_empty() {
+            return Vec::new();
+        }
+    }
+}
+
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.
 fn run(
     paths: &[(Vec<Seg>, bool)],
@@ -708,7 +743,7 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
         // start at a long segment, so no run wraps round the seam
         match segs.iter().position(|s| s.length() >= delta) {
             Some(k) => segs.rotate_left(k),
-            None => return segs,
+            None => return resample_loop(segs, delta),
         }
     }
     let n = segs.len();
@@ -755,6 +790,36 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
         }
         k = e;
     }
+    out
+}
+
+/// A closed loop all of whose segments are shorter than `delta` (a dense loop shrunk to
+/// near collapse: 100,000 sides of 6e-8 mm): the same loop through every vertex at which
+/// its length since the last one kept reaches `delta`, so its lines are about `delta` long
+/// and no point moves by more than `delta`. A loop shorter than three times `delta` stays
+/// as it is.
+fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
+    let total: f64 = segs.iter().map(|s| s.length()).sum();
+    if total < 3.0 * delta {
+        return segs;
+    }
+    let first = segs[0].a;
+    let mut out: Vec<Seg> = Vec::with_capacity((total / delta) as usize + 2);
+    let (mut start, mut acc) = (first, 0.0);
+    for s in &segs {
+        acc += s.length();
+        if acc >= delta {
+            out.push(Seg::line(start, s.b));
+            start = s.b;
+            acc = 0.0;
+        }
+    }
+    // close the loop: the last line ends at the first point, a stub is absorbed
+    match out.last_mut() {
+        Some(last) if acc < delta * 0.5 || start == first => *last = Seg::line(last.a, first),
+        _ => out.push(Seg::line(start, first)),
+    }
+    out.retain(|s| s.a != s.b);
     out
 }
 

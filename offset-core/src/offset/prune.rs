@@ -7,6 +7,32 @@ use super::raw::{Origin, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// The hash of a grid cell of run ends: a multiply and a rotate per coordinate (the
+/// standard SipHash, made to resist crafted keys, cost more than the stitching it serves).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(u64::from(b));
+        }
+    }
+    fn write_u64(&mut self, x: u64) {
+        self.0 = (self.0.rotate_left(5) ^ x).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+    fn write_i64(&mut self, x: i64) {
+        self.write_u64(x as u64);
+    }
+}
+
+/// Run ends by grid cell.
+type Cells = HashMap<(i64, i64), Vec<usize>, BuildHasherDefault<CellHasher>>;
 
 /// The input paths' segments, for distance questions. A handful of questions is answered
 /// by scanning every segment; for more, an R-tree is built first (packed in path order:
@@ -53,7 +79,7 @@ impl<'a> InputSet<'a> {
             });
         };
         let mut found = false;
-        index.query(&q, |i| {
+        index.query_disc(p.x, p.y, thr, |i| {
             if segs[i].dist(p) < thr {
                 found = true;
                 return false;
@@ -498,15 +524,15 @@ pub fn prune(
     // hash of run starts
     let cell = (eps * 16.0).max(f64::MIN_POSITIVE);
     let key = |p: Point| ((p.x / cell).floor() as i64, (p.y / cell).floor() as i64);
-    let mut starts: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
-    let mut ends: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    let mut starts = Cells::default();
+    let mut ends = Cells::default();
     for (ri, r) in runs.iter().enumerate() {
         if valid[ri] && !used[ri] {
             starts.entry(key(run_start(r))).or_default().push(ri);
             ends.entry(key(run_end(r))).or_default().push(ri);
         }
     }
-    let near = |map: &HashMap<(i64, i64), Vec<usize>>, p: Point, f: &mut dyn FnMut(usize)| {
+    let near = |map: &Cells, p: Point, f: &mut dyn FnMut(usize)| {
         let (kx, ky) = key(p);
         for dx in -1..=1 {
             for dy in -1..=1 {

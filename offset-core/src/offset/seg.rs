@@ -308,6 +308,17 @@ pub fn intersect(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
     }
 }
 
+/// `accept(arc.param(p), e)` for a point `p` on the arc's circle, where `e` stands for a
+/// length `eps` along the arc: a point outside the sweep (decided by cross products) and
+/// more than 2 `eps` from both ends lies more than `eps` of arc beyond an end, so it is
+/// refused without the `atan2` of `param`.
+fn accept_on_arc(arc: &Seg, p: Point, e: f64, eps: f64) -> Option<f64> {
+    if !arc.within_sweep(p) && p.dist(arc.a) > 2.0 * eps && p.dist(arc.b) > 2.0 * eps {
+        return None;
+    }
+    accept(arc.param(p), e)
+}
+
 fn accept(t: f64, e: f64) -> Option<f64> {
     if t >= -e && t <= 1.0 + e {
         Some(t.clamp(0.0, 1.0))
@@ -388,7 +399,7 @@ fn line_arc(l: &Seg, c: &Seg, eps: f64, swap: bool) -> Hits {
     let on_both = |s: f64| -> Option<(Point, f64, f64)> {
         let t = accept(s / len, el)?;
         let p = l.point_at(t);
-        let u = accept(c.param(p), ea)?;
+        let u = accept_on_arc(c, p, ea, eps)?;
         Some(if swap { (p, u, t) } else { (p, t, u) })
     };
     // the two crossings lie k either side of the foot
@@ -466,7 +477,8 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
         }
     };
     for p in pts.into_iter().flatten() {
-        let (Some(t), Some(w)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) else {
+        let (Some(t), Some(w)) = (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
+        else {
             continue;
         };
         h.push(p, t, w);
@@ -477,7 +489,9 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
         // collapsed offset arc enters its circle beside the arc and leaves through it)
         let k = hh.sqrt();
         for p in [base + u.perp() * k, base - u.perp() * k] {
-            if let (Some(t), Some(w)) = (accept(s1.param(p), e1), accept(s2.param(p), e2)) {
+            if let (Some(t), Some(w)) =
+                (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
+            {
                 h.push(p, t, w);
                 break;
             }

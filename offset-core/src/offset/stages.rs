@@ -1,0 +1,72 @@
+//! Large distances in stages. Offsetting closed boundaries with round joins composes: the
+//! points at least a + b inside a region are the points at least b inside the points at
+//! least a inside it (a disc of radius a + b is a disc of radius a swept by one of radius
+//! b), and growing composes alike. So an offset by a distance much larger than the shape's
+//! features is made as a short first stage, which resolves the features (a gear's teeth
+//! become the arcs about their tips), and the rest from its result.
+//!
+//! Why: in one stage the raw offset of every turn away from the offset side fans out into
+//! a round join |d| × its turn long, and those fans cross each other and the offsets of
+//! the turns the other way, which the global stage must then find and prune: for a gear of
+//! 10,000 vertices and 500 teeth shrunk by 400 mm the raw offset is about sixty times the
+//! perimeter and each tooth's fan crosses those of some sixty teeth. After a first stage
+//! the features it resolved are gone, and each following stage is chosen so that its fans
+//! add about as much as the boundary's length again, so the crossings stay proportional to
+//! the boundary: the cost no longer grows with the distance.
+
+use super::seg::Seg;
+
+/// A stage's fans may add this many times the boundary's length to the raw offset.
+const FAN_PER_LENGTH: f64 = 0.5;
+
+/// The distance of a first stage, when offsetting the oriented closed `loops` by `o` (to
+/// the left) in one go would make a raw offset more than twice `FAN_PER_LENGTH` times the
+/// boundary's length in fans that must cross something; None when one stage is as good.
+///
+/// Per loop, the turns away from the offset side make the fans (F) and the turns towards
+/// it fold the offset back (C); only min(F, C) of the fans meets a fold (a convex loop
+/// grown, or an island grown, has F − C = 2π of fans that cross nothing). Turns at corners
+/// are taken as the sine of the turn (π less it past a right angle), so no trigonometry.
+pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64) -> Option<f64> {
+    let side = o.signum();
+    let mut length = 0.0;
+    let mut crossing_fans = 0.0;
+    for (segs, closed) in loops {
+        if !closed || segs.is_empty() {
+            continue;
+        }
+        let (mut away, mut toward) = (0.0, 0.0);
+        let mut t_in = segs[segs.len() - 1].tangent_at(1.0);
+        for s in segs {
+            length += s.length();
+            let t_out = s.tangent_at(0.0);
+            let (cr, dt) = (t_in.cross(t_out), t_in.dot(t_out));
+            let turn = if dt >= 0.0 {
+                cr.abs()
+            } else {
+                std::f64::consts::PI - cr.abs()
+            };
+            if cr * side < 0.0 {
+                away += turn;
+            } else {
+                toward += turn;
+            }
+            if s.is_arc() {
+                if s.sw * side < 0.0 {
+                    away += s.sw.abs();
+                } else {
+                    toward += s.sw.abs();
+                }
+                t_in = s.tangent_at(1.0);
+            } else {
+                t_in = t_out;
+            }
+        }
+        crossing_fans += f64::min(away, toward);
+    }
+    if !(crossing_fans > 0.0 && length > 0.0) {
+        return None;
+    }
+    let step = FAN_PER_LENGTH * length / crossing_fans;
+    (o.abs() > 2.0 * step).then(|| step * side)
+}

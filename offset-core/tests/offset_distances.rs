@@ -1,0 +1,137 @@
+//! One input offset at distances spread over three decades (from d0 to 1000 d0, inward
+//! and outward): every result is valid input again (no crossings), keeps its distance
+//! from the input (the checker), and the results nest (each deeper shrink lies inside the
+//! one before, each larger growth around it, at the difference of the distances). Large
+//! distances are made in stages (docs/offset.md, "Large distances"), small ones in one, so
+//! this also holds the two ways to the same answer.
+
+mod common;
+use common::*;
+use offset_core::check::{check_offset, first_crossing};
+use offset_core::geom::{Point, Polyline, Region};
+use offset_core::offset::{offset_region, OffsetOptions};
+use proptest::prelude::*;
+use std::f64::consts::TAU;
+
+/// r = r0 + Σ a_k sin(f_k θ + φ_k), sampled at n points.
+fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = TAU * i as f64 / n as f64;
+            let r = r0
+                + waves
+                    .iter()
+                    .map(|(amp, f, ph)| amp * (f * a + ph).sin())
+                    .sum::<f64>();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+/// Offsets `region` at each distance (all one sign, growing in size) and checks each
+/// result and each pair of neighbours; returns the number of non-empty results.
+fn offsets_nest(region: &Region, ds: &[f64], tol: f64) -> Result<usize, String> {
+    let opts = OffsetOptions {
+        tolerance: tol,
+        ..Default::default()
+    };
+    let input: Vec<Polyline> = region.boundaries().cloned().collect();
+    let mut prev: Option<(f64, Vec<Region>)> = None;
+    let mut made = 0;
+    for &d in ds {
+        let out = offset_region(region, d, &opts).map_err(|e| format!("d = {d}: {e}"))?;
+        let paths = region_paths(&out);
+        if let Some((path, at)) = first_crossing(&paths, tol) {
+            return Err(format!(
+                "d = {d}: result path {path} crosses itself at {at:?}"
+            ));
+        }
+        let rep = check_offset(&input, &paths, d, tol);
+        if !rep.within(tol) {
+            return Err(format!("d = {d}: deviates from the input: {rep:?}"));
+        }
+        if let Some((pd, before)) = &prev {
+            let before_paths = region_paths(before);
+            // nested at the difference of the distances
+            let rep = check_offset(&before_paths, &paths, d - pd, tol);
+            if !rep.within(tol) {
+                return Err(format!(
+                    "d = {d}: not the offset by {} of the result at {pd}: {rep:?}",
+                    d - pd
+                ));
+            }
+            // and on the right side of it: a deeper shrink inside, a larger growth around
+            for p in &paths {
+                for v in &p.vertices {
+                    let q = Point::new(v.x, v.y);
+                    let in_before = before.iter().any(|r| r.contains(q));
+                    if d < 0.0 && !in_before {
+                        return Err(format!(
+                            "d = {d}: vertex {q:?} lies outside the result at {pd}"
+                        ));
+                    }
+                    if d > 0.0 && in_before {
+                        return Err(format!(
+                            "d = {d}: vertex {q:?} lies inside the result at {pd}"
+                        ));
+                    }
+                }
+            }
+        }
+        if !out.is_empty() {
+            made += 1;
+        }
+        prev = Some((d, out));
+    }
+    Ok(made)
+}
+
+/// Distances d0 · 1000^(k / (count - 1)), k = 0 … count - 1.
+fn three_decades(d0: f64, count: usize) -> Vec<f64> {
+    (0..count)
+        .map(|k| d0 * 1000f64.powf(k as f64 / (count - 1) as f64))
+        .collect()
+}
+
+#[test]
+fn a_gear_with_islands_shrunk_from_a_hundredth_to_ten_mm_nests() {
+    // the bench's 1k gear shape at 600 points: r = 100 + 3 sin 50θ, islands r = 8 on a ring of 60
+    let g = gear(600, 100.0, &[(3.0, 50.0, 0.0)]);
+    let islands = (0..4)
+        .map(|k| {
+            let a = TAU * k as f64 / 4.0;
+            Polyline::circle(Point::new(a.cos(), a.sin()) * 60.0, 8.0).reversed()
+        })
+        .collect();
+    let ds: Vec<f64> = three_decades(0.04, 6).iter().map(|d| -d).collect();
+    let made = offsets_nest(&Region::new(g, islands), &ds, 1e-3).unwrap();
+    assert_eq!(made, ds.len(), "every shrink up to 40 mm leaves something");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(4)))]
+
+    /// Dense wavy outlines, with or without an island, shrunk or grown at five distances
+    /// over three decades.
+    #[test]
+    fn offsets_over_three_decades_are_valid_and_nested(
+        n in 200usize..800,
+        r0 in 30.0f64..60.0,
+        waves in proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
+        island in proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
+        d0 in 0.005f64..0.03,
+        grow in any::<bool>(),
+    ) {
+        let amp: f64 = waves.iter().map(|w| w.0).sum();
+        prop_assume!(amp < r0 * 0.3);
+        let g = gear(n, r0, &waves.iter().map(|&(a, f, p)| (a, f.round(), p)).collect::<Vec<_>>());
+        let islands = island
+            .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
+            .into_iter()
+            .collect();
+        let sign = if grow { 1.0 } else { -1.0 };
+        let ds: Vec<f64> = three_decades(d0, 5).iter().map(|d| sign * d).collect();
+        offsets_nest(&Region::new(g, islands), &ds, 1e-3).map_err(TestCaseError::fail)?;
+    }
+}
