@@ -210,7 +210,7 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     for &z in &levels {
         let mut paths = vec![outline.clone()];
         let exact = match &solid {
-            Some(s) => section(s, (z - a).max(lo.z + p.tolerance), a, p.tolerance).ok(),
+            Some(s) => section(s, (z - a).max(lo.z), a, p.tolerance).ok(),
             None => None,
         };
         match exact {

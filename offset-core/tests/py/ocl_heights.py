@@ -47,9 +47,11 @@ def main():
         sys.exit(4)
     heights = {}
     for j in job["jobs"]:
+        # the batch keeps a bare pointer to the cutter: it must outlive the run
+        cutter = cutter_of(j)
         bdc = ocl.BatchDropCutter()
         bdc.setSTL(surf)
-        bdc.setCutter(cutter_of(j))
+        bdc.setCutter(cutter)
         for x, y in j["points"]:
             bdc.appendPoint(ocl.CLPoint(x, y, job["min_z"]))
         bdc.run()
