@@ -1,7 +1,7 @@
 //! Z-level roughing of meshes: every position the tool passes through keeps the stock
 //! allowance from the part (judged by an independent drop-cutter of the tool grown by the
-//! allowance), levels run from the stock top down to the floor, and parts a 3-axis rough
-//! cannot serve are refused by name.
+//! allowance), levels run from the stock top down to the floor, and parts that are no
+//! closed solid (undercuts, holes) are roughed from their upper envelope with a warning.
 
 use offset_core::mesh::shapes::{cube_with_boss, height_field_solid, sphere};
 use offset_core::mesh::{rough3d, Cutter, DropCutter, Mesh, Rough3dParams, V3};
@@ -157,16 +157,26 @@ fn rough_starts_at_the_stock_top_given() {
 }
 
 #[test]
-fn an_undercut_is_refused_with_the_height_to_raise_the_floor_to() {
+fn an_undercut_is_roughed_from_the_upper_envelope_with_a_warning() {
     let m = sphere(V3::new(0.0, 0.0, 10.0), 10.0, 16, 32);
-    let e = rough3d(&m, &params(6.0, 0.5)).unwrap_err().to_string();
-    assert!(e.contains("looks down") && e.contains("undercut"), "{e}");
-    // above the equator the sphere is a dome: accepted
+    let p = params(6.0, 0.5);
+    let tp = rough3d(&m, &p).unwrap();
+    assert!(
+        tp.warnings
+            .iter()
+            .any(|w| w.contains("undercut") && w.contains("upper envelope")),
+        "{:?}",
+        tp.warnings
+    );
+    // under the equator nothing is cut: the envelope holds the sphere's shadow
+    keeps_allowance("sphere from its envelope", &m, &p, 1e-6);
+    // above the equator the sphere is a dome: roughed from its sections, no warning
     let p = Rough3dParams {
         floor: Some(10.0),
         ..params(6.0, 0.5)
     };
     let tp = rough3d(&m, &p).unwrap();
+    assert!(tp.warnings.is_empty(), "{:?}", tp.warnings);
     let lowest = tp
         .moves
         .iter()
@@ -179,11 +189,18 @@ fn an_undercut_is_refused_with_the_height_to_raise_the_floor_to() {
 }
 
 #[test]
-fn an_open_mesh_is_refused_by_name() {
+fn an_open_mesh_is_roughed_with_one_warning_naming_its_holes() {
     let mut m = cube_with_boss(30.0, 6.0, 8.0, 16);
     m.faces.truncate(m.faces.len() - 1);
-    let e = rough3d(&m, &params(6.0, 0.5)).unwrap_err().to_string();
-    assert!(e.contains("is not closed"), "{e}");
+    let p = params(6.0, 0.5);
+    let tp = rough3d(&m, &p).unwrap();
+    assert_eq!(tp.warnings.len(), 1, "{:?}", tp.warnings);
+    assert!(
+        tp.warnings[0].contains("is open: 3 boundary edges"),
+        "{}",
+        tp.warnings[0]
+    );
+    keeps_allowance("cube with boss, one face missing", &m, &p, 1e-6);
 }
 
 #[test]

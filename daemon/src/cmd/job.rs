@@ -22,7 +22,7 @@ pub enum Op {
     Rough3d,
     /// 3D: raster finishing with a drop cutter (--cutter ball|flat|bull), gouge-free.
     Finish3d,
-    /// 3D: waterline contours with a ball cutter.
+    /// 3D: waterline contours with a ball, flat or bull cutter (--cutter).
     Waterline,
 }
 

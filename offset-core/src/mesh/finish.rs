@@ -294,6 +294,10 @@ pub fn finish3d(mesh: &Mesh, p: &Finish3dParams) -> Result<Toolpath, MeshError> 
     let mut tp = Toolpath::new("finish3d");
     tp.tool = Some(tool_of(&p.cutter, p.tool_number));
     tp.source = mesh.name.clone();
+    // the drop-cutter needs no solid: a mesh's defects are said, not refused
+    if let Some(d) = mesh.report().defects() {
+        tp.warnings.push(format!("{} is {d}", mesh.name));
+    }
     tp.push(Move::Comment {
         text: format!(
             "finish3d: {} cutter, step-over {step} mm at {}°, tolerance {tol} mm",

@@ -7,6 +7,7 @@
 
 pub mod bvh;
 pub mod dropcutter;
+pub mod envelope;
 pub mod finish;
 pub mod offset;
 pub mod rough;

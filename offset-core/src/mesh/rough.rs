@@ -15,12 +15,18 @@
 //! runs off the stock's edge. Every level starts and ends at the safe height, so levels
 //! are linked by safe retracts.
 //!
-//! A section is all a cutter at that level meets only when no face of the part looks down
-//! above the floor (no undercut): such a face is refused by name, with the height to raise
-//! the floor to.
+//! A section is all a cutter at that level meets only when the part is a closed solid and
+//! no face looks down above the floor (no undercut). Any other mesh — open, non-manifold,
+//! several shells or touching bodies, turned faces, undercuts — is roughed from its upper
+//! envelope instead (`Envelope` below: drop-cutter heights on a grid, marked per level),
+//! which is all a 3-axis cutter meets; the plan carries one warning naming the defects.
+//! A level whose section cannot be grown (walls that touch) is taken from the envelope too.
+//! A rough that would clear nothing is refused in a sentence, never written empty.
 
+use super::dropcutter::{Cutter, DropCutter};
+use super::envelope::{grid_step, HeightField};
 use super::slice::{flat_heights, slice_at};
-use super::{Mesh, MeshError};
+use super::{Mesh, MeshError, V3};
 use crate::geom::{Point, Polyline, Shape};
 use crate::offset::{offset_shape, Join, OffsetError, OffsetOptions};
 use crate::ops::{pass_depths, pocket, Cutting, OpError, PocketParams, Stepover};
@@ -113,11 +119,17 @@ impl Rough3dParams {
     }
 }
 
-/// Plans a z-level rough of the closed mesh in its own frame.
+/// The most grid points of the upper envelope a rough samples (a coarser grid than the
+/// tolerance where the part is large; the comment at the path's start names the step).
+pub const ENVELOPE_POINTS: usize = 1_000_000;
+
+/// Plans a z-level rough of the mesh in its own frame: from its sections where it is a
+/// closed solid with no undercut above the floor, else from its upper envelope (any
+/// triangle soup), with one warning naming what kept it from being a solid.
 pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     p.check()?;
-    let (solid, _) = mesh.solid()?;
-    let (lo, hi) = solid.bounds().ok_or_else(|| MeshError::Empty {
+    mesh.check_finite()?;
+    let (lo, hi) = mesh.bounds().ok_or_else(|| MeshError::Empty {
         name: mesh.name.clone(),
     })?;
     let top = p.stock_top.unwrap_or(hi.z);
@@ -127,12 +139,35 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
             "the floor Z {floor} must lie below the stock top Z {top}"
         )));
     }
-    check_undercuts(&solid, floor, p.tolerance)?;
+    let mut warnings = Vec::new();
+    // the exact way needs a closed solid with nothing looking down above the floor
+    let solid = match mesh.solid() {
+        Ok((solid, _)) => match check_undercuts(&solid, floor, p.tolerance) {
+            Ok(()) => Some(solid),
+            Err(e) => {
+                warnings.push(format!("{e}; roughed from its upper envelope instead"));
+                None
+            }
+        },
+        Err(_) => {
+            let why = mesh
+                .report()
+                .defects()
+                .unwrap_or_else(|| "not a closed solid".into());
+            warnings.push(format!(
+                "{} is {why}: roughed from its upper envelope",
+                mesh.name
+            ));
+            None
+        }
+    };
     let a = p.stock_allowance;
     let r = p.tool.radius();
     let m = p.stock_margin + p.stock_allowance;
-    // the stock in plan, grown by the tool radius (and a hair) so the tool runs off it
-    let g = m + r + p.tolerance;
+    let envelope = Envelope::new(mesh, lo, hi, a, p.tolerance);
+    // the stock in plan, grown by the tool radius (and a hair) so the tool runs off it,
+    // and past every island the envelope can give
+    let g = (m + r + p.tolerance).max(envelope.reach + p.tolerance);
     let outline = Polyline::rect(
         Point::new(lo.x - g, lo.y - g),
         Point::new(hi.x + g, hi.y + g),
@@ -142,7 +177,12 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         .map(|d| top + d)
         .collect();
     // a level on each flat of the part, the allowance above it, between the top and the floor
-    for z in flat_heights(&solid).into_iter().map(|z| z + a) {
+    // (a soup's faces may face either way: its flats are those of either side)
+    let flats = match &solid {
+        Some(s) => flat_heights(s),
+        None => [flat_heights(mesh), flat_heights(&mesh.flipped())].concat(),
+    };
+    for z in flats.into_iter().map(|z| z + a) {
         if z < top - p.tolerance && z > floor + p.tolerance {
             levels.push(z);
         }
@@ -166,9 +206,20 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     tp.push(Move::Rapid {
         to: P3::new(lo.x - g, lo.y - g, safe),
     });
+    let mut from_envelope = 0usize;
     for &z in &levels {
         let mut paths = vec![outline.clone()];
-        paths.extend(section(&solid, (z - a).max(lo.z + p.tolerance), a, p.tolerance)?.paths);
+        let exact = match &solid {
+            Some(s) => section(s, (z - a).max(lo.z), a, p.tolerance).ok(),
+            None => None,
+        };
+        match exact {
+            Some(cut) => paths.extend(cut.paths),
+            None => {
+                from_envelope += 1;
+                paths.extend(envelope.islands(z - a));
+            }
+        }
         let shape = Shape::new(paths);
         // one pass at the level (depth 0 below a stock top at Z = z); the pocket's other
         // settings (its entries among them) keep their defaults
@@ -227,7 +278,108 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     if p.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
     }
+    if solid.is_some() && from_envelope > 0 {
+        warnings.push(format!(
+            "{}: {from_envelope} of {} levels were roughed from the upper envelope (their sections could not be grown by the allowance)",
+            mesh.name,
+            levels.len()
+        ));
+    }
+    if from_envelope > 0 {
+        tp.moves.insert(
+            1,
+            Move::Comment {
+                text: format!(
+                    "upper envelope on a {:.4} mm grid: up to {:.4} mm more than the allowance is left",
+                    envelope.h,
+                    envelope.h * (1.0 + std::f64::consts::SQRT_2)
+                ),
+            },
+        );
+    }
+    let cuts = tp
+        .moves
+        .iter()
+        .any(|mv| matches!(mv, Move::Linear { .. } | Move::Arc { .. }));
+    if !cuts {
+        return Err(nothing_to_cut(mesh, p, top, floor, hi.z));
+    }
+    tp.warnings.extend(warnings);
     Ok(tp)
+}
+
+/// Why a rough that clears nothing is refused: the stock is the part itself, or (a
+/// planner fault) the stock holds material above the part and still nothing was cut.
+fn nothing_to_cut(
+    mesh: &Mesh,
+    p: &Rough3dParams,
+    top: f64,
+    floor: f64,
+    part_top: f64,
+) -> MeshError {
+    if p.stock_margin <= p.tolerance && top <= part_top + p.tolerance {
+        MeshError::BadParam(format!(
+            "{}: nothing to rough: the stock is the part's own plan-view box from Z {top} down to Z {floor} (no stock margin), and a d{} cutter finds no material in it to clear; give a stock margin (--stock-margin) or a stock top above Z {part_top}",
+            mesh.name, p.tool.diameter
+        ))
+    } else {
+        MeshError::BadParam(format!(
+            "{}: the rough would cut nothing, though the stock holds material beside or above the part (margin {} mm, top Z {top}): refused rather than sent empty",
+            mesh.name, p.stock_margin
+        ))
+    }
+}
+
+/// The part's upper envelope for roughing: a flat cutter of radius a + h·√2 dropped on a
+/// grid of step h. At level z every point whose height is at or above z − a is marked,
+/// and the loops round the marked points (edges cut at their middles) hold every cell
+/// whose four corners are marked. A point of the part above z − a lies within a of the
+/// grid points within h·√2 of it, so all four corners of its cell are marked: the
+/// islands hold the part's shadow above z − a grown by a, and a cutter kept out of them
+/// stands at least a from the part, on slopes and flats alike (and at most h·(1 + √2)
+/// farther than a).
+struct Envelope<'m> {
+    field: std::sync::OnceLock<HeightField>,
+    mesh: &'m Mesh,
+    area: [f64; 4],
+    h: f64,
+    radius: f64,
+    floor: f64,
+    /// How far beyond the part's plan-view box an island can reach, mm.
+    reach: f64,
+}
+
+impl<'m> Envelope<'m> {
+    fn new(mesh: &'m Mesh, lo: V3, hi: V3, a: f64, tol: f64) -> Envelope<'m> {
+        let guess = a + 2.5 * tol;
+        let h = grid_step(
+            hi.x - lo.x + 2.0 * guess,
+            hi.y - lo.y + 2.0 * guess,
+            tol,
+            ENVELOPE_POINTS,
+        );
+        let radius = a + h * std::f64::consts::SQRT_2;
+        let pad = radius + h;
+        Envelope {
+            field: std::sync::OnceLock::new(),
+            mesh,
+            area: [lo.x - pad, lo.y - pad, hi.x + pad, hi.y + pad],
+            h,
+            radius,
+            floor: lo.z - 1.0,
+            reach: radius + h,
+        }
+    }
+
+    /// The islands at a level whose tool keeps off the part above `z` (= level − a).
+    fn islands(&self, z: f64) -> Vec<Polyline> {
+        let field = self.field.get_or_init(|| {
+            let dc = DropCutter::new(self.mesh, Cutter::flat(2.0 * self.radius))
+                .expect("the mesh and the cutter were checked");
+            HeightField::new(&dc, self.area, self.h, self.floor)
+        });
+        field.contours(|hz| hz >= z - 1e-9, |a, b| a.lerp(b, 0.5))
+    }
 }
 
 /// The part's section just above `z`, grown by `allowance` in the plane.

@@ -40,44 +40,25 @@ pub fn read_triangles(
         .unwrap_or(bytes.len());
     let ascii = !exact_binary && bytes[text_start..].starts_with(b"solid");
     let mut tris = Vec::new();
-    if ascii {
-        // stl_io wants "solid " and a name on the first line; give it one when missing
-        let rest = &bytes[text_start + 5..];
-        let line_end = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
-        let mut text = b"solid ".to_vec();
-        if rest[..line_end].iter().all(|b| b.is_ascii_whitespace()) {
-            text.extend_from_slice(b"part");
-        }
-        text.extend_from_slice(rest);
-        let mut cur = Cursor::new(text);
-        let reader = stl_io::create_stl_reader(&mut cur)
-            .map_err(|e| unreadable(format!("not an STL file ({e})")))?;
-        for t in reader {
-            let face = tris.len();
-            let t = t.map_err(|e| {
-                if e.kind() == std::io::ErrorKind::UnexpectedEof {
-                    unreadable(format!(
-                        "the ASCII STL is cut short in face {face} (it ends without \"endsolid\")"
-                    ))
-                } else if e.to_string().contains("finite") {
-                    MeshError::NotFinite {
-                        name: name.into(),
-                        face,
-                        corner: 0,
-                    }
-                } else {
-                    unreadable(format!("face {face} of the ASCII STL cannot be read: {e}"))
+    // a text file that begins "solid": every solid's facets; one whose header only happens
+    // to begin "solid" but whose bytes are a whole binary STL is read as binary after all
+    let binary_fits = promised.is_some_and(|n| 84 + 50 * n as u64 <= bytes.len() as u64);
+    let text = if ascii {
+        match read_ascii(&bytes[text_start..], name, opts) {
+            Ok(t) => Some(t),
+            Err(e) if binary_fits && !matches!(e, MeshError::TooBig { .. }) => {
+                if is_text(bytes) {
+                    return Err(e);
                 }
-            })?;
-            if tris.len() >= opts.max_faces {
-                return Err(MeshError::TooBig {
-                    name: name.into(),
-                    faces: tris.len() + 1,
-                    budget: opts.max_faces,
-                });
+                None
             }
-            tris.push(triangle(&t, name, face)?);
+            Err(e) => return Err(e),
         }
+    } else {
+        None
+    };
+    if let Some(t) = text {
+        tris = t;
     } else {
         let Some(n) = promised else {
             return Err(unreadable(format!(
@@ -113,6 +94,112 @@ pub fn read_triangles(
     }
     if tris.is_empty() {
         return Err(MeshError::Empty { name: name.into() });
+    }
+    Ok(tris)
+}
+
+/// Whether the bytes look like text (no control bytes but whitespace): a text file's
+/// parse error is the one to report, not a guess that it was binary.
+fn is_text(bytes: &[u8]) -> bool {
+    bytes
+        .iter()
+        .take(4096)
+        .all(|&b| b.is_ascii_graphic() || b.is_ascii_whitespace() || b >= 0x80)
+}
+
+/// The facets of every `solid … endsolid` block of an ASCII STL, in order. The stored
+/// normal is skipped unread (it is recomputed from the corners wherever it matters, and
+/// some writers put decimal commas or nothing in it); vertices must be three finite
+/// numbers. Errors name the line and the face.
+fn read_ascii(text: &[u8], name: &str, opts: &MeshOptions) -> Result<Vec<[V3; 3]>, MeshError> {
+    let unreadable = |message: String| MeshError::Unreadable {
+        name: name.into(),
+        message,
+    };
+    let mut tris: Vec<[V3; 3]> = Vec::new();
+    let mut corners: Vec<V3> = Vec::with_capacity(3);
+    let mut in_solid = false;
+    let mut in_facet = false;
+    let mut solids = 0usize;
+    let mut line_no = 0usize;
+    for raw in text.split(|&b| b == b'\n') {
+        line_no += 1;
+        let line = String::from_utf8_lossy(raw);
+        let mut words = line.split_whitespace();
+        let Some(first) = words.next() else { continue };
+        let face = tris.len();
+        match first.to_ascii_lowercase().as_str() {
+            "solid" if !in_solid => {
+                in_solid = true;
+                solids += 1;
+            }
+            "endsolid" if in_solid && !in_facet => in_solid = false,
+            "facet" if in_solid && !in_facet => {
+                in_facet = true;
+                corners.clear();
+            }
+            "outer" | "endloop" if in_facet => {}
+            "vertex" if in_facet => {
+                if corners.len() == 3 {
+                    return Err(unreadable(format!(
+                        "line {line_no}: face {face} has more than three vertices"
+                    )));
+                }
+                let mut p = [0.0f64; 3];
+                for (k, v) in p.iter_mut().enumerate() {
+                    let w = words.next().ok_or_else(|| {
+                        unreadable(format!(
+                            "line {line_no}: vertex {} of face {face} has {k} coordinates, not 3",
+                            corners.len()
+                        ))
+                    })?;
+                    *v = w.parse::<f64>().map_err(|_| {
+                        unreadable(format!(
+                            "line {line_no}: vertex {} of face {face} has \"{w}\" where a number belongs",
+                            corners.len()
+                        ))
+                    })?;
+                }
+                let p = V3::new(p[0], p[1], p[2]);
+                if !p.is_finite() {
+                    return Err(MeshError::NotFinite {
+                        name: name.into(),
+                        face,
+                        corner: corners.len(),
+                    });
+                }
+                corners.push(p);
+            }
+            "endfacet" if in_facet => {
+                in_facet = false;
+                if corners.len() != 3 {
+                    return Err(unreadable(format!(
+                        "line {line_no}: face {face} has {} vertices, not 3",
+                        corners.len()
+                    )));
+                }
+                if tris.len() >= opts.max_faces {
+                    return Err(MeshError::TooBig {
+                        name: name.into(),
+                        faces: tris.len() + 1,
+                        budget: opts.max_faces,
+                    });
+                }
+                tris.push([corners[0], corners[1], corners[2]]);
+            }
+            other => {
+                let shown: String = other.chars().take(24).collect();
+                return Err(unreadable(format!(
+                    "line {line_no}: \"{shown}\" is not an ASCII STL keyword here (face {face} of solid {solids})"
+                )));
+            }
+        }
+    }
+    if in_solid || in_facet {
+        return Err(unreadable(format!(
+            "the ASCII STL is cut short in face {} (it ends without \"endsolid\")",
+            tris.len()
+        )));
     }
     Ok(tris)
 }

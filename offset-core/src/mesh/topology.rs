@@ -96,6 +96,35 @@ pub struct MeshReport {
     pub closed: bool,
 }
 
+impl MeshReport {
+    /// What keeps the mesh from being a closed solid, in one line ("open: 72 boundary
+    /// edges; 3 non-manifold edges"), or None for a closed solid.
+    pub fn defects(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if self.boundary_edges > 0 {
+            parts.push(format!("{} boundary edges", self.boundary_edges));
+        }
+        if self.non_manifold_edges > 0 {
+            parts.push(format!("{} non-manifold edges", self.non_manifold_edges));
+        }
+        if !self.flipped_faces.is_empty() {
+            parts.push(format!(
+                "{} faces turned against their neighbours",
+                self.flipped_faces.len()
+            ));
+        }
+        if parts.is_empty() {
+            return None;
+        }
+        let kind = if self.boundary_edges > 0 {
+            "open"
+        } else {
+            "not a closed solid"
+        };
+        Some(format!("{kind}: {}", parts.join("; ")))
+    }
+}
+
 impl Topology {
     pub fn new(m: &Mesh) -> Topology {
         let mut sides: Vec<(u32, u32, u32, u8)> = Vec::with_capacity(m.faces.len() * 3);
@@ -181,22 +210,23 @@ impl Topology {
             ..Default::default()
         };
         let mut on_boundary = vec![false; m.faces.len()];
-        let mut on_nm = vec![false; m.faces.len()];
-        for (ei, e) in self.edges.iter().enumerate() {
+        for e in &self.edges {
             if e.count == 1 {
                 r.boundary_edges += 1;
                 on_boundary[e.faces[0] as usize] = true;
             } else if e.count > 2 {
                 r.non_manifold_edges += 1;
-                for (f, fe) in self.face_edges.iter().enumerate() {
-                    if fe.contains(&(ei as u32)) {
-                        on_nm[f] = true;
-                    }
-                }
             }
         }
         r.boundary_faces = (0..m.faces.len()).filter(|&f| on_boundary[f]).collect();
-        r.non_manifold_faces = (0..m.faces.len()).filter(|&f| on_nm[f]).collect();
+        // one pass over the faces (not one per non-manifold edge: a scanned mesh has many)
+        r.non_manifold_faces = (0..m.faces.len())
+            .filter(|&f| {
+                self.face_edges[f]
+                    .iter()
+                    .any(|&e| self.edges.get(e as usize).is_some_and(|e| e.count > 2))
+            })
+            .collect();
         r.flipped_faces = self.flipped(m);
         r.closed = r.boundary_edges == 0 && r.non_manifold_edges == 0 && r.flipped_faces.is_empty();
         r
