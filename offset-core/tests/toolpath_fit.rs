@@ -229,9 +229,17 @@ fn check_pocket_and_profile(shape: &Shape, tol: f64) -> Result<(), TestCaseError
         tolerance: tol,
         ..Default::default()
     };
-    let pk = PocketParams { cut: cut.clone(), stepover: Stepover::Percent(45.0) };
+    let pk = PocketParams {
+        cut: cut.clone(),
+        stepover: Stepover::Percent(45.0),
+    };
     check_fitted(&pocket(shape, &pk).unwrap(), tol)?;
-    let pr = ProfileParams { side: Side::Outside, cut, lead_in: 2.0, ..Default::default() };
+    let pr = ProfileParams {
+        side: Side::Outside,
+        cut,
+        lead_in: 2.0,
+        ..Default::default()
+    };
     check_fitted(&profile(shape, &pr).unwrap(), tol)
 }
 

@@ -174,7 +174,11 @@ fn thread_cpu(name: &str) -> Option<Duration> {
 /// The CPU time of every thread of this process now alive, from their schedstat.
 fn process_cpu() -> Duration {
     let mut ns = 0u64;
-    for t in std::fs::read_dir("/proc/self/task").into_iter().flatten().flatten() {
+    for t in std::fs::read_dir("/proc/self/task")
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
         let st = std::fs::read_to_string(t.path().join("schedstat")).unwrap_or_default();
         ns += st
             .split_whitespace()

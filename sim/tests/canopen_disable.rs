@@ -52,10 +52,21 @@ async fn a_drive_failing_its_start_up_leaves_every_drive_shut_down_and_pre_opera
         left = states(&m);
     }
     for (n, power, nmt) in left {
-        assert_eq!(power, PowerState::ReadyToSwitchOn, "node {n} after a failed start-up");
-        assert_eq!(nmt, NmtState::PreOperational, "node {n} after a failed start-up");
+        assert_eq!(
+            power,
+            PowerState::ReadyToSwitchOn,
+            "node {n} after a failed start-up"
+        );
+        assert_eq!(
+            nmt,
+            NmtState::PreOperational,
+            "node {n} after a failed start-up"
+        );
     }
-    assert!(m.sim().drives.trace(1).is_empty(), "no set-point was applied");
+    assert!(
+        m.sim().drives.trace(1).is_empty(),
+        "no set-point was applied"
+    );
     // the next start-up runs the job
     let (end, _) = m.stream(&program, 0, |_, _, _| {}).await;
     assert_eq!(end.expect("the next start-up runs"), StreamEnd::Completed);
@@ -68,16 +79,28 @@ async fn a_silent_drive_mid_job_leaves_every_drive_disabled() {
     table["lockstep"] = false.into();
     let mut m = Machine::start_with(table).await;
     let program = m.program(&line_job());
-    assert!(m.sim().drives.inject(2, DriveFault::Silent { after_syncs: 50 }));
+    assert!(m
+        .sim()
+        .drives
+        .inject(2, DriveFault::Silent { after_syncs: 50 }));
     let (end, events) = m.stream(&program, 0, |_, _, _| {}).await;
     let e = end.expect_err("the job stops");
-    assert!(e.to_string().contains("node 2") && e.to_string().contains("silent"), "{e}");
     assert!(
-        events.iter().any(|e| matches!(e, LinkEvent::Status(s) if s.state == DeviceState::Offline)),
+        e.to_string().contains("node 2") && e.to_string().contains("silent"),
+        "{e}"
+    );
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, LinkEvent::Status(s) if s.state == DeviceState::Offline)),
         "the machine shows offline"
     );
     for (n, power, _) in states(&m) {
-        assert_eq!(power, PowerState::SwitchOnDisabled, "node {n} after node 2 went silent");
+        assert_eq!(
+            power,
+            PowerState::SwitchOnDisabled,
+            "node {n} after node 2 went silent"
+        );
     }
     let (end, _) = m.stream(&program, 0, |_, _, _| {}).await;
     assert_eq!(end.expect("the next start-up runs"), StreamEnd::Completed);

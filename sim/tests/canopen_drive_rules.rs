@@ -66,7 +66,11 @@ fn enabled_drive() -> Drive {
     write(&mut d, 0x1800, 2, &[1]);
     write(&mut d, 0x1800, 1, &tpdo.to_le_bytes());
     d.on_frame(&NmtCommand::Start.frame(NODE), &mut out);
-    for c in [Command::Shutdown, Command::SwitchOn, Command::EnableOperation] {
+    for c in [
+        Command::Shutdown,
+        Command::SwitchOn,
+        Command::EnableOperation,
+    ] {
         controlword(&mut d, c);
     }
     assert_eq!(d.power_state(), PowerState::OperationEnabled);

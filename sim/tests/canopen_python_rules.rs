@@ -43,7 +43,15 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/python/canopen_drives.py");
     let mut python = Command::new("python3")
         .arg(script)
-        .args(["--port", &python_port.path, "--nodes", "1,2,3", "--stuck", "3", "--trace"])
+        .args([
+            "--port",
+            &python_port.path,
+            "--nodes",
+            "1,2,3",
+            "--stuck",
+            "3",
+            "--trace",
+        ])
         .arg(&trace)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -56,7 +64,11 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
         .await
         .expect("the python drives say READY within 30 s")
         .unwrap();
-    assert_eq!(ready.as_deref(), Some("READY"), "the python drives did not start");
+    assert_eq!(
+        ready.as_deref(),
+        Some("READY"),
+        "the python drives did not start"
+    );
 
     let mut registry = Registry::new();
     machlink_protocols::standard_kinds(&mut registry);
@@ -74,7 +86,10 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
         }))
         .expect("settings");
     let device = kind.start("python", &settings).await.unwrap();
-    let mut link = kind.open("python", &settings, &device).await.expect("opens");
+    let mut link = kind
+        .open("python", &settings, &device)
+        .await
+        .expect("opens");
     let mut tp = Toolpath::new("line");
     tp.push(Move::Linear {
         to: P3::new(5.0, 5.0, 1.0),
@@ -83,9 +98,12 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
     let program = registry.post("moves").unwrap().program(&tp).unwrap();
     let (tx, _rx) = mpsc::unbounded_channel();
     let (_ctl, ctl_rx) = watch::channel(Control::Run);
-    let end = tokio::time::timeout(Duration::from_secs(60), link.stream(&program, 0, tx, ctl_rx))
-        .await
-        .expect("the start-up ends within a minute");
+    let end = tokio::time::timeout(
+        Duration::from_secs(60),
+        link.stream(&program, 0, tx, ctl_rx),
+    )
+    .await
+    .expect("the start-up ends within a minute");
     let e = end.expect_err("node 3 never reaches switched on");
     assert!(e.to_string().contains("node 3"), "{e}");
     // let the last frames reach python, then stop it
@@ -99,17 +117,24 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     for node in 1..=3u64 {
-        let at = |pred: &dyn Fn(&Value) -> bool| records.iter().position(|r| r["node"] == node && pred(r));
+        let at = |pred: &dyn Fn(&Value) -> bool| {
+            records.iter().position(|r| r["node"] == node && pred(r))
+        };
         let cw = |d: &'static str| {
             move |r: &Value| r["event"] == "sdo_write" && r["index"] == 0x6040 && r["data"] == d
         };
         let nmt = |c: u64| move |r: &Value| r["event"] == "nmt" && r["command"] == c;
         let shutdown = at(&cw("0600")).unwrap_or_else(|| panic!("node {node}: no 0x0006"));
         let reset = at(&nmt(0x82)).unwrap_or_else(|| panic!("node {node}: no reset communication"));
-        assert!(shutdown < reset, "node {node}: shutdown before the reset communication");
         assert!(
-            at(&|r: &Value| r["event"] == "sdo_write" && r["index"] == 0x605A && r["data"] == "0200")
-                .is_some(),
+            shutdown < reset,
+            "node {node}: shutdown before the reset communication"
+        );
+        assert!(
+            at(&|r: &Value| r["event"] == "sdo_write"
+                && r["index"] == 0x605A
+                && r["data"] == "0200")
+            .is_some(),
             "node {node}: 0x605A := 2"
         );
         let start = at(&nmt(0x01)).unwrap_or_else(|| panic!("node {node}: never started"));
@@ -117,15 +142,25 @@ async fn python_drives_are_shut_down_and_pre_operational_after_one_fails_its_pow
             .iter()
             .skip(start)
             .any(|r| r["node"] == node && nmt(0x80)(r));
-        assert!(pre_op, "node {node}: enter pre-operational after the failed start-up");
+        assert!(
+            pre_op,
+            "node {node}: enter pre-operational after the failed start-up"
+        );
         let states: Vec<u64> = records
             .iter()
             .filter(|r| r["node"] == node && r["event"] == "state")
             .map(|r| r["state"].as_u64().unwrap())
             .collect();
         if node < 3 {
-            assert!(states.contains(&ENABLED), "node {node} reached operation enabled: {states:?}");
+            assert!(
+                states.contains(&ENABLED),
+                "node {node} reached operation enabled: {states:?}"
+            );
         }
-        assert_eq!(states.last(), Some(&READY), "node {node} is left ready to switch on: {states:?}");
+        assert_eq!(
+            states.last(),
+            Some(&READY),
+            "node {node} is left ready to switch on: {states:?}"
+        );
     }
 }

@@ -53,7 +53,10 @@ fn check_stream(what: &str, from: P3, points: &[P3]) {
         let along = p.x * u.x + p.y * u.y + p.z * u.z;
         let off = P3::new(p.x - along * u.x, p.y - along * u.y, p.z - along * u.z);
         let d = (off.x * off.x + off.y * off.y + off.z * off.z).sqrt();
-        assert!(d <= 2e-6, "{what}: the set-point {p:?} is {d} mm off the path");
+        assert!(
+            d <= 2e-6,
+            "{what}: the set-point {p:?} is {d} mm off the path"
+        );
         assert!(
             (-1e-6..=len + 1e-6).contains(&along),
             "{what}: the set-point {p:?} is beyond the path's ends"
@@ -112,7 +115,11 @@ async fn stops_in(mode: &str) {
     let sp = m.setpoints();
     let standing = sp.windows(2).filter(|w| w[0] == w[1]).count();
     assert!(standing >= 40, "{mode}: stood {standing} SYNCs while held");
-    check_stream(&format!("{mode}: a hold and its resume"), P3::default(), &sp);
+    check_stream(
+        &format!("{mode}: a hold and its resume"),
+        P3::default(),
+        &sp,
+    );
 
     // 3. a cancel halfway
     let mut m = Machine::start(mode).await;

@@ -703,7 +703,11 @@ impl CanopenLink {
             r => r?,
         }
         match self
-            .write(i, od::QUICK_STOP_OPTION, &od::QUICK_STOP_THEN_DISABLED.to_le_bytes())
+            .write(
+                i,
+                od::QUICK_STOP_OPTION,
+                &od::QUICK_STOP_THEN_DISABLED.to_le_bytes(),
+            )
             .await
         {
             // 0x605A is optional: a drive without it keeps its own quick stop reaction
@@ -1212,18 +1216,29 @@ mod clock_tests {
         m.woke(us(10));
         assert_eq!(m.spin, SPIN_MIN, "an on-time wake-up keeps the minimum");
         m.woke(us(100));
-        assert!(m.spin >= us(125), "a wake-up 100 µs late is covered: {:?}", m.spin);
+        assert!(
+            m.spin >= us(125),
+            "a wake-up 100 µs late is covered: {:?}",
+            m.spin
+        );
         m.woke(us(5000));
         assert_eq!(m.spin, us(125), "never more than a sixteenth of the period");
         for _ in 0..10_000 {
             m.woke(us(20));
         }
-        assert_eq!(m.spin, SPIN_MIN, "on-time wake-ups bring it back to the minimum");
+        assert_eq!(
+            m.spin, SPIN_MIN,
+            "on-time wake-ups bring it back to the minimum"
+        );
         let mut long = WakeMargin::new(us(8000));
         long.woke(us(5000));
         assert_eq!(long.spin, us(150), "never more than 150 µs");
         let mut short = WakeMargin::new(us(1000));
         short.woke(us(400));
-        assert_eq!(short.spin, us(62) + Duration::from_nanos(500), "a sixteenth of 1 ms");
+        assert_eq!(
+            short.spin,
+            us(62) + Duration::from_nanos(500),
+            "a sixteenth of 1 ms"
+        );
     }
 }

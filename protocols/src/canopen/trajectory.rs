@@ -611,7 +611,8 @@ impl Planner {
             return Some(0.0);
         }
         let down = self.advance(m, -self.jerk);
-        let je = ((m.a - self.jerk * self.period).clamp(-self.accel, self.accel) - m.a) / self.period;
+        let je =
+            ((m.a - self.jerk * self.period).clamp(-self.accel, self.accel) - m.a) / self.period;
         if (down.v == 0.0 && down.a == 0.0 && self.rests_exactly(m, je))
             || (down.v > 0.0 && self.can_stop_exactly(down))
         {
@@ -989,7 +990,11 @@ mod tests {
     /// third differences over the period, within its limits (`from` the cycle given).
     fn check_jerk(cycles: &[Cycle], l: &Limits, t: f64, what: &str) {
         let pos: Vec<[f64; 3]> = std::iter::repeat_n([0.0; 3], 3)
-            .chain(cycles.iter().map(|c| [c.position.x, c.position.y, c.position.z]))
+            .chain(
+                cycles
+                    .iter()
+                    .map(|c| [c.position.x, c.position.y, c.position.z]),
+            )
             .collect();
         for ax in 0..3 {
             let lim = l.axes[ax].unwrap();
@@ -997,9 +1002,18 @@ mod tests {
                 let v = (w[3][ax] - w[2][ax]).abs() / t;
                 let a = (w[3][ax] - 2.0 * w[2][ax] + w[1][ax]).abs() / (t * t);
                 let j = (w[3][ax] - 3.0 * w[2][ax] + 3.0 * w[1][ax] - w[0][ax]).abs() / (t * t * t);
-                assert!(v <= lim.velocity * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: v {v}");
-                assert!(a <= lim.acceleration * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: a {a}");
-                assert!(j <= lim.jerk * (1.0 + 1e-6), "{what}: axis {ax} cycle {k}: jerk {j}");
+                assert!(
+                    v <= lim.velocity * (1.0 + 1e-6),
+                    "{what}: axis {ax} cycle {k}: v {v}"
+                );
+                assert!(
+                    a <= lim.acceleration * (1.0 + 1e-6),
+                    "{what}: axis {ax} cycle {k}: a {a}"
+                );
+                assert!(
+                    j <= lim.jerk * (1.0 + 1e-6),
+                    "{what}: axis {ax} cycle {k}: jerk {j}"
+                );
             }
         }
     }
@@ -1049,14 +1063,26 @@ mod tests {
     #[test]
     fn an_exact_stop_brings_speed_and_acceleration_to_zero_together() {
         let p = Planner::new(&diagonal(), P3::default(), &limits(), 0.002).unwrap();
-        for (v, a) in [(50.0, 0.0), (50.0, -250.0), (4.0, -250.0), (0.4, -40.0), (10.0, 200.0), (1e-3, 0.0)] {
+        for (v, a) in [
+            (50.0, 0.0),
+            (50.0, -250.0),
+            (4.0, -250.0),
+            (0.4, -40.0),
+            (10.0, 200.0),
+            (1e-3, 0.0),
+        ] {
             let mut m = Motion { s: 0.0, v, a };
             let mut n = 0;
             while !(m.v == 0.0 && m.a == 0.0) {
-                let j = p.brake_jerk(m).unwrap_or_else(|| panic!("no stop from v {v} a {a}: {m:?}"));
+                let j = p
+                    .brake_jerk(m)
+                    .unwrap_or_else(|| panic!("no stop from v {v} a {a}: {m:?}"));
                 assert!(j.abs() <= p.jerk * (1.0 + 1e-9), "v {v} a {a}: jerk {j}");
                 let next = p.advance(m, j);
-                assert!(p.rests_exactly(m, j) || next.v > 0.0, "v {v} a {a}: clamped to rest from {m:?}");
+                assert!(
+                    p.rests_exactly(m, j) || next.v > 0.0,
+                    "v {v} a {a}: clamped to rest from {m:?}"
+                );
                 m = next;
                 n += 1;
                 assert!(n < 100_000);
@@ -1071,4 +1097,3 @@ mod tests {
             .fold(path.start.dist(p), f64::min)
     }
 }
-

@@ -90,7 +90,9 @@ impl Machine {
     }
 
     pub fn sim(&self) -> &SimCanopen {
-        self.device.downcast_ref::<SimCanopen>().expect("sim-canopen")
+        self.device
+            .downcast_ref::<SimCanopen>()
+            .expect("sim-canopen")
     }
 
     pub fn program(&self, tp: &Toolpath) -> Program {
@@ -140,4 +142,3 @@ impl Machine {
             .collect()
     }
 }
-
