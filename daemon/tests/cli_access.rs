@@ -69,7 +69,7 @@ fn mode(p: &Path) -> u32 {
 }
 
 #[test]
-fn the_socket_folder_socket_store_and_logs_are_private_under_umask_022_and_000() {
+fn the_socket_folder_socket_and_every_file_the_daemon_writes_are_private_under_umask_022_and_000() {
     for umask in [0o022, 0o000] {
         let dir = tempfile::tempdir().unwrap();
         let folder = dir.path().join("run").join("machlink");
@@ -85,9 +85,39 @@ fn the_socket_folder_socket_store_and_logs_are_private_under_umask_022_and_000()
             0o600,
             "umask {umask:03o}: the socket"
         );
-        for f in ["jobs.db", "jobs.db-wal", "jobs.db-shm", "jobs-audit.jsonl"] {
-            let p = dir.path().join(f);
-            assert_eq!(mode(&p), 0o600, "umask {umask:03o}: {f}");
+        // a job runs, so that every file the daemon writes while working exists
+        let part = dir.path().join("part.nc");
+        std::fs::write(&part, "G21 G90\nG1 X1 Y1 F300\nG1 X0 Y0\n").unwrap();
+        let o = machlink()
+            .arg("submit")
+            .arg(&part)
+            .args(["--machine", "bench", "--watch", "--socket"])
+            .arg(&socket)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "umask {umask:03o}: {}", stderr(&o));
+        // every file in the store's folder but the two this test wrote is the daemon's
+        let mut seen = Vec::new();
+        for e in std::fs::read_dir(dir.path()).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            if p.is_dir() || name == "machlink.toml" || name == "part.nc" {
+                continue;
+            }
+            assert_eq!(mode(&p), 0o600, "umask {umask:03o}: {name}");
+            seen.push(name);
+        }
+        for f in [
+            "jobs.db",
+            "jobs.db-wal",
+            "jobs.db-shm",
+            "jobs.db-progress",
+            "jobs-audit.jsonl",
+        ] {
+            assert!(
+                seen.iter().any(|s| s == f),
+                "umask {umask:03o}: {f} was not written (files: {seen:?})"
+            );
         }
         drop(s);
     }

@@ -205,12 +205,20 @@ impl ProgressFile {
     fn open(db: &Path) -> std::io::Result<ProgressFile> {
         let mut name = db.as_os_str().to_owned();
         name.push("-progress");
+        use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
         let file = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .create(true)
             .truncate(false)
+            .mode(0o600)
             .open(std::path::PathBuf::from(name))?;
+        // the progress file takes the store's own mode (0600, or 0660 for a socket group),
+        // whatever the umask, and an older, wider one is narrowed to it
+        let store_mode = std::fs::metadata(db)?.permissions().mode() & 0o660;
+        if file.metadata()?.permissions().mode() & 0o777 != store_mode {
+            file.set_permissions(std::fs::Permissions::from_mode(store_mode))?;
+        }
         Ok(ProgressFile { file })
     }
 

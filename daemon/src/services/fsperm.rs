@@ -205,10 +205,11 @@ pub fn private_store(path: &Path) -> io::Result<()> {
     private_companions(path)
 }
 
-/// Narrows the store and its `-wal`, `-shm` and `-journal` files to 0600 where they exist.
+/// Narrows the store and its `-wal`, `-shm`, `-journal` and `-progress` files to 0600 where
+/// they exist.
 pub fn private_companions(path: &Path) -> io::Result<()> {
     let mut names = vec![path.to_path_buf()];
-    for suffix in ["-wal", "-shm", "-journal"] {
+    for suffix in ["-wal", "-shm", "-journal", "-progress"] {
         let mut p = path.as_os_str().to_owned();
         p.push(suffix);
         names.push(p.into());
