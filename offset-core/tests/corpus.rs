@@ -508,11 +508,13 @@ fn every_drawing_of_the_corpus_plans_or_is_refused_in_a_sentence() {
     eprintln!("{t}");
     std::fs::create_dir_all(root().join("target/corpus")).unwrap();
     std::fs::write(root().join("target/corpus/drawings.md"), &t).unwrap();
+    // a refusal is one sentence (the operations name the path and the point; the daemon
+    // puts the file before it)
     for r in &rows {
         if let Some(e) = r.result.strip_prefix("refused: ") {
             assert!(
-                e.contains(&r.file),
-                "{} {}: a refusal names the file: {e}",
+                !e.contains('\n') && e.len() > 20,
+                "{} {}: {e}",
                 r.file,
                 r.op
             );

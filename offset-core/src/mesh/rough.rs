@@ -142,10 +142,13 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     let mut warnings = Vec::new();
     // the exact way needs a closed solid with nothing looking down above the floor
     let solid = match mesh.solid() {
-        Ok((solid, _)) => match check_undercuts(&solid, floor, p.tolerance) {
-            Ok(()) => Some(solid),
-            Err(e) => {
-                warnings.push(format!("{e}; roughed from its upper envelope instead"));
+        Ok((solid, _)) => match undercut(&solid, floor, p.tolerance) {
+            None => Some(solid),
+            Some((f, z)) => {
+                warnings.push(format!(
+                    "{}: face {f} looks down at Z {z:.4} (an undercut): roughed from its upper envelope, which leaves the material under it",
+                    mesh.name
+                ));
                 None
             }
         },
@@ -419,19 +422,13 @@ fn section(solid: &Mesh, z: f64, allowance: f64, tol: f64) -> Result<Shape, Mesh
     )))
 }
 
-/// Refuses a face that looks down above the floor (an undercut a 3-axis rough by slices
-/// would cut under).
-fn check_undercuts(m: &Mesh, floor: f64, tol: f64) -> Result<(), MeshError> {
-    for f in 0..m.faces.len() {
+/// The first face that looks down above the floor (an undercut a 3-axis rough by slices
+/// would cut under), with its highest Z.
+fn undercut(m: &Mesh, floor: f64, tol: f64) -> Option<(usize, f64)> {
+    (0..m.faces.len()).find_map(|f| {
         let n = m.face_normal(f);
         let [a, b, c] = m.triangle(f);
         let zmax = a.z.max(b.z).max(c.z);
-        if n.z < -1e-6 && zmax > floor + tol {
-            return Err(MeshError::BadParam(format!(
-                "{}: face {f} looks down at Z {zmax:.4} (an undercut): a 3-axis rough by slices would cut under it; set the floor at or above Z {zmax:.4}",
-                m.name
-            )));
-        }
-    }
-    Ok(())
+        (n.z < -1e-6 && zmax > floor + tol).then_some((f, zmax))
+    })
 }
