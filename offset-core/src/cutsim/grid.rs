@@ -50,21 +50,20 @@ impl Grid {
         self.cell_of(p).map_or(f32::NEG_INFINITY, |k| self.top[k])
     }
 
-    /// Cuts with a flat end of radius `r` moving straight from `a` (bottom at `za`) to `b`
-    /// (at `zb`): every cell whose centre the disc passes over is lowered to the lowest
-    /// bottom that passes over it. `done_a` says the disc at `a` has already been cut at
-    /// `za` (the tool arrived there), so where the move does not go down those cells are
+    /// Cuts with a flat end of radius `r` moving straight from `from` to `to` (Z: the
+    /// tool's bottom): every cell whose centre the disc passes over is lowered to the lowest
+    /// bottom that passes over it. `done_a` says the disc at `from` has already been cut
+    /// there (the tool arrived), so where the move does not go down those cells are
     /// skipped. `each(k, old, new)` is called for every cell lowered.
     pub fn cut(
         &mut self,
-        a: Point,
-        za: f64,
-        b: Point,
-        zb: f64,
+        from: crate::toolpath::P3,
+        to: crate::toolpath::P3,
         r: f64,
         done_a: bool,
         mut each: impl FnMut(usize, f32, f32),
     ) {
+        let (a, za, b, zb) = (from.xy(), from.z, to.xy(), to.z);
         let d = b - a;
         let len = d.len();
         let skip_a = done_a && zb >= za - 1e-12;
@@ -372,10 +371,8 @@ mod tests {
         g.top.iter_mut().for_each(|t| *t = 0.0);
         let mut lowered = 0;
         g.cut(
-            Point::new(-4.0, 0.0),
-            -1.0,
-            Point::new(4.0, 0.0),
-            -1.0,
+            crate::toolpath::P3::new(-4.0, 0.0, -1.0),
+            crate::toolpath::P3::new(4.0, 0.0, -1.0),
             1.0,
             false,
             |_, _, _| lowered += 1,

@@ -476,7 +476,7 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
             // cut the chord
             let mut removed = 0.0f64;
             let mut gouged: Vec<usize> = Vec::new();
-            g.cut(a.xy(), a.z, c.xy(), c.z, r, arrived, |k, old, new| {
+            g.cut(a, c, r, arrived, |k, old, new| {
                 let lo = old.max(f32::MIN);
                 removed += (lo - new) as f64;
                 if let Some(cl) = &clear {
