@@ -2,7 +2,7 @@
 //! daemon answers (docs/install.md, contrib/machlink.service). Outside systemd (no
 //! `NOTIFY_SOCKET`) every call here does nothing.
 
-use crate::scheduler::Scheduler;
+use crate::core::scheduler::Scheduler;
 use sd_notify::NotifyState;
 use std::time::Duration;
 

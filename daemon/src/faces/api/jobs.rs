@@ -1,110 +1,26 @@
-//! The daemon's HTTP API (JSON), served on a Unix socket, or on TCP behind a bearer token.
-//!
-//! | request | does |
-//! |---|---|
-//! | `GET /machines` | the machines, their queues and last status |
-//! | `GET /jobs`, `GET /jobs/{id}` | jobs as the store holds them |
-//! | `POST /jobs` | plan a job and queue it on its machine (body: a [`JobSpec`] naming the machine) |
-//! | `POST /jobs/{id}/pause`, `/resume`, `/cancel` | steer a job |
-//! | `GET /jobs/{id}/resume` | what a resume would do (`?from_line=N`), to confirm first |
-//! | `POST /jobs/{id}/override` | feed, spindle and rapid overrides of a running job |
-//! | `POST /machines/{name}/unlock`, `/home`, `/jog` | the operator at the machine, between jobs |
-//! | `GET /jobs/{id}/events` | newline-delimited JSON events until the job ends |
-//! | `POST /machines/{name}/gcode?file_name=F` | a G-code file streamed into the store (`upload`) |
-//! | `POST /machines/{name}/lock`, `/release`, `GET /locks` | the control lock (`access_api`) |
-//! | `GET /whoami`, `POST /access/reload` | the caller's role; reload the access table |
-//!
-//! Who may call what is the route table of `access` (`access::ROUTES`); every route added
-//! here needs its line there. Refusals are 4xx with `{ "error": "one sentence" }`.
+//! The API's job and machine routes: list machines and jobs, plan and queue a job, steer it
+//! (pause, resume, cancel, overrides), follow its events, and the operator's operations at a
+//! machine between jobs (unlock, home, jog).
 
-use crate::access::{Access, Acted, Gate, Principal};
-use crate::intake::{IntakeError, JobSpec};
-use crate::planner::{PlanError, PlanFn};
-use crate::scheduler::{Event, SchedError, Scheduler};
-use crate::store::{JobId, NewJob};
+use crate::core::intake::JobSpec;
+use crate::core::scheduler::{Event, Scheduler};
+use crate::core::store::{JobId, NewJob};
+use crate::faces::api::error::{bad, ApiError};
+use crate::faces::api::gate::open_jobs;
+use crate::faces::api::state::AppState;
+use crate::services::access::{Acted, Principal};
 use axum::body::Body;
 use axum::extract::{Extension, Path, Request, State};
 use axum::http::{header, StatusCode};
-use axum::middleware;
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 use tokio::sync::broadcast;
 
-/// A refusal: status and one sentence.
-#[derive(Debug)]
-pub struct ApiError(pub StatusCode, pub String);
-
-#[derive(Serialize, Deserialize)]
-pub struct ErrorBody {
-    pub error: String,
-}
-
-impl IntoResponse for ApiError {
-    fn into_response(self) -> Response {
-        (self.0, Json(ErrorBody { error: self.1 })).into_response()
-    }
-}
-
-impl From<SchedError> for ApiError {
-    fn from(e: SchedError) -> Self {
-        let status = match &e {
-            SchedError::NoSuchJob(_) => StatusCode::NOT_FOUND,
-            SchedError::NoSuchMachine { .. } => StatusCode::BAD_REQUEST,
-            SchedError::Conflict(_) => StatusCode::CONFLICT,
-            SchedError::Refused(_) => StatusCode::UNPROCESSABLE_ENTITY,
-            SchedError::Store(_) => StatusCode::INTERNAL_SERVER_ERROR,
-        };
-        ApiError(status, e.to_string())
-    }
-}
-
-fn bad(msg: impl Into<String>) -> ApiError {
-    ApiError(StatusCode::BAD_REQUEST, msg.into())
-}
-
-/// What every handler shares.
-#[derive(Clone)]
-pub struct AppState {
-    pub sched: Scheduler,
-    pub access: Arc<Access>,
-    /// How a job is planned (in a forked child, see `planner`).
-    pub planner: PlanFn,
-    /// Jobs planned at once (`limits::MAX_CONCURRENT_PLANS`).
-    pub plans: Arc<tokio::sync::Semaphore>,
-}
-
-/// The API's routes over `sched`, guarded by `access` (who may call what: `access::ROUTES`),
-/// planning jobs with `planner`.
-pub fn router(sched: Scheduler, access: Arc<Access>, planner: PlanFn) -> Router {
-    router_with(sched, access, planner, Router::new())
-}
-
-/// The API's routes, and the service routes `GET /metrics` and `GET /events` of `service`
-/// (`events::router`), behind the same route table.
-pub fn router_with(
-    sched: Scheduler,
-    access: Arc<Access>,
-    planner: PlanFn,
-    service: Router,
-) -> Router {
-    let state = AppState {
-        sched: sched.clone(),
-        access: access.clone(),
-        planner,
-        plans: Arc::new(tokio::sync::Semaphore::new(
-            crate::limits::MAX_CONCURRENT_PLANS,
-        )),
-    };
-    let gate = Gate {
-        access: access.clone(),
-        sched,
-    };
+/// The job and machine routes.
+pub fn routes() -> Router<AppState> {
     Router::new()
-        .route_service("/metrics", service.clone())
-        .route_service("/events", service)
         .route("/machines", get(machines))
         .route("/jobs", get(jobs).post(submit))
         .route("/jobs/{id}", get(job))
@@ -114,22 +30,6 @@ pub fn router_with(
         .route("/machines/{name}/{op}", post(operate))
         .route("/jobs/{id}/cancel", post(cancel))
         .route("/jobs/{id}/events", get(events))
-        .route("/machines/{name}/gcode", post(crate::upload::gcode))
-        .merge(crate::access_api::routes())
-        .route_layer(middleware::from_fn_with_state(
-            gate,
-            crate::access::authorize,
-        ))
-        .fallback(|| async { bad("no such request: see docs/daemon.md for the API") })
-        .layer(middleware::from_fn_with_state(
-            access,
-            crate::access::authenticate,
-        ))
-        .layer(middleware::from_fn(crate::limits::json_errors))
-        .layer(axum::extract::DefaultBodyLimit::max(
-            crate::limits::MAX_JSON_BODY,
-        ))
-        .with_state(state)
 }
 
 async fn machines(State(st): State<AppState>) -> Result<Response, ApiError> {
@@ -168,7 +68,7 @@ async fn resume(
     req: Request,
 ) -> Result<Response, ApiError> {
     let id = job_id(&id)?;
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let req: ResumeRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
         ResumeRequest::default()
     } else {
@@ -191,7 +91,7 @@ async fn submit(
     Extension(who): Extension<Principal>,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let spec: JobSpec = serde_json::from_slice(&body)
         .map_err(|e| bad(format!("the request is not a valid job: {e}")))?;
     drop(body);
@@ -200,8 +100,7 @@ async fn submit(
     };
     st.sched.machine_config(&name)?;
     st.access
-        .check_operate(&who, &name, &st.sched)
-        .map_err(|d| ApiError(d.0, d.1))?;
+        .check_operate(&who, &name, &open_jobs(&st.sched))?;
     submit_spec(&st, spec).await
 }
 
@@ -213,7 +112,7 @@ pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiEr
     };
     let machine = st.sched.machine_config(&name)?.clone();
     let file_name = spec.input.file_name.clone();
-    let params = params_of(&spec);
+    let params = crate::core::intake::params_of(&spec);
     let planning = std::time::Instant::now();
     let planned = {
         let _turn = st.plans.acquire().await.map_err(|e| {
@@ -222,25 +121,23 @@ pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiEr
                 format!("the daemon is stopping: {e}"),
             )
         })?;
-        crate::planner::plan_isolated(spec, machine, st.planner, crate::planner::PLAN_TIME_LIMIT)
-            .await
+        crate::core::planner::plan_isolated(
+            spec,
+            machine,
+            st.planner,
+            crate::core::planner::PLAN_TIME_LIMIT,
+        )
+        .await
     };
-    crate::memory::give_back();
-    let planned = planned.map_err(|e| match e {
-        PlanError::Intake(IntakeError::Refused(m)) => ApiError(StatusCode::UNPROCESSABLE_ENTITY, m),
-        PlanError::Intake(other) => bad(other.to_string()),
-        other @ (PlanError::Crashed(_) | PlanError::TimedOut(_)) => {
-            ApiError(StatusCode::UNPROCESSABLE_ENTITY, other.to_string())
-        }
-        other => ApiError(StatusCode::INTERNAL_SERVER_ERROR, other.to_string()),
-    })?;
-    if planned.program.len() > crate::limits::MAX_PROGRAM_UNITS {
+    crate::services::memory::give_back();
+    let planned = planned?;
+    if planned.program.len() > crate::faces::api::limits::MAX_PROGRAM_UNITS {
         return Err(ApiError(
             StatusCode::PAYLOAD_TOO_LARGE,
             format!(
                 "the program has {} units, more than the daemon's limit of {}",
                 planned.program.len(),
-                crate::limits::MAX_PROGRAM_UNITS
+                crate::faces::api::limits::MAX_PROGRAM_UNITS
             ),
         ));
     }
@@ -262,16 +159,6 @@ pub async fn submit_spec(st: &AppState, spec: JobSpec) -> Result<Response, ApiEr
         note: None,
     });
     Ok(resp)
-}
-
-/// What the store keeps of a job's spec: everything but the file's bytes.
-pub fn params_of(spec: &JobSpec) -> serde_json::Value {
-    let mut v = serde_json::to_value(spec).unwrap_or_default();
-    if let Some(input) = v.get_mut("input").and_then(|i| i.as_object_mut()) {
-        input.remove("file_text");
-        input.remove("file_base64");
-    }
-    v
 }
 
 /// `GET /jobs/{id}/events`: the job's current state first, then every event about it,
@@ -359,7 +246,7 @@ async fn resume_preview(
 /// The answer to `POST /jobs/{id}/override`: the job and the overrides now in force.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct OverrideAnswer {
-    pub job: crate::store::JobRecord,
+    pub job: crate::core::store::JobRecord,
     pub overrides: machlink_protocols::Overrides,
 }
 
@@ -368,7 +255,7 @@ async fn override_job(
     Path(id): Path<String>,
     body: axum::body::Bytes,
 ) -> Result<Response, ApiError> {
-    let patch: crate::scheduler::OverridePatch = serde_json::from_slice(&body)
+    let patch: crate::core::scheduler::OverridePatch = serde_json::from_slice(&body)
         .map_err(|e| bad(format!("the override request is not valid: {e}")))?;
     let (job, overrides) = st.sched.override_job(job_id(&id)?, patch).await?;
     Ok(Json(OverrideAnswer { job, overrides }).into_response())

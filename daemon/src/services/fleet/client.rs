@@ -3,8 +3,8 @@
 use super::{
     bucket, connect, job_key, job_subject, new_id, FleetError, FleetJob, FleetMachine, Submission,
 };
-use crate::intake::JobSpec;
-use crate::store::now_ms;
+use crate::core::intake::JobSpec;
+use crate::core::store::now_ms;
 use async_nats::jetstream::{self, message::PublishMessage};
 use futures::StreamExt;
 use std::path::Path;

@@ -3,7 +3,7 @@
 //! reconnecting with backoff, and the operator's operations between jobs.
 
 use super::*;
-use crate::store::{Journal, SendRecord};
+use crate::core::store::{Journal, SendRecord};
 use machlink_protocols::untrusted::{printable, MAX_TEXT};
 use machlink_protocols::{LinkEvent, Program, Reattach, SendJournal, StreamEnd};
 use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};

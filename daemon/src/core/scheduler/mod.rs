@@ -11,9 +11,9 @@
 
 mod run;
 
-use crate::config::MachineConfig;
-use crate::resume::ResumePreview;
-use crate::store::{JobId, JobRecord, JobState, NewJob, NewJobUnits, Store, StoreError};
+use crate::core::machine::MachineConfig;
+use crate::core::resume::{ResumeError, ResumePreview};
+use crate::core::store::{JobId, JobRecord, JobState, NewJob, NewJobUnits, Store, StoreError};
 use machlink_protocols::kind::{Device, MachineLink};
 use machlink_protocols::{Control, DeviceState, LinkError, MachineStatus, Operation, Overrides};
 use serde::{Deserialize, Serialize};
@@ -120,6 +120,15 @@ pub enum SchedError {
     Store(#[from] StoreError),
 }
 
+impl From<ResumeError> for SchedError {
+    fn from(e: ResumeError) -> Self {
+        match e {
+            ResumeError::Conflict(why) => SchedError::Conflict(why),
+            ResumeError::Store(e) => SchedError::Store(e),
+        }
+    }
+}
+
 /// Settings of the journal's batching.
 #[derive(Clone, Copy, Debug)]
 pub struct JournalPolicy {
@@ -145,7 +154,7 @@ struct Inner {
     /// Set by a graceful shutdown: no new jobs, nothing new starts.
     closing: AtomicBool,
     /// The metrics attached with `Scheduler::attach_metrics` (each machine holds them too).
-    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
+    metrics: std::sync::OnceLock<Arc<dyn Counters>>,
 }
 
 struct Machine {
@@ -162,9 +171,21 @@ struct Machine {
     /// Its slot in the store's progress file.
     slot: usize,
     /// Where link openings and failures are counted (`Scheduler::attach_metrics`).
-    metrics: std::sync::OnceLock<Arc<crate::metrics::Metrics>>,
+    metrics: std::sync::OnceLock<Arc<dyn Counters>>,
     /// A link to the machine has been opened before (a later opening is a reconnect).
     opened: AtomicBool,
+}
+
+/// What the core counts as it goes, for whoever keeps the figures (the daemon's Prometheus
+/// metrics, `services::metrics`, attached with [`Scheduler::attach_metrics`]): the core
+/// tells, and never asks who listens.
+pub trait Counters: Send + Sync {
+    /// A link to `machine` opened (`reopened`: not its first).
+    fn link_opened(&self, machine: &str, reopened: bool);
+    /// A link to `machine` failed to open or dropped.
+    fn link_failed(&self, machine: &str, error: &LinkError);
+    /// A job was planned (in `planning`) and queued on `machine`.
+    fn job_submitted(&self, machine: &str, planning: std::time::Duration);
 }
 
 /// The device's last report and when it came.
@@ -362,13 +383,14 @@ impl Scheduler {
         Some(&self.inner.machines.get(name)?.device)
     }
 
-    /// The metrics attached with `attach_metrics`, for the intake to count into.
-    pub fn metrics(&self) -> Option<&Arc<crate::metrics::Metrics>> {
+    /// The counters attached with `attach_metrics`, for the intake to count into.
+    pub fn metrics(&self) -> Option<&Arc<dyn Counters>> {
         self.inner.metrics.get()
     }
 
-    /// Counts link openings and failures into `metrics` from now on.
-    pub fn attach_metrics(&self, metrics: Arc<crate::metrics::Metrics>) {
+    /// Counts link openings and failures into `metrics` (the daemon's Prometheus metrics) from
+    /// now on.
+    pub fn attach_metrics(&self, metrics: Arc<dyn Counters>) {
         let _ = self.inner.metrics.set(metrics.clone());
         for m in self.inner.machines.values() {
             let _ = m.metrics.set(metrics.clone());
@@ -502,7 +524,13 @@ impl Scheduler {
             Some(a) if a.job == id => Some(a.waits_at),
             _ => None,
         };
-        crate::resume::preview(&self.inner.store, &m.config, &job, from_line, active)
+        Ok(crate::core::resume::preview(
+            &self.inner.store,
+            &m.config,
+            &job,
+            from_line,
+            active,
+        )?)
     }
 
     /// Carries out an operator's operation on a machine between jobs (unlock, home, jog);

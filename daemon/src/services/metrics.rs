@@ -9,8 +9,8 @@
 //! Gauges that the store or the devices know (jobs by state, queue depth, RX overflows)
 //! are read when the metrics are scraped.
 
-use crate::scheduler::{Event, Scheduler};
-use crate::store::{JobId, JobState};
+use crate::core::scheduler::{Event, Scheduler};
+use crate::core::store::{JobId, JobState};
 use machlink_protocols::LinkError;
 use metrics::{counter, gauge, histogram, with_local_recorder};
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusRecorder};
@@ -66,6 +66,19 @@ struct Tracked {
 impl Default for Metrics {
     fn default() -> Self {
         Metrics::new()
+    }
+}
+
+/// The scheduler's counters are these metrics.
+impl crate::core::scheduler::Counters for Metrics {
+    fn link_opened(&self, machine: &str, reopened: bool) {
+        Metrics::link_opened(self, machine, reopened)
+    }
+    fn link_failed(&self, machine: &str, error: &LinkError) {
+        Metrics::link_failed(self, machine, error)
+    }
+    fn job_submitted(&self, machine: &str, planning: Duration) {
+        Metrics::job_submitted(self, machine, planning)
     }
 }
 
@@ -230,7 +243,7 @@ impl Metrics {
                     }
                     if let Some(n) = sched
                         .device_any(&m.name)
-                        .and_then(crate::registry::rx_overflows)
+                        .and_then(crate::core::registry::rx_overflows)
                     {
                         counter!(name::RX_OVERFLOWS, "machine" => m.name.clone()).absolute(n);
                     }

@@ -1,10 +1,11 @@
-//! Every job's events as one stream: `GET /events[?machine=M]` for `machlink events`,
-//! the service routes beside the API (`/metrics`, `/events`), and the log lines of each
-//! job's start, pause, end and fault.
+//! The service routes beside the API: `GET /metrics` (Prometheus text) and `GET /events`
+//! (every job's events as newline-delimited JSON, `?machine=M` for one machine's), for
+//! `machlink events` and scrapers; `serve --metrics-listen ADDR` serves `/metrics` alone.
 
-use crate::metrics::Metrics;
-use crate::scheduler::{Event, Scheduler};
-use crate::store::{JobId, JobState};
+use crate::core::scheduler::{Event, Scheduler};
+use crate::faces::api::error::{ApiError, ErrorBody};
+use crate::services::events::MachineOf;
+use crate::services::metrics::Metrics;
 use axum::body::Body;
 use axum::extract::{Query, State};
 use axum::http::{header, StatusCode};
@@ -12,7 +13,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
 use serde::Deserialize;
-use std::collections::HashMap;
 use std::sync::Arc;
 use tokio::sync::broadcast;
 
@@ -64,33 +64,6 @@ pub struct EventsQuery {
     pub machine: Option<String>,
 }
 
-/// Which machine an event is about; progress events name only their job, whose machine is
-/// remembered from its state events (or asked of the store).
-struct MachineOf {
-    sched: Scheduler,
-    jobs: HashMap<JobId, String>,
-}
-
-impl MachineOf {
-    fn of(&mut self, ev: &Event) -> Option<String> {
-        match ev {
-            Event::State { job, machine, .. } => {
-                self.jobs.insert(*job, machine.clone());
-                Some(machine.clone())
-            }
-            Event::Status { machine, .. } | Event::Message { machine, .. } => Some(machine.clone()),
-            Event::Progress { job, .. } => {
-                if let Some(m) = self.jobs.get(job) {
-                    return Some(m.clone());
-                }
-                let m = self.sched.job(*job).ok()?.machine;
-                self.jobs.insert(*job, m.clone());
-                Some(m)
-            }
-        }
-    }
-}
-
 async fn events(
     State(s): State<Service>,
     query: Result<Query<EventsQuery>, axum::extract::rejection::QueryRejection>,
@@ -98,7 +71,7 @@ async fn events(
     let Ok(Query(q)) = query else {
         return (
             StatusCode::BAD_REQUEST,
-            axum::Json(crate::api::ErrorBody {
+            axum::Json(ErrorBody {
                 error: "GET /events takes only ?machine=NAME".into(),
             }),
         )
@@ -106,17 +79,14 @@ async fn events(
     };
     if let Some(m) = &q.machine {
         if let Err(e) = s.sched.machine_config(m) {
-            return crate::api::ApiError::from(e).into_response();
+            return ApiError::from(e).into_response();
         }
     }
     let rx = s.sched.subscribe();
     let stream = futures::stream::unfold(
         (
             rx,
-            MachineOf {
-                sched: s.sched.clone(),
-                jobs: HashMap::new(),
-            },
+            MachineOf::new(s.sched.clone()),
             q.machine,
             Vec::<Event>::new(),
         ),
@@ -158,61 +128,4 @@ fn line(e: &Event) -> Result<axum::body::Bytes, std::io::Error> {
     let mut v = serde_json::to_vec(e).map_err(std::io::Error::other)?;
     v.push(b'\n');
     Ok(axum::body::Bytes::from(v))
-}
-
-/// Logs each job's life with its job, machine and unit: queued, started (and from which
-/// unit), paused, resumed, completed, failed, cancelled, interrupted.
-pub async fn log_jobs(mut rx: broadcast::Receiver<Event>) {
-    let mut last: HashMap<JobId, JobState> = HashMap::new();
-    loop {
-        let ev = match rx.recv().await {
-            Ok(ev) => ev,
-            Err(broadcast::error::RecvError::Lagged(_)) => continue,
-            Err(broadcast::error::RecvError::Closed) => return,
-        };
-        let Event::State {
-            job,
-            machine,
-            state,
-            acked,
-            total,
-            error,
-        } = ev
-        else {
-            continue;
-        };
-        let before = last.insert(job, state);
-        let unit = acked;
-        match state {
-            JobState::Queued => {
-                tracing::info!(job, %machine, unit, total, "job queued")
-            }
-            JobState::Running if before == Some(JobState::Paused) => {
-                tracing::info!(job, %machine, unit, total, "job resumed")
-            }
-            JobState::Running => tracing::info!(job, %machine, unit, total, "job started"),
-            JobState::Paused => tracing::info!(job, %machine, unit, total, "job paused"),
-            JobState::Completed => tracing::info!(job, %machine, unit, total, "job completed"),
-            JobState::Cancelled => tracing::info!(job, %machine, unit, total, "job cancelled"),
-            JobState::Failed => tracing::warn!(
-                job,
-                %machine,
-                unit,
-                total,
-                error = error.as_deref().unwrap_or(""),
-                "job failed"
-            ),
-            JobState::Interrupted => tracing::warn!(
-                job,
-                %machine,
-                unit,
-                total,
-                error = error.as_deref().unwrap_or(""),
-                "job interrupted"
-            ),
-        }
-        if state.is_final() {
-            last.remove(&job);
-        }
-    }
 }

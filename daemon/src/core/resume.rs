@@ -4,10 +4,19 @@
 //! modes, spin up, rapid over the start point, plunge). The command line asks for
 //! confirmation (`--yes` for scripts) before it posts the resume.
 
-use crate::config::MachineConfig;
-use crate::scheduler::SchedError;
-use crate::store::{JobId, JobRecord, JobState, Store};
+use crate::core::machine::MachineConfig;
+use crate::core::store::{JobId, JobRecord, JobState, Store, StoreError};
 use serde::{Deserialize, Serialize};
+
+/// Why a job cannot resume.
+#[derive(Debug, thiserror::Error)]
+pub enum ResumeError {
+    /// Not from there, or not now: the sentence says why.
+    #[error("{0}")]
+    Conflict(String),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
 
 /// A resume, described before it is made.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -34,8 +43,8 @@ pub fn preview(
     job: &JobRecord,
     from_line: Option<usize>,
     active: Option<Option<usize>>,
-) -> Result<ResumePreview, SchedError> {
-    let conflict = |why: String| Err(SchedError::Conflict(why));
+) -> Result<ResumePreview, ResumeError> {
+    let conflict = |why: String| Err(ResumeError::Conflict(why));
     if let Some(l) = from_line {
         if l == 0 || l > job.total_units {
             return conflict(format!(
@@ -83,7 +92,7 @@ pub fn preview(
     let plan = m
         .kind
         .resume_plan(&m.settings, &program, from)
-        .map_err(|e| SchedError::Conflict(format!("job {} cannot resume there: {e}", job.id)))?;
+        .map_err(|e| ResumeError::Conflict(format!("job {} cannot resume there: {e}", job.id)))?;
     let mut steps = plan.steps;
     if from_line.is_none() && job.started_ms.is_some() {
         steps.insert(

@@ -1,7 +1,7 @@
 //! The audit log: one JSON line per state change (and per refused attempt at one), saying who,
 //! when, what, from where and with which token. The file is created 0600 and only appended to.
 
-use crate::access::Role;
+use crate::services::role::Role;
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -38,7 +38,7 @@ pub struct Audit {
 impl Audit {
     /// Opens (creating 0600, or tightening an existing file to 0600) the log at `path`.
     pub fn open(path: &Path) -> std::io::Result<Audit> {
-        let file = crate::fsperm::private_append(path)?;
+        let file = crate::services::fsperm::private_append(path)?;
         Ok(Audit {
             path: path.to_path_buf(),
             file: Mutex::new(Some(file)),
@@ -71,7 +71,7 @@ impl Audit {
     /// A line about the daemon itself (started, insecure mode, …).
     pub fn daemon(&self, action: &str, outcome: &str) {
         self.write(&Record {
-            at_ms: crate::store::now_ms(),
+            at_ms: crate::core::store::now_ms(),
             who: Some("daemon".into()),
             role: None,
             token: None,

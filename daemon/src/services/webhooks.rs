@@ -6,8 +6,8 @@
 //!
 //! Only `http://` URLs: put a relay in front of an HTTPS receiver.
 
-use crate::metrics::Metrics;
-use crate::scheduler::Event;
+use crate::core::scheduler::Event;
+use crate::services::metrics::Metrics;
 use http_body_util::{BodyExt, Full};
 use hyper::body::Bytes;
 use serde::{Deserialize, Serialize};
@@ -214,7 +214,7 @@ async fn post(url: &str, body: &[u8]) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::store::JobState;
+    use crate::core::store::JobState;
 
     #[test]
     fn every_job_state_is_an_event_kind() {

@@ -155,14 +155,14 @@ async fn main() {
 /// SQLite store in a temporary folder; returns the time from the job's start to its last
 /// acknowledged line, and how many journal commits the store made for it.
 async fn through_the_daemon(port: &std::path::Path, lines: &[String]) -> (Duration, u64) {
-    use machlink::config::MachineConfig;
-    use machlink::scheduler::{Event, JournalPolicy, MachineSetup, Scheduler};
-    use machlink::store::{JobState, NewJob, Store};
+    use machlink::core::machine::MachineConfig;
+    use machlink::core::scheduler::{Event, JournalPolicy, MachineSetup, Scheduler};
+    use machlink::core::store::{JobState, NewJob, Store};
     use machlink_protocols::Program;
     let dir = tempfile::tempdir().expect("a temporary folder");
     let path = dir.path().join("bench.db");
     let store = Store::open(&path).expect("the store opens");
-    let registry = machlink::registry::standard();
+    let registry = machlink::core::registry::standard();
     let config = MachineConfig::new(
         &registry,
         "bench",

@@ -2,8 +2,10 @@
 //! `GET /locks`), who the caller is (`GET /whoami`), and reloading the access table
 //! (`POST /access/reload`). Their lines in the route table are in `access::ROUTES`.
 
-use crate::access::{Acted, Principal, Role};
-use crate::api::{ApiError, AppState};
+use crate::faces::api::error::ApiError;
+use crate::faces::api::gate::open_jobs;
+use crate::faces::api::state::AppState;
+use crate::services::access::{Acted, Principal, Role};
 use axum::extract::{Extension, Path, Request, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
@@ -29,10 +31,6 @@ pub struct LockRequest {
     pub take_over: bool,
 }
 
-fn denied(d: crate::access::Denied) -> ApiError {
-    ApiError(d.0, d.1)
-}
-
 fn acted(resp: Response, machine: &str, note: Option<String>) -> Response {
     let mut resp = resp;
     resp.extensions_mut().insert(Acted {
@@ -50,7 +48,7 @@ async fn lock(
     req: Request,
 ) -> Result<Response, ApiError> {
     st.sched.machine_config(&name)?;
-    let body = crate::limits::json_body(req).await?;
+    let body = crate::faces::api::limits::json_body(req).await?;
     let r: LockRequest = if body.iter().all(|b| b.is_ascii_whitespace()) {
         LockRequest::default()
     } else {
@@ -69,9 +67,8 @@ async fn lock(
     }
     let from = st
         .access
-        .take(&who, &name, r.take_over, &st.sched)
-        .map_err(denied)?;
-    let info = st.access.holder(&name, &st.sched);
+        .take(&who, &name, r.take_over, &open_jobs(&st.sched))?;
+    let info = st.access.holder(&name, &open_jobs(&st.sched));
     let note = from.map(|h| format!("broke the lock `{h}` held"));
     Ok(acted(Json(info).into_response(), &name, note))
 }
@@ -82,7 +79,7 @@ async fn release(
     Path(name): Path<String>,
 ) -> Result<Response, ApiError> {
     st.sched.machine_config(&name)?;
-    let from = st.access.release(&who, &name, &st.sched).map_err(denied)?;
+    let from = st.access.release(&who, &name, &open_jobs(&st.sched))?;
     let note = match from {
         Some(h) if h != who.name => Some(format!("broke the lock `{h}` held")),
         Some(_) => None,
@@ -96,7 +93,7 @@ async fn release(
 }
 
 async fn locks(State(st): State<AppState>) -> Response {
-    Json(st.access.locks(&st.sched)).into_response()
+    Json(st.access.locks(&open_jobs(&st.sched))).into_response()
 }
 
 async fn whoami(Extension(who): Extension<Principal>) -> Response {

@@ -16,7 +16,7 @@
 pub mod client;
 pub mod node;
 
-use crate::store::JobId;
+use crate::core::store::JobId;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -42,9 +42,9 @@ pub enum FleetError {
     #[error("no daemon in the fleet has announced machine `{machine}` (known: {known})")]
     UnknownMachine { machine: String, known: String },
     #[error(transparent)]
-    Store(#[from] crate::store::StoreError),
+    Store(#[from] crate::core::store::StoreError),
     #[error(transparent)]
-    Sched(#[from] crate::scheduler::SchedError),
+    Sched(#[from] crate::core::scheduler::SchedError),
     #[error("the fleet holds a bad record under `{key}`: {message}")]
     Corrupt { key: String, message: String },
 }
@@ -171,7 +171,7 @@ pub fn consumer_name(machine: &str) -> String {
 pub struct Submission {
     /// The fleet's id of the job (also the message id that deduplicates a publish).
     pub id: String,
-    pub spec: crate::intake::JobSpec,
+    pub spec: crate::core::intake::JobSpec,
     pub submitted_ms: i64,
 }
 
@@ -292,7 +292,7 @@ pub fn new_id() -> String {
             .map_or(0, |d| d.as_nanos()),
     );
     h.write_u32(std::process::id());
-    format!("{:011x}{:016x}", crate::store::now_ms(), h.finish())
+    format!("{:011x}{:016x}", crate::core::store::now_ms(), h.finish())
 }
 
 pub(crate) fn job_key(id: &str) -> String {

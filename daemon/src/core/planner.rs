@@ -9,8 +9,8 @@
 //! held at the fork (it allocates, which glibc keeps safe across fork, and computes); its
 //! panics go through a hook installed once in the parent that stays silent in a child.
 
-use crate::config::MachineConfig;
-use crate::intake::{IntakeError, JobSpec, Planned, Target};
+use crate::core::intake::{IntakeError, JobSpec, Planned, Target};
+use crate::core::machine::MachineConfig;
 use machlink_protocols::Program;
 use std::io::{Read, Write};
 use std::os::fd::OwnedFd;
@@ -22,7 +22,7 @@ pub const PLAN_STACK: usize = 256 << 20;
 /// The longest a job's planning may take.
 pub const PLAN_TIME_LIMIT: Duration = Duration::from_secs(300);
 
-/// The function that plans a job for a machine: [`crate::intake::plan`], or a test's own.
+/// The function that plans a job for a machine: [`crate::core::intake::plan`], or a test's own.
 pub type PlanFn = fn(&JobSpec, Target<'_>) -> Result<Planned, IntakeError>;
 
 /// What the daemon keeps of a plan.

@@ -1,9 +1,9 @@
 //! The API's client (hyper 1 over a Unix socket or TCP), used by the operator's commands.
 
-use crate::api::ErrorBody;
-use crate::intake::JobSpec;
-use crate::scheduler::{Event, MachineInfo};
-use crate::store::{JobId, JobRecord};
+use crate::core::intake::JobSpec;
+use crate::core::scheduler::{Event, MachineInfo};
+use crate::core::store::{JobId, JobRecord};
+use crate::faces::api::error::ErrorBody;
 use http_body_util::{BodyExt, Full};
 use hyper::body::{Bytes, Incoming};
 use hyper::{Method, Request, StatusCode};
@@ -129,13 +129,13 @@ impl Client {
                 server_name,
                 ..
             } => {
-                let cfg = crate::tls::client_config(ca).map_err(ClientError::Local)?;
+                let cfg = crate::services::tls::client_config(ca).map_err(ClientError::Local)?;
                 // a daemon that is not there is unreachable; one that fails the handshake
                 // is refused
                 tokio::net::TcpStream::connect(addr)
                     .await
                     .map_err(|_| unreachable())?;
-                let io = crate::tls::connect(addr, server_name.as_deref(), cfg)
+                let io = crate::services::tls::connect(addr, server_name.as_deref(), cfg)
                     .await
                     .map_err(|e| ClientError::Tls {
                         addr: addr.clone(),
@@ -189,7 +189,7 @@ impl Client {
 
     /// Restarts a stopped job from program line `line` (1-based).
     pub async fn resume_from_line(&self, id: JobId, line: usize) -> Result<JobRecord, ClientError> {
-        let body = serde_json::to_vec(&crate::api::ResumeRequest {
+        let body = serde_json::to_vec(&crate::faces::api::jobs::ResumeRequest {
             from_line: Some(line),
         })
         .map_err(|e| ClientError::Protocol(e.to_string()))?;
@@ -229,8 +229,8 @@ impl Client {
         &self,
         machine: &str,
         take_over: bool,
-    ) -> Result<Option<crate::access::LockInfo>, ClientError> {
-        let body = serde_json::to_vec(&crate::access_api::LockRequest { take_over })
+    ) -> Result<Option<crate::services::access::LockInfo>, ClientError> {
+        let body = serde_json::to_vec(&crate::faces::api::access::LockRequest { take_over })
             .map_err(|e| ClientError::Protocol(e.to_string()))?;
         self.call(
             Method::POST,
@@ -251,7 +251,7 @@ impl Client {
     }
 
     /// The locks held now.
-    pub async fn locks(&self) -> Result<Vec<crate::access::LockInfo>, ClientError> {
+    pub async fn locks(&self) -> Result<Vec<crate::services::access::LockInfo>, ClientError> {
         self.call(Method::GET, "/locks", None).await
     }
 
@@ -281,7 +281,7 @@ impl Client {
         &self,
         id: JobId,
         from_line: Option<usize>,
-    ) -> Result<crate::resume::ResumePreview, ClientError> {
+    ) -> Result<crate::core::resume::ResumePreview, ClientError> {
         let q = from_line.map_or(String::new(), |l| format!("?from_line={l}"));
         self.call(Method::GET, &format!("/jobs/{id}/resume{q}"), None)
             .await
@@ -291,8 +291,8 @@ impl Client {
     pub async fn override_job(
         &self,
         id: JobId,
-        patch: &crate::scheduler::OverridePatch,
-    ) -> Result<crate::api::OverrideAnswer, ClientError> {
+        patch: &crate::core::scheduler::OverridePatch,
+    ) -> Result<crate::faces::api::jobs::OverrideAnswer, ClientError> {
         let body = serde_json::to_vec(patch).map_err(|e| ClientError::Protocol(e.to_string()))?;
         self.call(Method::POST, &format!("/jobs/{id}/override"), Some(body))
             .await
@@ -303,7 +303,7 @@ impl Client {
         &self,
         machine: &str,
         op: &machlink_protocols::Operation,
-    ) -> Result<crate::api::OperateAnswer, ClientError> {
+    ) -> Result<crate::faces::api::jobs::OperateAnswer, ClientError> {
         use machlink_protocols::Operation;
         let (name, body) = match op {
             Operation::Unlock => ("unlock", None),

@@ -6,11 +6,14 @@
 //! held whole, neither as text nor as moves; the program's JSON is the one copy. Other kinds
 //! get the whole file planned as a `POST /jobs` would (bounded by the JSON body limit).
 
-use crate::access::Acted;
-use crate::api::{ApiError, AppState};
-use crate::check::GcodeCheck;
-use crate::limits::{too_large, MAX_GCODE_BODY, MAX_GCODE_LINE, MAX_JSON_BODY, MAX_PROGRAM_UNITS};
-use crate::store::NewJobUnits;
+use crate::core::check::GcodeCheck;
+use crate::core::store::NewJobUnits;
+use crate::faces::api::error::ApiError;
+use crate::faces::api::limits::{
+    too_large, LimitError, MAX_GCODE_BODY, MAX_GCODE_LINE, MAX_JSON_BODY, MAX_PROGRAM_UNITS,
+};
+use crate::faces::api::state::AppState;
+use crate::services::access::Acted;
 use axum::extract::{Path, Query, Request, State};
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
@@ -40,14 +43,14 @@ pub async fn gcode(
 ) -> Result<Response, ApiError> {
     let machine = st.sched.machine_config(&name)?.clone();
     let file = q.file_name.clone();
-    if !crate::intake::is_gcode_file(&file) {
+    if !crate::core::intake::is_gcode_file(&file) {
         return Err(bad(format!(
             "{file} is not named as a G-code file (.nc, .gcode, .ngc, .tap, .gc, .cnc)"
         )));
     }
-    let declared = crate::limits::content_length(&req);
+    let declared = crate::faces::api::limits::content_length(&req);
     if declared.is_some_and(|n| n > MAX_GCODE_BODY) {
-        return Err(too_large(&file, MAX_GCODE_BODY));
+        return Err(too_large(&file, MAX_GCODE_BODY).into());
     }
     if !machine.kind.gcode_lines_are_units() {
         return whole_file(st, name, file, req).await;
@@ -99,7 +102,7 @@ pub async fn gcode(
         let chunk = chunk.map_err(|e| bad(format!("{file} could not be received: {e}")))?;
         received += chunk.len() as u64;
         if received > MAX_GCODE_BODY {
-            return Err(too_large(&file, MAX_GCODE_BODY));
+            return Err(too_large(&file, MAX_GCODE_BODY).into());
         }
         let mut rest: &[u8] = &chunk;
         while let Some(i) = rest.iter().position(|&b| b == b'\n') {
@@ -149,7 +152,7 @@ pub async fn gcode(
         total_units: count,
     });
     st.sched.store().release_memory();
-    crate::memory::give_back();
+    crate::services::memory::give_back();
     let rec = rec?;
     let mut resp = (StatusCode::CREATED, Json(&rec)).into_response();
     resp.extensions_mut().insert(Acted {
@@ -191,21 +194,20 @@ async fn whole_file(
     file: String,
     req: Request,
 ) -> Result<Response, ApiError> {
-    let bytes = crate::limits::json_body(req).await.map_err(|e| {
-        if e.0 == StatusCode::PAYLOAD_TOO_LARGE {
-            too_large(&file, MAX_JSON_BODY as u64)
-        } else {
-            e
-        }
-    })?;
-    let spec = crate::intake::JobSpec {
+    let bytes = crate::faces::api::limits::json_body(req)
+        .await
+        .map_err(|e| match e {
+            LimitError::TooLarge { .. } => too_large(&file, MAX_JSON_BODY as u64),
+            e => e,
+        })?;
+    let spec = crate::core::intake::JobSpec {
         machine: Some(machine),
-        input: crate::intake::Input::from_bytes(&file, bytes.to_vec()),
+        input: crate::core::intake::Input::from_bytes(&file, bytes.to_vec()),
         operation: None,
         tolerance: None,
         layers: Vec::new(),
         post: None,
     };
     drop(bytes);
-    crate::api::submit_spec(&st, spec).await
+    crate::faces::api::jobs::submit_spec(&st, spec).await
 }

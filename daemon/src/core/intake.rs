@@ -3,8 +3,8 @@
 //! post for `machlink plan`) become a checked program. `plan`, `submit` (through the API),
 //! `preview` and `demo` all go through [`plan`], so the same flags make the same bytes.
 
-use crate::check;
-use crate::config::MachineConfig;
+use crate::core::check;
+use crate::core::machine::MachineConfig;
 use base64::Engine;
 use machlink_protocols::{AnyPost, Program};
 use offset_core::mesh::{Finish3dParams, Mesh, MeshOptions, Rough3dParams, WaterlineParams};
@@ -13,6 +13,9 @@ use offset_core::stitch::StitchParams;
 use offset_core::{Shape, Toolpath};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
+
+/// Vertices of one job's shape, all paths together (docs/daemon.md, "Limits").
+pub const MAX_SHAPE_VERTICES: usize = 2_000_000;
 
 /// A job as the operator describes it: what `machlink submit` sends to the daemon and
 /// `machlink plan` plans offline.
@@ -348,10 +351,10 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
     )
     .map_err(|e| IntakeError::Input(e.to_string()))?;
     let vertices: usize = shape.paths.iter().map(|p| p.vertices.len()).sum();
-    if vertices > crate::limits::MAX_SHAPE_VERTICES {
+    if vertices > MAX_SHAPE_VERTICES {
         return Err(IntakeError::Input(format!(
             "{file} has {vertices} vertices, more than the daemon's limit of {} per job",
-            crate::limits::MAX_SHAPE_VERTICES
+            MAX_SHAPE_VERTICES
         )));
     }
     Ok((
@@ -472,4 +475,14 @@ fn plan_gcode(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError
         warnings: Vec::new(),
         operation: "gcode".into(),
     })
+}
+
+/// What the store keeps of a job's spec: everything but the file's bytes.
+pub fn params_of(spec: &JobSpec) -> serde_json::Value {
+    let mut v = serde_json::to_value(spec).unwrap_or_default();
+    if let Some(input) = v.get_mut("input").and_then(|i| i.as_object_mut()) {
+        input.remove("file_text");
+        input.remove("file_base64");
+    }
+    v
 }

@@ -2,7 +2,7 @@
 //! (arcs by their extent, not their end points), no feed above its limit, and for G-code
 //! files no settings or system lines and no M-code the machine does not allow.
 
-use crate::config::MachineConfig;
+use crate::core::machine::MachineConfig;
 use machlink_protocols::gcode_read;
 use offset_core::toolpath::{arc_segment, Move, Toolpath, P3};
 

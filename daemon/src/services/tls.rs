@@ -2,7 +2,7 @@
 //! listener that shakes hands off the accept loop (a client that never finishes its handshake
 //! holds up nobody), and the client's side, trusting the CA file it is given.
 
-use crate::access::Peer;
+use crate::services::access::Peer;
 use rustls_pki_types::pem::PemObject;
 use rustls_pki_types::{CertificateDer, PrivateKeyDer, ServerName};
 use std::net::SocketAddr;

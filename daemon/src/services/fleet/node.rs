@@ -6,10 +6,10 @@ use super::{
     bucket, connect, consumer_name, job_key, job_stream, job_subject, machine_key, FleetConfig,
     FleetError, FleetJob, FleetMachine, Submission,
 };
-use crate::intake::{self, Target};
-use crate::metrics::Metrics;
-use crate::scheduler::{Event, Scheduler};
-use crate::store::{now_ms, JobId, JobRecord, NewJob};
+use crate::core::intake::{self, Target};
+use crate::core::scheduler::{Event, Scheduler};
+use crate::core::store::{now_ms, JobId, JobRecord, NewJob};
+use crate::services::metrics::Metrics;
 use async_nats::jetstream::{self, consumer::pull, AckKind};
 use futures::StreamExt;
 use std::collections::HashMap;
@@ -135,7 +135,7 @@ impl Node {
         Ok(())
     }
 
-    async fn put_machine(&self, m: &crate::scheduler::MachineInfo) -> Result<(), FleetError> {
+    async fn put_machine(&self, m: &crate::core::scheduler::MachineInfo) -> Result<(), FleetError> {
         self.put(
             &machine_key(&m.name),
             &FleetMachine {
@@ -257,7 +257,7 @@ impl Node {
                 return;
             }
         };
-        let mut params = crate::api::params_of(&spec);
+        let mut params = crate::core::intake::params_of(&spec);
         if let Some(o) = params.as_object_mut() {
             o.insert("fleet_id".into(), sub.id.clone().into());
         }
