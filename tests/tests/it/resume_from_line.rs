@@ -4,7 +4,7 @@
 //! cutting move starts away from the planned path. A profile with arcs, a pocket, and a
 //! G-code file in work offset G55.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::intake::{JobSpec, Operation};

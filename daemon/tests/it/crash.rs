@@ -4,7 +4,7 @@
 //! exactly once, and nothing the device had acknowledged before a kill is sent to it again
 //! (checked on what each device received: G-code lines, ring writes, pattern uploads).
 
-mod proc;
+use crate::proc;
 
 use machlink::core::intake::{JobSpec, Operation};
 use machlink::core::store::{JobId, JobState};

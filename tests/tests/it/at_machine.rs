@@ -2,7 +2,7 @@
 //! enabled): unlock, home and jog between jobs, overrides of a running job visible in the
 //! feed the machine executed, and a sewing machine refusing what its kind cannot do.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::scheduler::OverridePatch;

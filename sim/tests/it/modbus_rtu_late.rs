@@ -10,7 +10,7 @@ use machlink_sim::line;
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
 use std::time::Duration;
 
-mod common;
+use crate::common;
 use common::{assert_exactly_once, job};
 use tokio::sync::{mpsc, watch};
 

@@ -3,7 +3,7 @@
 //! inches included), byte for byte once written as the post's file. Both run through the
 //! binary; the daemon runs in this process so its store can be read.
 
-mod common;
+use crate::common;
 use common::cli::run as machlink;
 
 use futures::future::BoxFuture;

@@ -10,7 +10,7 @@
 //! never acknowledged to the dead daemon), which the resume sends again (docs/daemon.md,
 //! known limits); and the fleet's job list agrees with every daemon's store.
 
-mod common;
+use crate::common;
 
 use common::nats::{start_nats, Nats};
 use machlink::core::intake::{Input, JobSpec};

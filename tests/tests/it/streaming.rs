@@ -1,7 +1,7 @@
 //! The daemon streams jobs to a simulated GRBL: every line once, in order, no overflow;
 //! device errors and alarms fail one job, never the daemon.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::store::JobState;

@@ -2,7 +2,7 @@
 //! extent), a feed above the machine's limit, a settings line or an M-code the machine does
 //! not allow is refused naming the line, and nothing reaches the machine.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::store::JobState;

@@ -11,7 +11,7 @@
 //! - `offset --join miter --miter-limit`: the square's corners are mitred, or bevelled once
 //!   the limit is below the miter's length.
 
-mod common;
+use crate::common;
 use common::cli::{ok, run as machlink};
 
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! from: a spherical cap (radius 40, 10 mm high) standing on a plate, as an STL file and as
 //! a grid of measured points. The programs are read back from their G-code.
 
-mod common;
+use crate::common;
 use common::cli::{ok, run as machlink};
 
 use offset_core::mesh::{shapes, write_stl};

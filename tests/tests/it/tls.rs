@@ -2,7 +2,7 @@
 //! CA or a missing token do not; plaintext TCP only when spelled out. The certificates are
 //! made here, with rcgen.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::daemon::{Daemon, StartOptions, TcpSecurity};

@@ -1,7 +1,7 @@
 //! Operating jobs on a simulated GRBL through the API: pause, resume, cancel, and resuming
 //! a job that a crashed daemon left behind.
 
-mod common;
+use crate::common;
 
 use common::*;
 use futures::future::BoxFuture;

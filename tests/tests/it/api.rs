@@ -1,7 +1,7 @@
 //! The API itself: bad requests answered with one sentence (tokens, TLS and roles are in
 //! `access.rs` and `tls.rs`).
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::daemon::StartOptions;

@@ -2,7 +2,7 @@
 //! private under any umask, a regular file or a live daemon's socket never taken over,
 //! tokens made once, locks, exit statuses, and a closed stdout that is no crash.
 
-mod common;
+use crate::common;
 use common::cli::{machlink, stderr, Serve};
 
 use std::os::unix::fs::PermissionsExt;

@@ -1,6 +1,6 @@
 //! `machlink offset` end to end: the built binary on temporary files.
 
-mod common;
+use crate::common;
 use common::cli::machlink;
 
 #[test]

@@ -2,7 +2,7 @@
 //! an SLCAN adapter runs on the path, pauses and resumes; a drive that faults stops the job
 //! with its reason and the machine shows the alarm; the next job runs.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::intake::Operation;

@@ -1,7 +1,7 @@
 //! Tool paths as `machlink plan` writes them for GRBL: a dense polyline from CAD comes out
 //! as arcs, and the planner's figures are printed.
 
-mod common;
+use crate::common;
 use common::cli::run as machlink;
 
 /// The moves of a GRBL program that go somewhere in XY: (G word, radius from I/J if an arc).

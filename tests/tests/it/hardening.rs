@@ -2,7 +2,7 @@
 //! fails with a sentence while another machine's job runs to completion. A G-code file
 //! streamed in is stored exactly as the same file sent whole, and refused the same way.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::intake::{IntakeError, JobSpec, Planned, Target};

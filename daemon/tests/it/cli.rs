@@ -1,7 +1,7 @@
 //! The `machlink` binary as an operator meets it: `serve`, `submit`, `jobs`, `machines`,
 //! `watch`, `demo`, and one clear sentence with a non-zero exit for every bad input.
 
-mod common;
+use crate::common;
 use common::cli::{machlink, run, stderr, Serve};
 
 use std::path::{Path, PathBuf};

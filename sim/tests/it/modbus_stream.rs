@@ -7,7 +7,7 @@ use machlink_protocols::{Control, Link, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig};
 use std::time::Duration;
 
-mod common;
+use crate::common;
 use common::{assert_exactly_once, job};
 use tokio::sync::{mpsc, watch};
 

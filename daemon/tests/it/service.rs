@@ -3,7 +3,7 @@
 //! (JSON lines, no colour off a terminal), the socket found without `--socket`, and
 //! `machlink events` with a webhook receiving the same events.
 
-mod common;
+use crate::common;
 use common::cli::Serve;
 
 use std::io::{BufRead, BufReader, Read, Write};

@@ -1,7 +1,7 @@
 //! `machlink plan` and `machlink preview` as an operator runs them: shape files in, G-code
 //! and drawings out, and one clear sentence with a non-zero exit on bad input.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -1,7 +1,7 @@
 //! A stitch job through the daemon to the simulated pattern sewing machine: line noise and a
 //! thread break on the way, every planned stitch sewn exactly once and in order.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::intake::{self, JobSpec, Operation, Target};
@@ -89,7 +89,7 @@ async fn a_thread_break_pauses_the_job_and_resume_sews_every_stitch_once() {
 /// A stitch job with two rows, planned for the DST post and written as a DST file, reads
 /// back through our DST reader as the same records, with a seam on the outline and one 3 mm
 /// inside. This runs the library's planning, not the binary: `machlink plan --op stitch
-/// --post dst|jef`, read back by pyembroidery, is daemon/tests/posts_cli.rs.
+/// --post dst|jef`, read back by pyembroidery, is daemon/tests/it/posts_cli.rs.
 #[test]
 fn a_two_row_stitch_plan_written_as_dst_reads_back_with_both_rows() {
     use machlink_protocols::sewing::dst;

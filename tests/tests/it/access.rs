@@ -1,7 +1,7 @@
 //! Roles, grants, the control lock and the audit log, through the API as each role meets it:
 //! every route of the access table tried by every role.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::store::{JobId, JobState};

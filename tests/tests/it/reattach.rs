@@ -4,7 +4,7 @@
 //! pauses the job, shows offline, and after it is back and `resume` is said runs every
 //! line once.
 
-mod common;
+use crate::common;
 
 use common::*;
 use machlink::core::intake::{JobSpec, Operation};

@@ -5,7 +5,7 @@
 //! time and ETA, `resume` showing what it will do and asking first (`--yes` for scripts),
 //! and a SIGTERM that holds the machine and leaves the job interrupted at its exact line.
 
-mod proc;
+use crate::proc;
 
 use machlink::core::scheduler::Event;
 use machlink::core::store::{JobRecord, JobState};
