@@ -1,0 +1,25 @@
+//! The integration tests of the daemon (`machlink`), in one binary: each former test file is a module
+//! here (one link of the dependencies instead of one per file). New test modules go here:
+//! add the file beside this one and its `mod` line below. Tests that need a process of their
+//! own stay apart (docs/testing.md, "One binary per crate").
+
+mod common;
+mod proc;
+
+mod cli;
+mod cli_3d;
+mod cli_access;
+mod crash;
+mod fleet;
+mod fuzz_inputs;
+mod intake;
+mod kind_recipe;
+mod metrics;
+mod offset_cmd;
+mod operator_cli;
+mod plan_preview_cli;
+mod posts_cli;
+mod service;
+mod toolpaths_cli;
+mod cli_stl_files;
+mod simulate_cli;

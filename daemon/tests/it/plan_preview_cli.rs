@@ -1,0 +1,196 @@
+//! `machlink plan` and `machlink preview` as an operator runs them: shape files in, G-code
+//! and drawings out, and one clear sentence with a non-zero exit on bad input.
+
+use crate::common;
+
+use std::path::Path;
+
+fn machlink(args: &[&str]) -> (bool, String) {
+    let out = common::cli::run(args);
+    (out.status.success(), common::cli::stderr(&out))
+}
+
+const PART_SVG: &str = r#"<svg xmlns="http://www.w3.org/2000/svg" width="60mm" height="40mm" viewBox="0 0 60 40">
+<path d="M0 0 H60 V40 H0 Z M30 12 a8 8 0 1 0 0.001 0 Z" fill="black" fill-rule="evenodd"/></svg>"#;
+
+#[test]
+fn a_pocket_from_svg_plans_posts_and_previews() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("part.svg");
+    std::fs::write(&svg, PART_SVG).unwrap();
+    let nc = dir.path().join("part.nc");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (ok, err) = machlink(&[
+        "plan",
+        &s(&svg),
+        "--op",
+        "pocket",
+        "--tool-diameter",
+        "6",
+        "--stepover",
+        "40%",
+        "--depth",
+        "2",
+        "--stepdown",
+        "1",
+        "--post",
+        "grbl",
+        "-o",
+        &s(&nc),
+    ]);
+    assert!(ok, "{err}");
+    let gcode = std::fs::read_to_string(&nc).unwrap();
+    // the island is a circle: its passes come out as arcs
+    assert!(
+        gcode
+            .lines()
+            .any(|l| l.starts_with("G2") || l.starts_with("G3")),
+        "{gcode}"
+    );
+    let png = dir.path().join("part.png");
+    let (ok, err) = machlink(&["preview", &s(&nc), "-o", &s(&png)]);
+    assert!(ok, "{err}");
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n");
+    let over = dir.path().join("over.svg");
+    let (ok, err) = machlink(&[
+        "preview",
+        &s(&svg),
+        "--op",
+        "profile",
+        "--tabs",
+        "2",
+        "--lead-in",
+        "2",
+        "-o",
+        &s(&over),
+    ]);
+    assert!(ok, "{err}");
+    let drawing = std::fs::read_to_string(&over).unwrap();
+    assert!(drawing.contains("stroke-dasharray"), "rapids are dashed");
+    assert!(
+        drawing.contains(offset_core::preview::LINEAR_COLOUR),
+        "the planned cuts are drawn over the part"
+    );
+    // without --op the part is drawn alone: no tool path at all
+    let alone = dir.path().join("alone.svg");
+    let (ok, err) = machlink(&["preview", &s(&svg), "-o", &s(&alone)]);
+    assert!(ok, "{err}");
+    let drawing = std::fs::read_to_string(&alone).unwrap();
+    assert!(
+        !drawing.contains("stroke-dasharray")
+            && !drawing.contains(offset_core::preview::LINEAR_COLOUR)
+    );
+}
+
+#[test]
+fn bad_options_and_files_are_one_clear_sentence() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("part.svg");
+    std::fs::write(&svg, PART_SVG).unwrap();
+    let out = dir.path().join("x.nc");
+    let (s, o) = (svg.to_str().unwrap(), out.to_str().unwrap());
+    let (ok, err) = machlink(&["plan", s, "--op", "pocket", "--stepover", "lots", "-o", o]);
+    assert!(!ok);
+    assert!(
+        err.contains("step-over \"lots\" is neither a length in mm"),
+        "{err}"
+    );
+    let (ok, err) = machlink(&["plan", s, "--op", "pocket", "--stepover", "5", "-o", o]);
+    assert!(!ok);
+    assert!(err.contains("more than the tool diameter"), "{err}");
+    let dxf = dir.path().join("c.dxf");
+    std::fs::write(&dxf, "0\nSECTION\n2\nENTITIES\n0\nCIRCLE\n5\n1F\n8\nCUT\n10\n0\n20\n0\n40\n10\n0\nENDSEC\n0\nEOF\n").unwrap();
+    let d = dxf.to_str().unwrap();
+    let (ok, err) = machlink(&["plan", d, "--op", "profile", "--layer", "ENGRAVE", "-o", o]);
+    assert!(!ok);
+    assert!(err.contains("no geometry on layer(s) ENGRAVE"), "{err}");
+    let (ok, err) = machlink(&["plan", d, "--op", "profile", "--layer", "cut", "-o", o]);
+    assert!(ok, "{err}");
+}
+
+/// The pixels of `png` within a small distance of `colour` ("#rrggbb"): their bounding box
+/// as (min x, min y, max x, max y) and how many there are.
+fn pixels_of(png: &[u8], colour: &str) -> (Option<[u32; 4]>, usize) {
+    let img = resvg::tiny_skia::Pixmap::decode_png(png).expect("the preview is a PNG");
+    let want = |k: usize| u8::from_str_radix(&colour[1 + 2 * k..3 + 2 * k], 16).unwrap();
+    let (r, g, b) = (want(0), want(1), want(2));
+    let (mut bbox, mut n) = (None::<[u32; 4]>, 0);
+    for y in 0..img.height() {
+        for x in 0..img.width() {
+            let p = img.pixel(x, y).unwrap().demultiply();
+            let d = (p.red() as i32 - r as i32).abs()
+                + (p.green() as i32 - g as i32).abs()
+                + (p.blue() as i32 - b as i32).abs();
+            if p.alpha() > 200 && d < 24 {
+                n += 1;
+                bbox = Some(match bbox {
+                    None => [x, y, x, y],
+                    Some(q) => [q[0].min(x), q[1].min(y), q[2].max(x), q[3].max(y)],
+                });
+            }
+        }
+    }
+    (bbox, n)
+}
+
+/// A program from another CAM, previewed as PNG: what is drawn is that program. Its lines
+/// cut a 60 × 40 rectangle and its one arc a circle of radius 10 about the rectangle's
+/// middle, so the line pixels span 3:2 and the arc pixels a third of their width, centred.
+#[test]
+fn a_gcode_preview_draws_the_program_s_own_geometry() {
+    let dir = tempfile::tempdir().unwrap();
+    let nc = dir.path().join("other_cam.nc");
+    std::fs::write(
+        &nc,
+        "(from another CAM)\nG21 G90\nG0 Z5\nG0 X0 Y0\nG1 Z-1 F300\nG1 X60 F800\nG1 Y40\nG1 X0\n\
+         G1 Y0\nG0 Z5\nG0 X30 Y10\nG1 Z-1 F300\nG2 X30 Y10 I0 J10 F800\nG0 Z5\nM2\n",
+    )
+    .unwrap();
+    let png = dir.path().join("other_cam.png");
+    let (ok, err) = machlink(&[
+        "preview",
+        nc.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+        "--width",
+        "900",
+        "--no-swept",
+        "--no-legend",
+        "--no-scale-bar",
+    ]);
+    assert!(ok, "{err}");
+    let bytes = std::fs::read(&png).unwrap();
+    let img = resvg::tiny_skia::Pixmap::decode_png(&bytes).unwrap();
+    assert_eq!(img.width(), 900, "--width sets the drawing's width");
+    let (lines, n_lines) = pixels_of(&bytes, offset_core::preview::LINEAR_COLOUR);
+    let (arcs, n_arcs) = pixels_of(&bytes, offset_core::preview::ARC_COLOUR);
+    let (l, a) = (
+        lines.expect("the lines are drawn"),
+        arcs.expect("the arc is drawn"),
+    );
+    assert!(
+        n_lines > 500 && n_arcs > 100,
+        "{n_lines} line and {n_arcs} arc pixels"
+    );
+    let (lw, lh) = ((l[2] - l[0]) as f64, (l[3] - l[1]) as f64);
+    assert!(
+        (lw / lh - 1.5).abs() < 0.05,
+        "the rectangle is drawn {lw} × {lh} px"
+    );
+    let (aw, ah) = ((a[2] - a[0]) as f64, (a[3] - a[1]) as f64);
+    assert!(
+        (aw / lw - 20.0 / 60.0).abs() < 0.02,
+        "the circle is {aw} px across, the rectangle {lw}"
+    );
+    assert!(
+        (ah / aw - 1.0).abs() < 0.05,
+        "the circle is drawn {aw} × {ah} px"
+    );
+    let centre = |b: [u32; 4]| ((b[0] + b[2]) as f64 / 2.0, (b[1] + b[3]) as f64 / 2.0);
+    let ((lx, ly), (ax, ay)) = (centre(l), centre(a));
+    assert!(
+        (lx - ax).abs() < 3.0 && (ly - ay).abs() < 3.0,
+        "the circle's centre ({ax}, {ay}) is the rectangle's ({lx}, {ly})"
+    );
+}
