@@ -6,7 +6,7 @@
 //!
 //! `cargo bench -p machlink --bench fleet` (needs nats-server: `apt-get install nats-server`)
 
-#[path = "../tests/common/nats.rs"]
+#[path = "../tests/it/common/nats.rs"]
 mod nats;
 
 use machlink::core::intake::{Input, JobSpec};

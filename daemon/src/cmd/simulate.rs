@@ -5,7 +5,7 @@
 
 use super::job::{print_warnings, JobArgs};
 use anyhow::{bail, Context};
-use machlink::intake::{self, Input, InputKind, JobSpec};
+use machlink::core::intake::{self, Input, InputKind, JobSpec};
 use offset_core::cutsim::{self, MoveKind, Part, Report, SimOptions, Stock};
 use offset_core::geom::{Point, Region};
 use offset_core::{Tool, Toolpath};
