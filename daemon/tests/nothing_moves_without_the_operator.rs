@@ -8,7 +8,7 @@
 
 mod proc;
 
-use machlink::store::{JobId, JobState};
+use machlink::core::store::{JobId, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
 use proc::*;
@@ -40,8 +40,8 @@ async fn wait_job(
     d: &Daemon,
     id: JobId,
     what: &str,
-    ok: impl Fn(&machlink::store::JobRecord) -> bool,
-) -> machlink::store::JobRecord {
+    ok: impl Fn(&machlink::core::store::JobRecord) -> bool,
+) -> machlink::core::store::JobRecord {
     let until = Instant::now() + Duration::from_secs(90);
     loop {
         if let Ok(j) = d.client().job(id).await {
@@ -367,7 +367,7 @@ impl Cell {
 }
 
 /// A sewing job: an open zigzag of `rows` rows across the frame.
-fn zigzag(rows: usize) -> machlink::intake::JobSpec {
+fn zigzag(rows: usize) -> machlink::core::intake::JobSpec {
     let mut vertices = Vec::new();
     for row in 0..rows {
         let y = -60.0 + row as f64 * 7.0;
@@ -376,8 +376,8 @@ fn zigzag(rows: usize) -> machlink::intake::JobSpec {
         vertices.push([b, y, 0.0]);
     }
     let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });
-    machlink::intake::JobSpec {
-        operation: Some(machlink::intake::Operation::Stitch(
+    machlink::core::intake::JobSpec {
+        operation: Some(machlink::core::intake::Operation::Stitch(
             offset_core::stitch::StitchParams {
                 stitch_length: 2.5,
                 ..Default::default()
