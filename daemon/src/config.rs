@@ -170,7 +170,11 @@ impl Config {
             },
         };
         let raw: RawConfig = toml::from_str(text).map_err(|e| {
-            let mut message = e.message().trim().to_string();
+            let line = e
+                .span()
+                .map(|s| text.lines().nth(line_column(text, s.start).0 - 1).unwrap_or(""))
+                .unwrap_or("");
+            let mut message = in_operators_words(e.message().trim(), line);
             if let Some(name) = e.span().and_then(|s| machine_at(text, s.start)) {
                 message = message.replace(UNNAMED, &format!("machine `{name}`"));
             }
@@ -298,6 +302,63 @@ fn line_column(text: &str, offset: usize) -> (usize, usize) {
     (line, column)
 }
 
+/// serde's phrases ("invalid type: string \"fast\", expected f64") in an operator's words
+/// ("must be a number of mm/min, not \"fast\""); `line` is the line as written, whose key
+/// says the unit.
+pub fn in_operators_words(message: &str, line: &str) -> String {
+    let key = line.split('=').next().unwrap_or("").trim();
+    let unit = match key {
+        "max_feed" | "feed" | "plunge_feed" => " of mm/min",
+        k if k.ends_with("_ms") => " of milliseconds",
+        k if k.ends_with("_s") => " of seconds",
+        k if k.ends_with("_mm") => " of mm",
+        _ => "",
+    };
+    let mut out = message.to_string();
+    if let Some(at) = out.find("invalid type: ") {
+        let rest = &out[at + "invalid type: ".len()..];
+        if let Some((got, want)) = rest.split_once(", expected ") {
+            let got = got
+                .trim_start_matches("string ")
+                .trim_start_matches("integer ")
+                .trim_start_matches("floating point ")
+                .trim_start_matches("boolean ")
+                .trim_matches('`')
+                .to_string();
+            let want = want.trim();
+            let (want, tail) = want.split_at(want.find(" for ").unwrap_or(want.len()));
+            let wanted = match want {
+                "f64" | "f32" => format!("a number{unit}"),
+                "usize" | "u64" | "u32" | "u16" | "u8" | "i64" | "i32" => {
+                    format!("a whole number{unit}")
+                }
+                "a boolean" => "true or false".to_string(),
+                "a string" => "text in quotes".to_string(),
+                other => other.to_string(),
+            };
+            out = format!("{}must be {wanted}, not {got}{tail}", &out[..at]);
+        }
+    }
+    if let Some(at) = out.find("invalid length ") {
+        let rest = &out[at + "invalid length ".len()..];
+        if let Some((got, want)) = rest.split_once(", expected an array of length ") {
+            let n: String = want.chars().take_while(|c| c.is_ascii_digit()).collect();
+            let after = want[n.len()..].trim_start_matches("in ").trim();
+            let which = if after.is_empty() {
+                String::new()
+            } else {
+                format!("{after} ")
+            };
+            let axes = if n == "3" { " (X, Y, Z)" } else { "" };
+            out = format!(
+                "{}{which}must have {n} values{axes}, got {got}",
+                &out[..at]
+            );
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -309,6 +370,24 @@ mod tests {
 
     fn parse(text: &str) -> Result<Config, String> {
         Config::parse(text, Path::new("/etc/machlink/cell.toml")).map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn wrong_types_are_said_in_an_operators_words() {
+        let e = parse("[[machine]]\nname = \"r\"\nlink = \"sim-grbl\"\nmax_feed = \"fast\"\n")
+            .unwrap_err();
+        assert!(
+            e.contains("key `max_feed`: must be a number of mm/min, not \"fast\""),
+            "{e}"
+        );
+        assert!(!e.contains("expected f64"), "{e}");
+        let e = parse("[daemon]\njournal_every = \"often\"\n").unwrap_err();
+        assert!(e.contains("must be a whole number, not \"often\""), "{e}");
+        let e = parse(
+            "[[machine]]\nname = \"r\"\nlink = \"sim-grbl\"\nwork_area = { min = [0, 0], max = [1, 1, 1] }\n",
+        )
+        .unwrap_err();
+        assert!(e.contains("`min` must have 3 values (X, Y, Z), got 2"), "{e}");
     }
 
     #[test]

@@ -305,6 +305,11 @@ pub struct Handed {
     /// operating system may have been lost on the way, so `acked..sent` is in doubt too.
     /// False after a restart of the daemon, whose written bytes all reach the device.
     pub cut_off: bool,
+    /// The operator said go on (a resume): a device found holding this program may be let
+    /// go. False when the daemon only asks after a stop (a restart, a link that came back):
+    /// then nothing that makes motion is sent (no cycle start, no new unit).
+    #[serde(default)]
+    pub go_on: bool,
 }
 
 /// Where a program stands on a device the daemon has just (re)connected to.

@@ -32,6 +32,9 @@ pub struct JogArgs {
     /// The jog's feed, mm/min.
     #[arg(long)]
     pub feed: f64,
+    /// Jog in X or Y although the tool stands below the stock top (after a cancel).
+    #[arg(long)]
+    pub yes: bool,
     #[command(flatten)]
     pub client: ClientArgs,
 }
@@ -63,7 +66,16 @@ fn percent(s: &str) -> Result<u16, String> {
 }
 
 fn operate(machine: &str, client: &ClientArgs, op: Operation) -> anyhow::Result<()> {
-    let a = runtime()?.block_on(client.client().operate(machine, &op))?;
+    operate_confirmed(machine, client, op, false)
+}
+
+fn operate_confirmed(
+    machine: &str,
+    client: &ClientArgs,
+    op: Operation,
+    yes: bool,
+) -> anyhow::Result<()> {
+    let a = runtime()?.block_on(client.client().operate_confirmed(machine, &op, yes))?;
     eprintln!("machine {}: {}", a.machine, a.said);
     Ok(())
 }
@@ -77,7 +89,7 @@ pub fn home(a: MachineArgs) -> anyhow::Result<()> {
 }
 
 pub fn jog(a: JogArgs) -> anyhow::Result<()> {
-    operate(
+    operate_confirmed(
         &a.machine,
         &a.client,
         Operation::Jog {
@@ -86,6 +98,7 @@ pub fn jog(a: JogArgs) -> anyhow::Result<()> {
             z: a.z,
             feed: a.feed,
         },
+        a.yes,
     )
 }
 

@@ -105,19 +105,63 @@ pub fn errors(text: &str, path: &Path) -> Vec<String> {
             broken.push(m);
         }
     }
-    // the other tables, with the machines that read (a fleet names them)
-    let part = only(text, |i| {
-        section_of(i).is_none_or(|s| secs[s].machine.is_none_or(|m| !broken.contains(&m)))
-    });
-    if let Err(e) = Config::parse(&part, path) {
-        found.push((line(&e), e.to_string()));
+    // each of the other tables alone, with the machines that read (a fleet names them)
+    let others: Vec<usize> = (0..secs.len()).filter(|&k| secs[k].machine.is_none()).collect();
+    for &k in &others {
+        let part = only(text, |i| {
+            section_of(i).is_some_and(|s| {
+                s == k || secs[s].machine.is_some_and(|m| !broken.contains(&m))
+            })
+        });
+        if let Err(e) = Config::parse(&part, path) {
+            found.push((line(&e), e.to_string()));
+        }
     }
+    // a name given twice, whether or not either table reads
+    found.extend(twice_named(text, path, &secs));
     if !found.iter().any(|(_, m)| *m == first.to_string()) {
         found.push((line(&first), first.to_string()));
+    }
+    // the duplicate said once, with both lines
+    if found.iter().any(|(_, m)| m.contains("(first at line")) {
+        found.retain(|(_, m)| !m.contains("is declared twice") || m.contains("(first at line"));
     }
     found.sort();
     found.dedup();
     found.into_iter().map(|(_, m)| m).collect()
+}
+
+/// Machine names declared more than once, each at the line of its second table.
+fn twice_named(text: &str, path: &Path, secs: &[Section]) -> Vec<(usize, String)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let mut seen: Vec<(String, usize)> = Vec::new();
+    let mut out = Vec::new();
+    let mut done: Vec<usize> = Vec::new();
+    for s in secs {
+        let Some(m) = s.machine else { continue };
+        if done.contains(&m) {
+            continue;
+        }
+        let named = s.lines.clone().find_map(|l| {
+            let (k, v) = lines[l].split_once('=')?;
+            (k.trim() == "name").then(|| (l, v.trim().trim_matches('"').to_string()))
+        });
+        let Some((l, name)) = named else { continue };
+        done.push(m);
+        match seen.iter().find(|(n, _)| *n == name) {
+            Some((_, first)) => out.push((
+                l + 1,
+                format!(
+                    "{}, line {}: machine `{name}` is declared twice (first at line {}); each machine needs its own name",
+                    path.display(),
+                    l + 1,
+                    first + 1
+                ),
+            )),
+            None => seen.push((name, l)),
+        }
+    }
+    out
 }
 
 fn line(e: &machlink::config::ConfigError) -> usize {
@@ -186,6 +230,27 @@ pub fn run(a: CheckConfigArgs) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn five_independent_mistakes_are_all_reported_in_one_run() {
+        let text = "[daemon]\njournal_every = \"often\"\n\n\
+                    [[machine]]\nname = \"router\"\nlink = \"sim-grbl\"\nmax_feed = \"fast\"\n\n\
+                    [[machine]]\nname = \"router\"\nlink = \"sim-grbl\"\n\n\
+                    [[webhook]]\nurl = \"http://127.0.0.1:9/hook\"\nevents = [\"completed\", \"exploded\"]\n\n\
+                    [fleet]\nurl = \"nats://127.0.0.1:4222\"\n";
+        let e = errors(text, Path::new("cell.toml"));
+        let all = e.join("\n");
+        assert_eq!(e.len(), 5, "{all}");
+        for (what, said) in [
+            ("journal_every", "must be a whole number, not \"often\""),
+            ("max_feed", "must be a number of mm/min, not \"fast\""),
+            ("duplicate", "machine `router` is declared twice"),
+            ("webhook event", "exploded"),
+            ("fleet name", "[fleet]"),
+        ] {
+            assert!(all.contains(said), "{what} not reported: {all}");
+        }
+    }
 
     #[test]
     fn every_machine_table_is_checked_on_its_own() {

@@ -383,12 +383,15 @@ pub fn resume(a: ResumeArgs) -> anyhow::Result<()> {
         if let Some(n) = &p.note {
             eprintln!("  (the daemon found: {n})");
         }
+        // every resume makes the machine move (a cycle start, a ring fed again, a pattern
+        // sewn on): without a terminal to ask at, only --yes lets it go
+        if !a.yes && !std::io::stdin().is_terminal() {
+            anyhow::bail!(
+                "resuming job {} moves the machine: confirm it at a terminal, or give --yes; nothing was sent",
+                p.job
+            );
+        }
         if p.moves && !a.yes {
-            if !std::io::stdin().is_terminal() {
-                anyhow::bail!(
-                    "this resume moves the machine: confirm it at a terminal, or give --yes; nothing was sent"
-                );
-            }
             eprint!("Go on? [y/N] ");
             std::io::stderr().flush()?;
             let mut answer = String::new();

@@ -133,7 +133,9 @@ fn is_3d(tp: &offset_core::Toolpath) -> bool {
     tp.walk(P3::default(), |from, m, to| {
         if matches!(m, Move::Linear { .. } | Move::Arc { .. }) {
             cutting += 1;
-            if (to.z - from.z).abs() > 1e-6 && from.xy().dist(to.xy()) > 1e-6 {
+            // a helix (an arc whose Z changes) is a 2.5D entry, drawn in plan view
+            let straight = matches!(m, Move::Linear { .. });
+            if straight && (to.z - from.z).abs() > 1e-6 && from.xy().dist(to.xy()) > 1e-6 {
                 sloped += 1;
             }
         }
@@ -141,14 +143,109 @@ fn is_3d(tp: &offset_core::Toolpath) -> bool {
     sloped * 5 > cutting
 }
 
-/// Renders the drawing to PNG bytes.
-fn render_png(svg: &str) -> anyhow::Result<Vec<u8>> {
+/// The font every PNG's legend and scale are drawn in, carried in the binary so a machine
+/// with no fonts installed draws them too: DejaVu Sans cut to ASCII and a few signs
+/// (11 KB; Bitstream Vera licence, daemon/assets/DejaVuSans-LICENSE.txt).
+const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans-subset.ttf");
+
+/// Rendering options that know only the carried font (system fonts are never asked for,
+/// so the drawing is the same on every machine).
+fn render_options() -> resvg::usvg::Options<'static> {
+    let mut opt = resvg::usvg::Options::default();
+    opt.font_family = "DejaVu Sans".into();
+    let db = opt.fontdb_mut();
+    db.load_font_data(FONT.to_vec());
+    db.set_sans_serif_family("DejaVu Sans");
+    db.set_serif_family("DejaVu Sans");
+    db.set_monospace_family("DejaVu Sans");
+    opt
+}
+
+/// Renders the drawing to pixels.
+fn render_pixmap(svg: &str) -> anyhow::Result<resvg::tiny_skia::Pixmap> {
     use resvg::{tiny_skia, usvg};
-    let tree = usvg::Tree::from_str(svg, &usvg::Options::default())
-        .context("cannot render the drawing")?;
+    let tree =
+        usvg::Tree::from_str(svg, &render_options()).context("cannot render the drawing")?;
     let size = tree.size().to_int_size();
     let mut pixmap = tiny_skia::Pixmap::new(size.width(), size.height())
         .context("the drawing is too large to render")?;
     resvg::render(&tree, tiny_skia::Transform::default(), &mut pixmap.as_mut());
-    pixmap.encode_png().context("cannot encode the PNG")
+    Ok(pixmap)
+}
+
+/// Renders the drawing to PNG bytes.
+fn render_png(svg: &str) -> anyhow::Result<Vec<u8>> {
+    render_pixmap(svg)?
+        .encode_png()
+        .context("cannot encode the PNG")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use offset_core::toolpath::{Move, P3};
+    use offset_core::{Point, Toolpath};
+
+    /// Pixels that differ between two renderings of the same size.
+    fn differing(a: &resvg::tiny_skia::Pixmap, b: &resvg::tiny_skia::Pixmap) -> usize {
+        assert_eq!((a.width(), a.height()), (b.width(), b.height()));
+        a.pixels().iter().zip(b.pixels()).filter(|(p, q)| p != q).count()
+    }
+
+    /// The drawing without its text elements.
+    fn without_text(svg: &str) -> String {
+        let mut out = String::new();
+        let mut rest = svg;
+        while let Some(at) = rest.find("<text") {
+            out.push_str(&rest[..at]);
+            let end = rest[at..].find("</text>").map_or(rest.len(), |e| at + e + 7);
+            rest = &rest[end..];
+        }
+        out.push_str(rest);
+        out
+    }
+
+    /// A pocket-like plan: a helix entry, then a square at depth.
+    fn plan() -> Toolpath {
+        let mut tp = Toolpath::new("pocket");
+        tp.push(Move::Rapid { to: P3::new(10.0, 5.0, 3.0) });
+        for k in 1..=4 {
+            tp.push(Move::Arc {
+                to: P3::new(10.0, 5.0, 3.0 - k as f64),
+                center: Point::new(10.0, 7.0),
+                ccw: true,
+                feed: 300.0,
+            });
+        }
+        for (x, y) in [(40.0, 5.0), (40.0, 30.0), (10.0, 30.0), (10.0, 5.0)] {
+            tp.push(Move::Linear { to: P3::new(x, y, -1.0), feed: 800.0 });
+        }
+        tp
+    }
+
+    #[test]
+    fn a_png_carries_its_legend_and_scale_in_the_carried_font_alone() {
+        // the options know no system font: only the one in the binary can draw the text
+        assert_eq!(render_options().fontdb.len(), 1);
+        let opts = preview::PreviewOptions {
+            width_px: 600.0,
+            scale_bar: true,
+            legend: true,
+            swept: true,
+        };
+        let svg = preview::svg_with(None, Some(&plan()), &opts);
+        assert!(svg.contains("<text"), "the drawing has a legend and a scale");
+        let with = render_pixmap(&svg).unwrap();
+        let bare = render_pixmap(&without_text(&svg)).unwrap();
+        let text_pixels = differing(&with, &bare);
+        assert!(
+            text_pixels > 200,
+            "the legend's and scale's text drew only {text_pixels} pixels"
+        );
+    }
+
+    #[test]
+    fn a_helix_entry_keeps_a_25d_program_in_plan_view() {
+        assert!(!is_3d(&plan()));
+    }
 }

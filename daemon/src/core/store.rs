@@ -712,6 +712,7 @@ impl Store {
             sent: sent as usize,
             sending: sending as usize,
             cut_off: false,
+            go_on: false,
         };
         if let Some((_, s)) = self.progress.read().into_iter().find(|(_, s)| s.job == id) {
             h.acked = h.acked.max(s.acked as usize);

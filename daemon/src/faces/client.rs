@@ -304,6 +304,17 @@ impl Client {
         machine: &str,
         op: &machlink_protocols::Operation,
     ) -> Result<crate::faces::api::jobs::OperateAnswer, ClientError> {
+        self.operate_confirmed(machine, op, false).await
+    }
+
+    /// Like [`Client::operate`], with the operator's yes to what a jog warns about (an XY
+    /// jog while the tool stands below the stock top).
+    pub async fn operate_confirmed(
+        &self,
+        machine: &str,
+        op: &machlink_protocols::Operation,
+        yes: bool,
+    ) -> Result<crate::faces::api::jobs::OperateAnswer, ClientError> {
         use machlink_protocols::Operation;
         let (name, body) = match op {
             Operation::Unlock => ("unlock", None),
@@ -311,7 +322,7 @@ impl Client {
             Operation::Jog { x, y, z, feed } => (
                 "jog",
                 Some(
-                    serde_json::to_vec(&serde_json::json!({"x": x, "y": y, "z": z, "feed": feed}))
+                    serde_json::to_vec(&serde_json::json!({"x": x, "y": y, "z": z, "feed": feed, "yes": yes}))
                         .map_err(|e| ClientError::Protocol(e.to_string()))?,
                 ),
             ),

@@ -171,6 +171,10 @@ pub struct CanopenLink {
     stopped_reported: bool,
     /// Heartbeats and EMCY stop what is under way (false while stopping the drives).
     watching: bool,
+    /// The operator said `unlock`: the next start-up may reset a drive's fault. A drive
+    /// found in fault otherwise refuses the job, as every kind's alarm waits for the
+    /// operator.
+    unlocked: bool,
 }
 
 /// The cycle clock: a thread that sleeps to just before each deadline (an absolute
@@ -381,6 +385,7 @@ impl CanopenLink {
             events: None,
             stopped_reported: false,
             watching: true,
+            unlocked: false,
         }
     }
 
@@ -649,6 +654,8 @@ impl CanopenLink {
         for i in 0..self.nodes.len() {
             self.power_up(i).await?;
         }
+        // the operator's unlock served this start-up; a later fault waits for another
+        self.unlocked = false;
         let mut start = P3::default();
         for i in 0..self.nodes.len() {
             let counts = self.read_u32(i, od::POSITION_ACTUAL).await? as i32;
@@ -749,6 +756,15 @@ impl CanopenLink {
         let mut sw = self.statusword(i).await?;
         for _ in 0..8 {
             let state = PowerState::from_statusword(sw);
+            if state == Some(PowerState::Fault) && !self.unlocked {
+                return Err(alarm(
+                    None,
+                    format!(
+                        "{} is in fault from before this job (statusword 0x{sw:04X}): clear its cause, then `machlink unlock` the machine",
+                        self.nodes[i].who()
+                    ),
+                ));
+            }
             let Some(cmd) = state.and_then(|s| s.toward_enabled()) else {
                 if state == Some(PowerState::OperationEnabled) {
                     let shown = self.sdo(i, od::MODES_DISPLAY, None).await?;
@@ -1200,6 +1216,24 @@ impl Link<Move> for CanopenLink {
             }
             self.events = None;
             r
+        })
+    }
+
+    fn operate<'a>(
+        &'a mut self,
+        op: &'a crate::link::Operation,
+    ) -> BoxFuture<'a, Result<String, LinkError>> {
+        Box::pin(async move {
+            match op {
+                crate::link::Operation::Unlock => {
+                    self.unlocked = true;
+                    Ok("unlocked: a drive still in fault is reset (fault reset, 0x6040 bit 7) when the next job enables it".into())
+                }
+                other => Err(LinkError::unsupported(
+                    &other.name(),
+                    "a CANopen machine takes only unlock between jobs",
+                )),
+            }
         })
     }
 }

@@ -49,7 +49,8 @@ impl GrblLink {
         let mut idle_seen = 0u32;
         let mut held = false;
         let mut control_open = true;
-        // asked to go on (a resume): a controller found holding is let go, once
+        // asked to go on (the operator's resume): a controller found holding is let go,
+        // once; after a stop (a restart, a link back) it stays held until the operator says
         let mut let_go = false;
         let initial = *control.borrow_and_update();
         match initial {
@@ -57,7 +58,7 @@ impl GrblLink {
                 self.write(&[realtime::FEED_HOLD]).await?;
                 held = true;
             }
-            Control::Run => let_go = true,
+            Control::Run => let_go = handed.go_on,
             Control::Cancel => {}
         }
         loop {

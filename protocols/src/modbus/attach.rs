@@ -73,6 +73,11 @@ impl ModbusLink {
         }
         let consumed = s.consumed_seq as usize;
         Ok(match ModbusState::from_register(s.state) {
+            // a device that ran every block it was given stands still, waiting for more: it
+            // is stopped until the operator's resume feeds it again (nothing moves before)
+            Some(ModbusState::Running) if s.write_seq <= s.consumed_seq && s.consumed_seq < total => {
+                Reattach::Stopped { next: consumed }
+            }
             Some(ModbusState::Running | ModbusState::Hold) => Reattach::Running { acked: consumed },
             Some(ModbusState::Idle) if s.consumed_seq >= total => Reattach::Completed,
             Some(ModbusState::Idle) => Reattach::Stopped { next: consumed },

@@ -423,9 +423,20 @@ impl SewingLink {
         // a machine still sewing this pattern (the daemon restarted, the line came back) is
         // followed where it is, never started again
         let sewing = same && (from > 0 || std::mem::take(&mut self.follow)) && st.state.is_sewing();
+        let mut resumed = false;
         if sewing {
-            if *control.borrow_and_update() == Control::Hold && st.state == SewingState::Sewing {
-                self.must(req::STOP, vec![], "to hold").await?;
+            let asked = *control.borrow_and_update();
+            match asked {
+                Control::Hold if st.state == SewingState::Sewing => {
+                    self.must(req::STOP, vec![], "to hold").await?;
+                }
+                // the operator's resume of a job the machine holds (a stop, a thread break
+                // rethreaded): the daemon streams with Run only once the operator said so
+                Control::Run if st.state != SewingState::Sewing => {
+                    self.must(req::RESUME, vec![], "to resume").await?;
+                    resumed = true;
+                }
+                _ => {}
             }
         } else {
             if !same || st.state == SewingState::NoPattern {
@@ -449,7 +460,7 @@ impl SewingLink {
             self.journal_started(len)?;
         }
         let mut last_state: Option<SewingState> = None;
-        let mut held = sewing && st.state != SewingState::Sewing;
+        let mut held = sewing && st.state != SewingState::Sewing && !resumed;
         let mut control_open = true;
         loop {
             tokio::select! {

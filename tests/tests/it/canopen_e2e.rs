@@ -1,6 +1,6 @@
 //! CANopen through the daemon: a pocket submitted to three simulated CiA 402 drives behind
 //! an SLCAN adapter runs on the path, pauses and resumes; a drive that faults stops the job
-//! with its reason and the machine shows the alarm; the next job runs.
+//! with its reason and the machine shows the alarm; after `unlock` the next job runs.
 
 use crate::common;
 
@@ -93,7 +93,7 @@ async fn a_pocket_on_three_drives_runs_on_its_path_pauses_and_resumes() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_drive_fault_fails_the_job_with_its_reason_and_the_next_job_runs() {
+async fn a_drive_fault_fails_the_job_with_its_reason_and_after_unlock_the_next_job_runs() {
     let dir = tempfile::tempdir().unwrap();
     let faults = "faults = [ { node = 2, fault = \"following_error\", after_syncs = 300 } ]\n";
     let d = start(dir.path(), &machine(faults), StartOptions::default()).await;
@@ -118,7 +118,11 @@ async fn a_drive_fault_fails_the_job_with_its_reason_and_the_next_job_runs() {
         "{:?}",
         m.status
     );
-    // the fault fires once: the next job completes on the same machine
+    // the alarm waits for the operator (as every kind's): unlocked, the next job completes
+    // on the same machine (the fault fires once)
+    c.operate("gantry", &machlink_protocols::Operation::Unlock)
+        .await
+        .unwrap();
     let next = c.submit(&pocket_job()).await.unwrap();
     let done = wait_end(&c, next.id).await;
     assert_eq!(done.state, JobState::Completed, "{:?}", done.error);

@@ -1,6 +1,7 @@
 //! End to end through the daemon: machines configured as `link = "modbus-tcp"` and
 //! `link = "modbus-rtu"` run 5,000-block jobs into the simulated device under injected faults,
-//! and a daemon crash in the middle of a job resumes without losing or repeating a block.
+//! and a daemon crash in the middle of a job leaves the device to run dry (nothing written
+//! until the operator's resume), then resumes without losing or repeating a block.
 
 use machlink::config::Config;
 use machlink::core::store::{JobRecord, JobState, NewJob};
@@ -168,7 +169,7 @@ async fn daemon_streams_5000_blocks_over_modbus_rtu_under_faults() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_daemon_killed_mid_job_follows_the_device_to_completion_without_resending_a_block() {
+async fn a_daemon_killed_mid_job_writes_nothing_until_resume_then_finishes_without_resending_a_block() {
     let dir = tempfile::tempdir().unwrap();
     // slow enough that the ring (40 blocks) still holds work when the daemon is back
     let sim = ModbusSim::spawn_tcp(
@@ -197,8 +198,22 @@ async fn a_daemon_killed_mid_job_follows_the_device_to_completion_without_resend
     let d = Daemon::start(config(dir.path(), &machine), StartOptions::default())
         .await
         .unwrap();
-    // nobody says resume: the restarted daemon asks the device, finds it running this
-    // job, and feeds it to the end
+    // nobody says resume: the restarted daemon asks the device, watches it run the
+    // blocks its ring holds and writes nothing; the job waits at the consumed sequence
+    let waits = wait_for(&d, id, |j| j.state == JobState::Interrupted).await;
+    let written_before_resume = sim.events_from(0).len();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (_, _, consumed, _) = sim.registers();
+    assert_eq!(waits.acked_units, consumed as usize, "the store says where the device is");
+    assert_eq!(sim.trace().len(), consumed as usize);
+    assert!(
+        !sim.events_from(written_before_resume)
+            .iter()
+            .any(|e| matches!(e, TraceEvent::Written { .. } | TraceEvent::Executed { .. })),
+        "the device was fed before the operator's resume"
+    );
+    // the operator's resume feeds it from there to the end
+    d.scheduler.resume(id).await.unwrap();
     let j = wait_for(&d, id, |j| j.state == JobState::Completed).await;
     assert_eq!(j.acked_units, blocks.len());
     assert_executed_once_in_order(&sim, &blocks);

@@ -9,6 +9,8 @@
 //! (`run.rs`). Between jobs the worker keeps the machine's status fresh and carries out
 //! the operator's operations (unlock, home, jog).
 
+mod gate;
+mod jog;
 mod run;
 
 use crate::core::machine::MachineConfig;
@@ -249,6 +251,8 @@ struct Command {
 
 struct OpRequest {
     op: Operation,
+    /// The operator confirmed what the machine warned about (a jog below the stock top).
+    confirmed: bool,
     reply: oneshot::Sender<Result<String, SchedError>>,
 }
 
@@ -537,6 +541,18 @@ impl Scheduler {
     /// returns what the machine said. Refused while a job runs or holds on it, and with
     /// the machine's reason when its kind cannot do it.
     pub async fn operate(&self, machine: &str, op: Operation) -> Result<String, SchedError> {
+        self.operate_confirmed(machine, op, false).await
+    }
+
+    /// Like [`Scheduler::operate`]; `confirmed` is the operator's yes to what a jog warns
+    /// about (an XY jog while the tool stands below the stock top). A jog is checked as
+    /// every job is: its target in the work area, its feed at most `max_feed`.
+    pub async fn operate_confirmed(
+        &self,
+        machine: &str,
+        op: Operation,
+        confirmed: bool,
+    ) -> Result<String, SchedError> {
         let m = self.machine(machine)?;
         op.check().map_err(SchedError::Conflict)?;
         if let Some(a) = lock(&m.active).as_ref() {
@@ -548,7 +564,11 @@ impl Scheduler {
         }
         let (tx, rx) = oneshot::channel();
         m.ops
-            .send(OpRequest { op, reply: tx })
+            .send(OpRequest {
+                op,
+                confirmed,
+                reply: tx,
+            })
             .map_err(|_| SchedError::Conflict("the machine's worker has stopped".into()))?;
         rx.await
             .map_err(|_| SchedError::Conflict("the machine's worker has stopped".into()))?
@@ -812,19 +832,23 @@ async fn worker(
     }
     let mut poll = tokio::time::interval(STATUS_POLL);
     poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut waiting = gate::Waiting::default();
     loop {
         tokio::select! {
             biased;
             id = queue.recv() => match id {
-                Some(id) => run::run_job(&inner, m, &mut link, id, run::Mode::Run).await,
+                Some(id) => waiting.take(&inner, m, &mut link, &mut status, id).await,
                 None => return,
             },
             op = ops.recv() => {
                 let Some(op) = op else { return };
-                let r = run::operate(&inner, m, &mut link, &op.op).await;
+                let r = run::operate(&inner, m, &mut link, &op.op, op.confirmed).await;
                 let _ = op.reply.send(r);
             }
-            _ = poll.tick() => status.keep(&inner, m, &mut link).await,
+            _ = poll.tick() => {
+                status.keep(&inner, m, &mut link).await;
+                waiting.retry(&inner, m, &mut link, &mut status).await;
+            }
         }
     }
 }

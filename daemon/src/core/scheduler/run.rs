@@ -85,6 +85,8 @@ struct Job<'a> {
     cancel_requested: bool,
     /// The operator said resume while the daemon was still asking the device.
     resume_requested: bool,
+    /// The watchers heard that the device still runs this job on its own.
+    told_following: bool,
     shutdown_reply: Option<oneshot::Sender<Result<(), SchedError>>>,
     committed: Arc<AtomicUsize>,
 }
@@ -136,6 +138,7 @@ pub(super) async fn run_job(
         overrides_refused: None,
         cancel_requested: false,
         resume_requested: false,
+        told_following: false,
         shutdown_reply: None,
         committed: Arc::new(AtomicUsize::new(job.acked_units)),
     };
@@ -240,7 +243,11 @@ impl Job<'_> {
         let mut from = match restart_at {
             Some(at) => at,
             None if job.started_ms.is_some() || mode == Mode::Follow => {
-                match self.attach(link, &program, mode, false).await {
+                let asked = match mode {
+                    Mode::Follow => self.attach_after_stop(link, &program, false).await,
+                    Mode::Run => self.attach(link, &program, mode, false).await,
+                };
+                match asked {
                     Attached::Go(f) => f,
                     Attached::Wait { next, note } => {
                         if mode == Mode::Follow && !self.resume_requested {
@@ -407,8 +414,11 @@ impl Job<'_> {
         } else {
             let _ = self.control.send(Control::Run);
         }
+        // only the operator's word lets a holding device go on; asking after a stop sends
+        // nothing that makes motion
+        let go_on = mode == Mode::Run || self.resume_requested;
         let handed = match inner.store.handed(id) {
-            Ok(h) => machlink_protocols::Handed { cut_off, ..h },
+            Ok(h) => machlink_protocols::Handed { cut_off, go_on, ..h },
             Err(e) => return Attached::Failed(e.to_string()),
         };
         let (ev_tx, mut ev_rx) = mpsc::unbounded_channel();
@@ -436,13 +446,15 @@ impl Job<'_> {
                 if *self.control.borrow() == Control::Hold {
                     inner.set_state(id, JobState::Paused, None);
                 }
-                let _ = inner.events.send(Event::Message {
-                    machine: m.config.name.clone(),
-                    job: Some(id),
-                    text: format!(
-                        "the machine is still running this job ({acked} of {n} units done): following it"
-                    ),
-                });
+                if !std::mem::replace(&mut self.told_following, true) {
+                    let _ = inner.events.send(Event::Message {
+                        machine: m.config.name.clone(),
+                        job: Some(id),
+                        text: format!(
+                            "the machine is still running this job ({acked} of {n} units done): following it"
+                        ),
+                    });
+                }
                 Attached::Go(acked)
             }
             Ok(Reattach::Completed) => {
@@ -474,6 +486,54 @@ impl Job<'_> {
             Err(e) => Attached::Failed(format!(
                 "asking the machine where the job stands failed: {e}"
             )),
+        }
+    }
+
+    /// Asks the device where this job stands after a stop (a restart of the daemon, a link
+    /// that came back). A device that runs the job on its own (a sewing machine sewing the
+    /// pattern it holds, a ring with blocks left) is watched, never fed: asked again every
+    /// quarter second until it stops, or until the operator resumes, pauses or cancels,
+    /// which the stream then carries out. Nothing that makes motion is sent before.
+    async fn attach_after_stop(
+        &mut self,
+        link: &mut Option<Box<dyn MachineLink>>,
+        program: &Program,
+        cut_off: bool,
+    ) -> Attached {
+        loop {
+            let at = match self.attach(link, program, Mode::Follow, cut_off).await {
+                Attached::Go(at)
+                    if !self.resume_requested && *self.control.borrow() == Control::Run =>
+                {
+                    at
+                }
+                other => return other,
+            };
+            self.inner.note(
+                self.id,
+                Some(&format!(
+                    "the machine runs what it holds of this job on its own; nothing more is sent until `machlink resume {}`",
+                    self.id
+                )),
+            );
+            let until = tokio::time::Instant::now() + Duration::from_millis(250);
+            loop {
+                tokio::select! {
+                    Some(cmd) = self.commands.recv() => {
+                        // the daemon stopping leaves the device to what it has
+                        let r = match cmd.request {
+                            Request::Shutdown => Ok(()),
+                            other => self.on_command(other),
+                        };
+                        let _ = cmd.reply.send(r);
+                    }
+                    _ = tokio::time::sleep_until(until) => break,
+                }
+                if self.resume_requested || *self.control.borrow() != Control::Run {
+                    self.inner.note(self.id, None);
+                    return Attached::Go(at);
+                }
+            }
         }
     }
 
@@ -561,7 +621,7 @@ impl Job<'_> {
                 m.config.name
             );
             self.resume_requested = false;
-            match self.attach(link, program, Mode::Follow, true).await {
+            match self.attach_after_stop(link, program, true).await {
                 Attached::Go(f) => return Back::Stream(f),
                 Attached::Done => return Back::Done,
                 Attached::Cancelled => return Back::Cancelled,
@@ -807,6 +867,8 @@ impl Job<'_> {
             }
             (Request::Resume(None), Control::Hold) => {
                 let _ = self.control.send(Control::Run);
+                // the operator's word: what the device then says goes on without asking again
+                self.resume_requested = true;
                 inner.note(id, None);
                 inner.set_state(id, JobState::Running, None);
             }
@@ -885,6 +947,7 @@ pub(super) async fn operate(
     m: &Machine,
     link: &mut Option<Box<dyn MachineLink>>,
     op: &Operation,
+    confirmed: bool,
 ) -> Result<String, SchedError> {
     let name = &m.config.name;
     if link.is_none() {
@@ -903,6 +966,22 @@ pub(super) async fn operate(
             "cannot reach machine `{name}`"
         )));
     };
+    if let Operation::Jog { .. } = op {
+        let at = match with_timeout(l.inquire()).await {
+            Ok(st) => {
+                let p = st.position;
+                inner.saw(m, st);
+                Some(p)
+            }
+            Err(LinkError::Unsupported(_)) => None,
+            Err(e) => {
+                return Err(SchedError::Refused(format!(
+                    "machine `{name}` could not say where it stands, so the jog cannot be checked: {e}"
+                )))
+            }
+        };
+        super::jog::check(&m.config, op, at, confirmed).map_err(SchedError::Conflict)?;
+    }
     let r = l.operate(op).await;
     if let Ok(st) = with_timeout(l.inquire()).await {
         inner.saw(m, st);

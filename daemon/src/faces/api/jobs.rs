@@ -274,6 +274,7 @@ async fn operate(
     body: axum::body::Bytes,
 ) -> Result<Response, ApiError> {
     use machlink_protocols::Operation;
+    let mut confirmed = false;
     let op = match op.as_str() {
         "unlock" => Operation::Unlock,
         "home" => Operation::Home,
@@ -288,9 +289,13 @@ async fn operate(
                 #[serde(default)]
                 z: Option<f64>,
                 feed: f64,
+                /// The operator's yes to an XY jog below the stock top.
+                #[serde(default)]
+                yes: bool,
             }
             let j: Jog = serde_json::from_slice(&body)
                 .map_err(|e| bad(format!("the jog request is not valid: {e}")))?;
+            confirmed = j.yes;
             Operation::Jog {
                 x: j.x,
                 y: j.y,
@@ -304,7 +309,7 @@ async fn operate(
             )))
         }
     };
-    let said = st.sched.operate(&name, op).await?;
+    let said = st.sched.operate_confirmed(&name, op, confirmed).await?;
     Ok(Json(OperateAnswer {
         machine: name,
         said,
