@@ -23,3 +23,4 @@ mod service;
 mod toolpaths_cli;
 mod cli_stl_files;
 mod simulate_cli;
+mod nothing_moves_without_the_operator;

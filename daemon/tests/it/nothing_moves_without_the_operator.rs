@@ -6,7 +6,7 @@
 //! `unlock` like every kind's alarm. Each through the `machlink` binary against simulators
 //! that live in this test's process (so they outlive the daemon), checked on their traces.
 
-mod proc;
+use crate::proc;
 
 use machlink::core::store::{JobId, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
