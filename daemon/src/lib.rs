@@ -26,6 +26,7 @@ pub mod locate;
 pub mod memory;
 pub mod metrics;
 pub mod planner;
+pub mod recipe;
 pub mod registry;
 pub mod resume;
 pub mod scheduler;

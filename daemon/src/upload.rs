@@ -202,6 +202,7 @@ async fn whole_file(
         machine: Some(machine),
         input: crate::intake::Input::from_bytes(&file, bytes.to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

@@ -200,9 +200,6 @@ pub fn drill(holes: &[Hole], p: &DrillParams) -> Result<(Toolpath, Tour), OpErro
     };
     let mut tp = Toolpath::new("drill");
     tp.tool = Some(p.tool);
-    tp.push(Move::Rapid {
-        to: P3::new(0.0, 0.0, p.safe_z),
-    });
     if p.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: p.spindle_rpm });
     }

@@ -136,8 +136,8 @@ pub fn tool_name(t: &Tool) -> String {
 /// Seconds the spindle is given to come up to speed after a tool change before cutting.
 pub const SPIN_UP_SECONDS: f64 = 2.0;
 
-/// Joins the operations' paths in their order into one: between two operations whose tools
-/// differ, the tool goes up to the higher of their safe heights, the spindle stops, the
+/// Joins the operations' paths in their order into one: it starts by loading the first tool
+/// (a tool change before any move); between two operations whose tools differ, the tool goes up to the higher of their safe heights, the spindle stops, the
 /// tool changes (a colour change for needles: another thread), and the spindle comes back
 /// up with [`SPIN_UP_SECONDS`] of dwell. The joined path names the first tool.
 pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
@@ -157,10 +157,24 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
     let k = crate::stats::Kinematics::default();
     let mut last: Option<&Step> = None;
     let mut pos = P3::default();
+    // the speed the spindle runs at (0: stopped)
+    let mut spindle = 0.0;
     for s in steps {
-        let change = last.is_some_and(|l| l.tool.number != s.tool.number);
-        if change {
-            let needle = s.tool.kind == ToolKind::Needle;
+        let needle = s.tool.kind == ToolKind::Needle;
+        let first = last.is_none();
+        // the first tool is loaded too (the operator is asked for it before anything moves);
+        // the first thread is simply the one on the machine
+        let change = match last {
+            None => !needle,
+            Some(l) => l.tool.number != s.tool.number,
+        };
+        if first && change {
+            out.push(Move::ToolChange {
+                tool: s.tool.number,
+                name: s.tool_name.clone(),
+                geometry: Some(s.tool),
+            });
+        } else if change {
             if needle {
                 out.push(Move::ColorChange);
             } else {
@@ -170,6 +184,7 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
                     out.push(Move::Rapid { to: pos });
                 }
                 out.push(Move::Spindle { rpm: 0.0 });
+                spindle = 0.0;
                 out.push(Move::ToolChange {
                     tool: s.tool.number,
                     name: s.tool_name.clone(),
@@ -177,6 +192,7 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
                 });
                 if let Some(rpm) = first_spindle(&s.toolpath) {
                     out.push(Move::Spindle { rpm });
+                    spindle = rpm;
                     out.push(Move::Dwell {
                         seconds: SPIN_UP_SECONDS,
                     });
@@ -184,20 +200,28 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
             }
         }
         out.push(Move::Comment {
-            text: format!("{} with T{} ({})", s.name, s.tool.number, s.tool_name),
+            text: format!("{} with T{}: {}", s.name, s.tool.number, s.tool_name),
         });
         let mut moves = s.toolpath.moves.clone();
-        if change {
-            // the spindle already runs at the operation's speed
-            if let Some(i) = moves.iter().position(|m| matches!(m, Move::Spindle { .. })) {
-                moves.remove(i);
+        // the spindle keeps running from one operation to the next with the same tool: no
+        // stop at an operation's end but the job's last, no restart at the same speed
+        let is_last = std::ptr::eq(s, steps.last().expect("a step"));
+        let mut on = spindle;
+        moves.retain(|m| match m {
+            Move::Spindle { rpm } if *rpm == 0.0 && !is_last => false,
+            Move::Spindle { rpm } if *rpm == on => false,
+            Move::Spindle { rpm } => {
+                on = *rpm;
+                true
             }
-        }
+            _ => true,
+        });
         let part = Toolpath {
             moves,
             ..s.toolpath.clone()
         };
         pos = part.walk(pos, |_, _, _| {});
+        spindle = on;
         let st = part.stats(&k);
         out.moves.extend(part.moves);
         out.warnings.extend(s.toolpath.warnings.iter().map(|w| format!("{}: {w}", s.name)));
@@ -259,10 +283,11 @@ mod tests {
             Move::ToolChange { tool, .. } => Some(*tool),
             _ => None,
         }).collect();
-        assert_eq!(changes, vec![2]);
-        assert_eq!(fig.iter().map(|f| f.tool_change).collect::<Vec<_>>(), vec![false, true, false]);
+        assert_eq!(changes, vec![1, 2]);
+        assert_eq!(fig.iter().map(|f| f.tool_change).collect::<Vec<_>>(), vec![true, true, false]);
+        assert!(matches!(tp.moves[0], Move::ToolChange { tool: 1, .. }));
         // the spindle stops before the change and runs at the next speed after it
-        let i = tp.moves.iter().position(|m| matches!(m, Move::ToolChange { .. })).unwrap();
+        let i = tp.moves.iter().position(|m| matches!(m, Move::ToolChange { tool: 2, .. })).unwrap();
         assert_eq!(tp.moves[i - 1], Move::Spindle { rpm: 0.0 });
         assert_eq!(tp.moves[i + 1], Move::Spindle { rpm: 12000.0 });
         assert!(matches!(tp.moves[i + 2], Move::Dwell { .. }));
