@@ -38,12 +38,6 @@ pub struct PreviewArgs {
 }
 
 pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
-    let ext = |p: &PathBuf| {
-        p.extension()
-            .and_then(|e| e.to_str())
-            .map(|e| e.to_ascii_lowercase())
-            .unwrap_or_default()
-    };
     let input = Input::from_path(&a.file)?;
     let opts = preview::PreviewOptions {
         width_px: a.width as f64,
@@ -85,6 +79,15 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             post: None,
             ..a.job.spec(&a.file, None, None)?
         };
+        if !spec.operations.is_empty() {
+            // a job of operations: planned as `plan` plans it (tools given inline)
+            let registry = machlink::registry::standard();
+            let post = registry.post("grbl").context("the grbl post")?;
+            let p = machlink::recipe::plan_operations(&spec, intake::Target::Post(post))?;
+            print_warnings(&p.warnings);
+            let svg = preview::svg_with(Some(&p.shape), Some(&p.toolpath), &opts);
+            return write_drawing(&a.output, svg);
+        }
         let (shape, warnings) = intake::read_shape(&spec)?;
         print_warnings(&warnings);
         match spec.operation {
@@ -95,20 +98,30 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             None => preview::svg_with(Some(&shape), None, &opts),
         }
     };
-    match ext(&a.output).as_str() {
-        "svg" => std::fs::write(&a.output, svg)
-            .with_context(|| format!("cannot write {}", a.output.display()))?,
+    write_drawing(&a.output, svg)
+}
+
+/// Writes a drawing as SVG, or rendered as PNG, by the output's extension.
+fn write_drawing(output: &std::path::Path, svg: String) -> anyhow::Result<()> {
+    let ext = output
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "svg" => std::fs::write(output, svg)
+            .with_context(|| format!("cannot write {}", output.display()))?,
         "png" => {
             let png = render_png(&svg)?;
-            std::fs::write(&a.output, png)
-                .with_context(|| format!("cannot write {}", a.output.display()))?
+            std::fs::write(output, png)
+                .with_context(|| format!("cannot write {}", output.display()))?
         }
         other => anyhow::bail!(
             "cannot write a .{other} drawing to {} (use .svg or .png)",
-            a.output.display()
+            output.display()
         ),
     }
-    eprintln!("wrote {}", a.output.display());
+    eprintln!("wrote {}", output.display());
     Ok(())
 }
 

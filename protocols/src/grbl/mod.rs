@@ -692,10 +692,17 @@ impl GrblLink {
                             }
                             let mut status = s.to_status(self.wco);
                             if status.state == DeviceState::Held && !held {
-                                // a hold nobody here asked for: M0/M1 or the machine's button
-                                status.state = DeviceState::NeedsOperator {
-                                    reason: OperatorReason::ProgramStop,
-                                };
+                                // a hold nobody here asked for: M0/M1 or the machine's button;
+                                // the last program stop sent may name the tool to load
+                                let reason = lines[..next]
+                                    .iter()
+                                    .rev()
+                                    .find(|l| l.starts_with("M0") || l.starts_with("M1"))
+                                    .and_then(|l| crate::gcode::tool_to_load(l))
+                                    .map_or(OperatorReason::ProgramStop, |(number, name)| {
+                                        OperatorReason::LoadTool { number, name }
+                                    });
+                                status.state = DeviceState::NeedsOperator { reason };
                                 if !machine_paused {
                                     machine_paused = true;
                                     let _ = events.send(LinkEvent::Message(
