@@ -586,3 +586,78 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
     let got_norm: Vec<String> = got.iter().map(|l| l.replace(' ', "").to_uppercase()).collect();
     assert_eq!(got_norm, want, "the controller's lines against the planned program");
 }
+
+/// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
+/// TRIM 2, STOP 3, END 4, COLOR_CHANGE 5). Fails (never skips) without pyembroidery.
+fn pyembroidery_commands(path: &Path) -> Vec<u32> {
+    let script = "import sys, json, pyembroidery\n\
+        p = pyembroidery.read(sys.argv[1])\n\
+        print(json.dumps([int(c) & 0xFF for x, y, c in p.stitches]))";
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(path)
+        .output()
+        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
+    assert!(
+        out.status.success(),
+        "python3 with pyembroidery is needed for this test (run .ci/run); reading {} failed: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON")
+}
+
+/// Two seams on two DXF layers, open polylines 40 mm long.
+fn seams_dxf() -> String {
+    let mut s = String::from("0\nSECTION\n2\nENTITIES\n");
+    for (k, layer) in ["SEAM-RED", "SEAM-BLUE"].iter().enumerate() {
+        let y = 10.0 + 20.0 * k as f64;
+        s.push_str(&format!(
+            "0\nLWPOLYLINE\n5\n{}\n8\n{layer}\n90\n2\n70\n0\n10\n0.0\n20\n{y}\n10\n40.0\n20\n{y}\n",
+            200 + k
+        ));
+    }
+    s.push_str("0\nENDSEC\n0\nEOF\n");
+    s
+}
+
+#[test]
+fn a_two_thread_seam_job_changes_colour_once_in_dst_and_jef() {
+    let dir = tempfile::tempdir().unwrap();
+    let dxf = dir.path().join("seams.dxf");
+    std::fs::write(&dxf, seams_dxf()).unwrap();
+    let recipe = dir.path().join("seams.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
+         [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n",
+    )
+    .unwrap();
+    for post in ["dst", "jef"] {
+        let out = dir.path().join(format!("seams.{post}"));
+        let o = machlink(&[
+            "plan".as_ref(),
+            dxf.as_os_str(),
+            "--recipe".as_ref(),
+            recipe.as_os_str(),
+            "--post".as_ref(),
+            post.as_ref(),
+            "-o".as_ref(),
+            out.as_os_str(),
+        ]);
+        ok(&o, &format!("plan seams --post {post}"));
+        let cmds = pyembroidery_commands(&out);
+        let changes: Vec<usize> = cmds
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c == 5)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(changes.len(), 1, "{post}: {cmds:?}");
+        // both seams are sewn, one on each side of the change
+        let before = cmds[..changes[0]].iter().filter(|&&c| c == 0).count();
+        let after = cmds[changes[0]..].iter().filter(|&&c| c == 0).count();
+        assert!(before >= 10 && after >= 10, "{post}: {before} stitches, then {after}");
+    }
+}

@@ -3,11 +3,14 @@
 //! Every program is absolute millimetres (`G21 G90 G17 G94`), with fixed three-decimal
 //! numbers (never exponents, never `-0.000`), the feed written only when it changes, arcs as
 //! `G2`/`G3` with `I`/`J` (helical when Z changes), and a rapid to a safe height before the
-//! first move and after the last. For GRBL the lines also carry no comments, no byte
-//! above 0x7f and at most 80 characters, and each arc is re-centred after its end points
-//! are rounded so that GRBL's own arc check (error:33) passes. GRBL has no tool changer
-//! (`M6` is error:20 there): a tool change after the first move becomes a program stop
-//! (`M5`, `M0`) at which the operator swaps the tool and resumes with cycle start.
+//! first move and after the last. For GRBL the lines also carry no comments (but the one
+//! naming the tool at a tool change), no byte above 0x7f and at most 80 characters, and
+//! each arc is re-centred after its end points are rounded so that GRBL's own arc check
+//! (error:33) passes. GRBL has no tool changer (`M6` is error:20 there): a tool change
+//! becomes a program stop (`M5`, `M0 (load T2: 6 mm flat end mill)`) at which the operator
+//! swaps the tool and resumes with cycle start; other dialects write `T2 M6`. Drilling
+//! cycles are canned cycles (G81/G82/G83, G98) for LinuxCNC and generic, and the same
+//! rapids and feeds spelt out for GRBL, which has none.
 
 use crate::post::{lines_file, Post, PostError};
 use offset_core::toolpath::arc_segment;
