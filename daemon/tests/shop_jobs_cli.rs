@@ -134,6 +134,7 @@ fn read(text: &str, post: &str) -> Read {
         let mut words: Vec<(char, f64)> = Vec::new();
         let mut cycle = None;
         let mut m6 = false;
+        let mut tool = None;
         for code in &block.codes {
             let args = match code {
                 Code::General(g) => {
@@ -154,7 +155,10 @@ fn read(text: &str, post: &str) -> Read {
                     m6 |= m.number.major() == 6;
                     &m.args
                 }
-                Code::ToolChange(t) => &t.args,
+                Code::ToolChange(t) => {
+                    tool = Some(t.number.major());
+                    &t.args
+                }
                 _ => continue,
             };
             for a in args {
@@ -170,7 +174,8 @@ fn read(text: &str, post: &str) -> Read {
         }
         let get = |c: char| words.iter().find(|w| w.0 == c).map(|w| w.1);
         if m6 {
-            out.m6.push(get('T').expect("M6 names its tool") as u32);
+            let t = tool.or(get('T').map(|t| t as u32));
+            out.m6.push(t.expect("M6 names its tool"));
         }
         if let Some(g) = cycle {
             let c = Cycle {

@@ -691,7 +691,9 @@ impl GrblLink {
                                 self.wco = s.wco;
                             }
                             let mut status = s.to_status(self.wco);
-                            if status.state == DeviceState::Held && !held {
+                            // (once it paused itself it waits for the operator, whether or
+                            // not the daemon holds it too)
+                            if status.state == DeviceState::Held && (!held || machine_paused) {
                                 // a hold nobody here asked for: M0/M1 or the machine's button;
                                 // the last program stop sent may name the tool to load
                                 let reason = lines[..next]
