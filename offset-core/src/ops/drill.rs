@@ -31,6 +31,9 @@ pub enum Cycle {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DrillParams {
+    /// The drill (left out of JSON when it is the default, so that a job operation's own
+    /// `tool` key, beside these, is the only one).
+    #[serde(skip_serializing_if = "is_default_tool")]
     pub tool: Tool,
     /// How far below the stock top (Z=0) the holes go, mm (positive).
     pub depth: f64,
@@ -55,6 +58,10 @@ pub struct DrillParams {
     pub bore_feed: f64,
     /// Boring: the most the helix goes down per lap, mm.
     pub stepdown: f64,
+}
+
+fn is_default_tool(t: &Tool) -> bool {
+    *t == Tool::default()
 }
 
 impl Default for DrillParams {
