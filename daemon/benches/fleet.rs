@@ -85,6 +85,7 @@ async fn run(daemons: usize) -> (f64, f64) {
                 machine: Some(format!("m{}", k % MACHINES)),
                 input: Input::from_bytes(&format!("job{k}.nc"), program(k).into_bytes()),
                 operation: None,
+                operations: Vec::new(),
                 tolerance: None,
                 layers: Vec::new(),
                 post: None,

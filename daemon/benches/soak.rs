@@ -108,6 +108,7 @@ fn job(machine: &str, text: &str) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes("soak.nc", text.as_bytes().to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

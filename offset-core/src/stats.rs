@@ -92,6 +92,9 @@ impl Toolpath {
 
 /// The planner figures of `tp` on a machine with kinematics `k` (see the module).
 pub fn stats(tp: &Toolpath, k: &Kinematics) -> PlanStats {
+    // drilling cycles count as the moves they make
+    let expanded = tp.expanded();
+    let tp = &expanded;
     let mut s = PlanStats::default();
     let a = if k.acceleration.is_finite() && k.acceleration > 0.0 {
         k.acceleration

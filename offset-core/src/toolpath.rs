@@ -68,13 +68,110 @@ pub enum Move {
     Dwell {
         seconds: f64,
     },
+    /// Put another tool in the spindle: its number in the machine's tool table, its name
+    /// for the operator ("6 mm flat end mill") and its geometry, where known.
     ToolChange {
         tool: u32,
+        #[serde(default, skip_serializing_if = "String::is_empty")]
+        name: String,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        geometry: Option<Tool>,
+    },
+    /// One drilled hole, as a canned cycle (G81 simple, G82 with a dwell, G83 pecking): from
+    /// `clear` over the hole, rapid down to `retract` (the R plane), feed to `bottom`, back
+    /// to `clear`. With `peck` > 0 the feed goes down `peck` at a time from the R plane,
+    /// rapids back up to the R plane after each peck and rapids down again to
+    /// [`PECK_BACKOFF`] above the last depth; `dwell` seconds are spent at the bottom
+    /// (simple and dwell cycles only). [`Move::drill_moves`] spells it out in rapids and
+    /// lines for machines without canned cycles.
+    Drill {
+        at: Point,
+        clear: f64,
+        retract: f64,
+        bottom: f64,
+        #[serde(default)]
+        peck: f64,
+        #[serde(default)]
+        dwell: f64,
+        feed: f64,
     },
     /// A note for people; posts may drop it (GRBL never sees comments on the wire).
     Comment {
         text: String,
     },
+}
+
+/// How far above the last peck's depth a pecking cycle rapids back down before it feeds
+/// again, mm (LinuxCNC's G83 uses 0.010 inch).
+pub const PECK_BACKOFF: f64 = 0.254;
+
+impl Move {
+    /// A drilling cycle spelt out in rapids, lines and a dwell, from the tool's position
+    /// `from`, moving exactly as a controller runs the canned cycle (G98: back to `clear`);
+    /// any other move as it is.
+    pub fn drill_moves(&self, from: P3) -> Vec<Move> {
+        let &Move::Drill {
+            at,
+            clear,
+            retract,
+            bottom,
+            peck,
+            dwell,
+            feed,
+        } = self
+        else {
+            return vec![self.clone()];
+        };
+        let mut out = Vec::new();
+        if from.z != clear {
+            out.push(Move::Rapid {
+                to: P3::new(from.x, from.y, clear),
+            });
+        }
+        let here = |z| P3::at_z(at, z);
+        out.push(Move::Rapid { to: here(clear) });
+        out.push(Move::Rapid { to: here(retract) });
+        if peck > 0.0 {
+            let depths = peck_depths(retract, bottom, peck);
+            let last = depths.len() - 1;
+            for (i, &d) in depths.iter().enumerate() {
+                if i > 0 {
+                    out.push(Move::Rapid {
+                        to: here(depths[i - 1] + PECK_BACKOFF),
+                    });
+                }
+                out.push(Move::Linear { to: here(d), feed });
+                if i < last {
+                    out.push(Move::Rapid { to: here(retract) });
+                }
+            }
+        } else {
+            out.push(Move::Linear {
+                to: here(bottom),
+                feed,
+            });
+            if dwell > 0.0 {
+                out.push(Move::Dwell { seconds: dwell });
+            }
+        }
+        out.push(Move::Rapid { to: here(clear) });
+        out
+    }
+}
+
+/// The depths a pecking cycle feeds to: `peck` at a time down from the R plane `retract`,
+/// the last one `bottom` (as LinuxCNC's G83 counts them).
+pub fn peck_depths(retract: f64, bottom: f64, peck: f64) -> Vec<f64> {
+    let mut out = Vec::new();
+    let mut z = retract;
+    loop {
+        z -= peck;
+        if z <= bottom + 1e-9 || out.len() >= 10_000 {
+            out.push(bottom);
+            return out;
+        }
+        out.push(z);
+    }
 }
 
 /// The shape of a cutter's end.
@@ -152,9 +249,19 @@ impl Toolpath {
 
     /// Walks the moves from `start`, calling `f(from, move, to)` for every move that goes
     /// somewhere; returns the end position. Sewing moves keep the last Z.
+    /// Drilling cycles are walked as the rapids and lines they make.
     pub fn walk(&self, start: P3, mut f: impl FnMut(P3, &Move, P3)) -> P3 {
         let mut pos = start;
         for m in &self.moves {
+            if let Move::Drill { .. } = m {
+                for d in m.drill_moves(pos) {
+                    if let Move::Rapid { to } | Move::Linear { to, .. } = d {
+                        f(pos, &d, to);
+                        pos = to;
+                    }
+                }
+                continue;
+            }
             let to = match m {
                 Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } => *to,
                 Move::Stitch { to } | Move::Jump { to } => P3::at_z(*to, pos.z),
@@ -164,6 +271,28 @@ impl Toolpath {
             pos = to;
         }
         pos
+    }
+
+    /// The path with every drilling cycle spelt out in rapids, lines and dwells, for the
+    /// machines that have no canned cycles.
+    pub fn expanded(&self) -> Toolpath {
+        if !self.moves.iter().any(|m| matches!(m, Move::Drill { .. })) {
+            return self.clone();
+        }
+        let mut out = Toolpath {
+            moves: Vec::with_capacity(self.moves.len()),
+            ..self.clone()
+        };
+        let mut pos = P3::default();
+        for m in &self.moves {
+            for d in m.drill_moves(pos) {
+                if let Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } = &d {
+                    pos = *to;
+                }
+                out.moves.push(d);
+            }
+        }
+        out
     }
 
     /// Extents of every position the path visits, arcs included; None for a path that

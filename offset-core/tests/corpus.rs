@@ -378,6 +378,7 @@ fn drawing_rows(path: &Path, rows: &mut Vec<Row>) {
         &file,
         &ReadOptions {
             layers: Vec::new(),
+            colors: Vec::new(),
             tolerance: 0.01,
         },
     );

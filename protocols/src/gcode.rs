@@ -3,11 +3,14 @@
 //! Every program is absolute millimetres (`G21 G90 G17 G94`), with fixed three-decimal
 //! numbers (never exponents, never `-0.000`), the feed written only when it changes, arcs as
 //! `G2`/`G3` with `I`/`J` (helical when Z changes), and a rapid to a safe height before the
-//! first move and after the last. For GRBL the lines also carry no comments, no byte
-//! above 0x7f and at most 80 characters, and each arc is re-centred after its end points
-//! are rounded so that GRBL's own arc check (error:33) passes. GRBL has no tool changer
-//! (`M6` is error:20 there): a tool change after the first move becomes a program stop
-//! (`M5`, `M0`) at which the operator swaps the tool and resumes with cycle start.
+//! first move and after the last. For GRBL the lines also carry no comments (but the one
+//! naming the tool at a tool change), no byte above 0x7f and at most 80 characters, and
+//! each arc is re-centred after its end points are rounded so that GRBL's own arc check
+//! (error:33) passes. GRBL has no tool changer (`M6` is error:20 there): a tool change
+//! becomes a program stop (`M5`, `M0 (load T2: 6 mm flat end mill)`) at which the operator
+//! swaps the tool and resumes with cycle start; other dialects write `T2 M6`. Drilling
+//! cycles are canned cycles (G81/G82/G83, G98) for LinuxCNC and generic, and the same
+//! rapids and feeds spelt out for GRBL, which has none.
 
 use crate::post::{lines_file, Post, PostError};
 use offset_core::toolpath::arc_segment;
@@ -71,6 +74,13 @@ pub enum GcodeError {
     UnknownStart { index: usize },
     #[error("move {index} is a sewing move ({what}), which G-code cannot express")]
     SewingMove { index: usize, what: &'static str },
+    #[error("move {index} drills from Z={clear:.3} through the R plane Z={retract:.3} to Z={bottom:.3}; they must go down in that order")]
+    BadDrill {
+        index: usize,
+        clear: f64,
+        retract: f64,
+        bottom: f64,
+    },
     #[error("G-code line {line} is {len} characters long; GRBL takes at most 80")]
     LineTooLong { line: usize, len: usize },
     #[error("the {place} line {text:?} cannot be sent: {why}")]
@@ -296,11 +306,57 @@ struct Writer {
     feed: Option<String>,
     spindle: Option<f64>,
     moved: bool,
+    /// A canned drilling cycle is in force (cancelled with G80 before anything else).
+    in_cycle: bool,
 }
 
 impl Writer {
     fn push(&mut self, l: String) {
+        if self.in_cycle {
+            self.in_cycle = false;
+            self.lines.push("G80".into());
+        }
         self.lines.push(l);
+    }
+
+    /// One drilled hole as a canned cycle (G81, G82, G83; G98: back to the start height).
+    fn cycle(&mut self, m: &Move) {
+        let &Move::Drill {
+            at,
+            clear,
+            retract,
+            bottom,
+            peck,
+            dwell,
+            feed,
+        } = m
+        else {
+            return;
+        };
+        if self.pos[2].is_none_or(|p| !same_written(p, clear)) {
+            let mut l = String::from("G0 Z");
+            push_num(&mut l, clear);
+            self.push(l);
+        }
+        let (g, extra) = if peck > 0.0 {
+            ("G83", format!(" Q{}", short(peck)))
+        } else if dwell > 0.0 {
+            ("G82", format!(" P{}", short(dwell)))
+        } else {
+            ("G81", String::new())
+        };
+        let mut line = String::with_capacity(48);
+        line.push_str("G98 ");
+        line.push_str(g);
+        for (letter, v) in [(" X", at.x), (" Y", at.y), (" Z", bottom), (" R", retract)] {
+            line.push_str(letter);
+            push_num(&mut line, v);
+        }
+        line.push_str(&extra);
+        self.feed_word(&mut line, feed);
+        self.lines.push(line);
+        self.in_cycle = true;
+        self.set_pos([at.x, at.y, clear]);
     }
 
     /// Appends the words of the axes that change (X and Y always with `all_xy`); returns
@@ -580,6 +636,32 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), GcodeError> {
                 finite(&[*rpm])?;
             }
             Move::Dwell { seconds } => finite(&[*seconds])?,
+            Move::Drill {
+                at,
+                clear,
+                retract,
+                bottom,
+                peck,
+                dwell,
+                feed,
+            } => {
+                finite(&[at.x, at.y, *clear, *retract, *bottom, *peck, *dwell, *feed])?;
+                if *feed <= 0.0 {
+                    return Err(GcodeError::BadFeed { index, feed: *feed });
+                }
+                if !(bottom < retract && retract <= clear) {
+                    return Err(GcodeError::BadDrill {
+                        index,
+                        clear: *clear,
+                        retract: *retract,
+                        bottom: *bottom,
+                    });
+                }
+                envelope_check(index, [at.x, at.y, *clear], opts)?;
+                envelope_check(index, [at.x, at.y, *bottom], opts)?;
+                known_xy = true;
+                pos = P3::at_z(*at, *clear);
+            }
             Move::Stop | Move::ToolChange { .. } | Move::Comment { .. } => {}
         }
     }
@@ -595,6 +677,39 @@ fn safe_height(tp: &Toolpath, opts: &GcodeOptions) -> Option<f64> {
         });
         top
     })
+}
+
+/// GRBL's tool change: a program stop whose comment names the tool to load (GRBL 1.1 drops
+/// comments as it reads a line), `M0 (load T2: 6 mm flat end mill)`, within 80 characters.
+fn tool_stop_line(tool: u32, name: &str) -> String {
+    // GRBL acts on ? ! ~ wherever they come, comments too: nothing but plain words
+    let clean: String = name
+        .chars()
+        .map(|c| match c {
+            '(' | ')' | '?' | '!' | '~' | ';' => ' ',
+            c if c.is_ascii_graphic() || c == ' ' => c,
+            _ => '_',
+        })
+        .collect();
+    let clean = clean.trim();
+    let head = format!("M0 (load T{tool}");
+    if clean.is_empty() {
+        return format!("{head})");
+    }
+    let room = GRBL_MAX_LINE - head.len() - 3;
+    let name: String = clean.chars().take(room).collect();
+    format!("{head}: {})", name.trim_end())
+}
+
+/// The tool a program stop line written by the GRBL post asks the operator to load: its
+/// number and name (`M0 (load T2: 6 mm flat end mill)` → 2, "6 mm flat end mill").
+pub fn tool_to_load(line: &str) -> Option<(u32, String)> {
+    let rest = line.strip_prefix("M0 (load T")?.strip_suffix(')')?;
+    let (n, name) = match rest.split_once(':') {
+        Some((n, name)) => (n, name.trim()),
+        None => (rest, ""),
+    };
+    Some((n.trim().parse().ok()?, name.to_string()))
 }
 
 fn comment(text: &str) -> String {
@@ -688,6 +803,7 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
         feed: None,
         spindle: None,
         moved: false,
+        in_cycle: false,
     };
     if !grbl {
         let what = if tp.source.is_empty() {
@@ -702,7 +818,13 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
         _ => "G21 G90 G17 G94".to_string(),
     });
     w.lines.extend(opts.header.iter().cloned());
-    if let (false, Some(tool)) = (grbl, tp.tool) {
+    // a path that loads its own first tool says so with a tool change of its own
+    let loads_first = tp
+        .moves
+        .iter()
+        .find(|m| !matches!(m, Move::Comment { .. }))
+        .is_some_and(|m| matches!(m, Move::ToolChange { .. }));
+    if let (false, Some(tool), false) = (grbl, tp.tool, loads_first) {
         w.push(format!("T{} M6", tool.number));
     }
     if let Some(z) = safe {
@@ -711,6 +833,24 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
     }
     let mut exact = P3::default();
     for m in &tp.moves {
+        if let Move::Drill { at, clear, .. } = m {
+            if grbl {
+                // no canned cycles: the same pecks and retracts as rapids and lines
+                let from = P3::new(exact.x, exact.y, w.pos[2].unwrap_or(exact.z));
+                for d in m.drill_moves(from) {
+                    match d {
+                        Move::Rapid { to } => w.rapid([to.x, to.y, to.z]),
+                        Move::Linear { to, feed } => w.linear([to.x, to.y, to.z], feed),
+                        Move::Dwell { seconds } => w.push(format!("G4 P{}", short(seconds))),
+                        _ => {}
+                    }
+                }
+            } else {
+                w.cycle(m);
+            }
+            exact = P3::at_z(*at, *clear);
+            continue;
+        }
         match m {
             Move::Rapid { to } => {
                 w.rapid([to.x, to.y, to.z]);
@@ -740,20 +880,19 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
             }
             Move::Dwell { seconds } => w.push(format!("G4 P{}", short(seconds.max(0.0)))),
             Move::Stop => w.push("M0".into()),
-            Move::ToolChange { tool } => {
-                let restart = w.spindle;
-                if w.moved || !grbl {
-                    if restart.is_some() {
-                        w.push("M5".into());
+            Move::ToolChange { tool, name, .. } => {
+                // the spindle stops for the change; the tool path starts it again (with
+                // its spin-up dwell) when it wants it
+                if w.spindle.take().is_some() {
+                    w.push("M5".into());
+                }
+                if grbl {
+                    w.push(tool_stop_line(*tool, name));
+                } else {
+                    if !name.is_empty() {
+                        w.push(comment(&format!("T{tool}: {name}")));
                     }
-                    if grbl {
-                        w.push("M0".into());
-                    } else {
-                        w.push(format!("T{tool} M6"));
-                    }
-                    if let Some(rpm) = restart {
-                        w.push(format!("M3 S{}", short(rpm)));
-                    }
+                    w.push(format!("T{tool} M6"));
                 }
             }
             Move::Comment { text } => {
@@ -764,6 +903,7 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
             Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
                 unreachable!("validate() refuses sewing moves")
             }
+            Move::Drill { .. } => unreachable!("drilling cycles are written above"),
         }
     }
     if let Some(z) = safe {
@@ -872,7 +1012,11 @@ mod tests {
     #[test]
     fn grbl_gets_no_tool_changer_and_no_comments() {
         let mut tp = Toolpath::new("t");
-        tp.push(Move::ToolChange { tool: 1 });
+        tp.push(Move::ToolChange {
+            tool: 1,
+            name: String::new(),
+            geometry: None,
+        });
         tp.push(Move::Comment {
             text: "début".into(),
         });
@@ -880,11 +1024,20 @@ mod tests {
         tp.push(Move::Rapid {
             to: P3::new(1.0, 1.0, 2.0),
         });
-        tp.push(Move::ToolChange { tool: 2 });
+        tp.push(Move::ToolChange {
+            tool: 2,
+            name: "6 mm flat end mill".into(),
+            geometry: None,
+        });
+        tp.push(Move::Spindle { rpm: 10000.0 });
         let g = post(&tp, &GcodeOptions::default()).unwrap();
         let gl = lines(&g);
-        assert!(!gl.iter().any(|l| l.contains("M6") || l.contains('(')));
-        let stop = gl.iter().position(|l| l == "M0").unwrap();
+        // the one comment GRBL gets names the tool to load at the program stop
+        assert!(!gl.iter().any(|l| l.contains("M6") || l.contains("but")));
+        assert!(gl.iter().any(|l| l == "M0 (load T1)"), "{gl:?}");
+        let stop = gl.iter().position(|l| l.starts_with("M0 (load T2")).unwrap();
+        assert_eq!(gl[stop], "M0 (load T2: 6 mm flat end mill)");
+        assert_eq!(tool_to_load(&gl[stop]), Some((2, "6 mm flat end mill".into())));
         assert_eq!(gl[stop - 1], "M5");
         assert_eq!(gl[stop + 1], "M3 S10000");
         let lc = post(

@@ -25,6 +25,8 @@ pub enum OperatorReason {
     Door,
     /// The program asks for another tool.
     ToolChange,
+    /// The program stopped for a tool change and names the tool to load.
+    LoadTool { number: u32, name: String },
     /// The program stopped itself (M0, M1) or the machine's own hold button was pressed.
     ProgramStop,
     /// Anything else the device names.
@@ -37,6 +39,10 @@ impl std::fmt::Display for OperatorReason {
             OperatorReason::ThreadBreak => f.write_str("thread break"),
             OperatorReason::Door => f.write_str("door open"),
             OperatorReason::ToolChange => f.write_str("tool change"),
+            OperatorReason::LoadTool { number, name } if name.is_empty() => {
+                write!(f, "load T{number}")
+            }
+            OperatorReason::LoadTool { number, name } => write!(f, "load T{number} ({name})"),
             OperatorReason::ProgramStop => f.write_str("program stop"),
             OperatorReason::Other { text } => f.write_str(text),
         }

@@ -63,6 +63,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
             },
             ..ProfileParams::default()
         })),
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

@@ -18,6 +18,8 @@ pub enum Op {
     Pocket,
     /// Sew stitches along the shape (sewing machines).
     Stitch,
+    /// Drill the circles the tool's size (see --cycle); bore larger ones with a helix.
+    Drill,
     /// 3D: clear a mesh (.stl) or point grid (.csv) level by level, leaving --stock-allowance.
     Rough3d,
     /// 3D: raster finishing with a drop cutter (--cutter ball|flat|bull), gouge-free.
@@ -42,6 +44,17 @@ pub enum CutterArg {
     Bull,
 }
 
+/// A drilling cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CycleArg {
+    /// Feed to depth, rapid out (G81).
+    Simple,
+    /// Feed to depth, dwell --dwell seconds, rapid out (G82).
+    Dwell,
+    /// Feed down --peck mm at a time, rapid out after each (G83).
+    Peck,
+}
+
 /// Side of the outline for a profile.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SideArg {
@@ -56,6 +69,10 @@ pub struct JobArgs {
     /// The operation (not for a G-code file, which runs as it is).
     #[arg(long, value_enum)]
     pub op: Option<Op>,
+    /// A job of several operations: a recipe file (TOML, `[[operations]]` each with its
+    /// `op`, `tool` and the geometry it `take`s; see docs/toolpaths.md), instead of --op.
+    #[arg(long, visible_alias = "ops", value_name = "RECIPE.toml")]
+    pub recipe: Option<std::path::PathBuf>,
     /// Cutter diameter, mm [3; 3D: 6].
     #[arg(long)]
     pub tool_diameter: Option<f64>,
@@ -111,6 +128,19 @@ pub struct JobArgs {
     /// Feed control: the largest feed the machine runs, mm/min [5000].
     #[arg(long)]
     pub max_feed: Option<f64>,
+
+    /// Drill: the cycle [simple].
+    #[arg(long, value_enum)]
+    pub cycle: Option<CycleArg>,
+    /// Drill: how far each peck goes down, mm [1].
+    #[arg(long)]
+    pub peck: Option<f64>,
+    /// Drill: seconds at the bottom of a dwell cycle [0.5].
+    #[arg(long)]
+    pub dwell: Option<f64>,
+    /// Drill: refuse circles larger than the tool instead of boring them.
+    #[arg(long)]
+    pub no_bore: bool,
     /// Profile: holding tabs per closed loop, evenly spaced [0].
     #[arg(long)]
     pub tabs: Option<usize>,
@@ -196,10 +226,18 @@ impl JobArgs {
         machine: Option<String>,
         post: Option<String>,
     ) -> anyhow::Result<JobSpec> {
+        let operations = match &self.recipe {
+            None => Vec::new(),
+            Some(_) if self.op.is_some() => {
+                anyhow::bail!("give either --op or --recipe (--ops), not both")
+            }
+            Some(file) => machlink::core::recipe::Recipe::from_path(file)?.operations,
+        };
         Ok(JobSpec {
             machine,
             input: Input::from_path(path)?,
             operation: self.operation(),
+            operations,
             tolerance: self.tolerance,
             layers: self.layer.clone(),
             post,
@@ -260,6 +298,31 @@ impl JobArgs {
                     corner_angle: self.corner_angle.unwrap_or(d.corner_angle),
                     round_corners: self.round_corners || d.round_corners,
                     tolerance: self.stitch_tolerance.unwrap_or(d.tolerance),
+                    ..d
+                })
+            }
+            Op::Drill => {
+                let d = offset_core::ops::DrillParams::default();
+                Operation::Drill(offset_core::ops::DrillParams {
+                    tool: Tool {
+                        diameter: self.tool_diameter.unwrap_or(d.tool.diameter),
+                        ..d.tool
+                    },
+                    depth: self.depth.unwrap_or(d.depth),
+                    cycle: match self.cycle {
+                        None => d.cycle,
+                        Some(CycleArg::Simple) => offset_core::ops::Cycle::Simple,
+                        Some(CycleArg::Dwell) => offset_core::ops::Cycle::Dwell,
+                        Some(CycleArg::Peck) => offset_core::ops::Cycle::Peck,
+                    },
+                    peck: self.peck.unwrap_or(d.peck),
+                    dwell: self.dwell.unwrap_or(d.dwell),
+                    feed: self.plunge_feed.unwrap_or(d.feed),
+                    bore_feed: self.feed.unwrap_or(d.bore_feed),
+                    stepdown: self.stepdown.unwrap_or(d.stepdown),
+                    safe_z: self.safe_z.unwrap_or(d.safe_z),
+                    spindle_rpm: self.spindle.unwrap_or(d.spindle_rpm),
+                    bore: !self.no_bore && d.bore,
                     ..d
                 })
             }

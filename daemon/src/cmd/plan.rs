@@ -44,7 +44,39 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
         bytes.len()
     );
     eprint!("{}", figures(&planned.toolpath));
+    eprint!("{}", operation_figures(&planned.figures));
     Ok(())
+}
+
+/// Each operation of a job of several: its tool, lengths and time, and for drilling the
+/// tour's rapids against the file's order; then the number of tool changes.
+pub fn operation_figures(ops: &[machlink::core::recipe::OperationFigures]) -> String {
+    let mut out = String::new();
+    if ops.is_empty() {
+        return out;
+    }
+    for (i, o) in ops.iter().enumerate() {
+        let f = &o.figures;
+        out.push_str(&format!(
+            "  operation {}: {} with T{} ({}): cutting {:.1} mm, rapids {:.1} mm, {}\n",
+            i + 1,
+            f.name,
+            f.tool.number,
+            f.tool_name,
+            f.cutting,
+            f.rapid,
+            clock(f.seconds)
+        ));
+        if let Some(t) = &o.tour {
+            out.push_str(&format!(
+                "    {} holes drilled, {} bored; rapids between them {:.1} mm in the tour, {:.1} mm in the file's order\n",
+                t.drilled, t.bored, t.rapid_tour, t.rapid_file_order
+            ));
+        }
+    }
+    let changes = ops.iter().filter(|o| o.figures.tool_change).count();
+    out.push_str(&format!("  tool changes: {changes}\n"));
+    out
 }
 
 /// What a planner shows of a plan: lengths, moves by kind, arcs to lines, and the time it

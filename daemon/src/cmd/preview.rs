@@ -79,6 +79,17 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             post: None,
             ..a.job.spec(&a.file, None, None)?
         };
+        if !spec.operations.is_empty() {
+            // a job of operations: planned as `plan` plans it (tools given inline)
+            let registry = machlink::core::registry::standard();
+            let post = registry.post("grbl").context("the grbl post")?;
+            let p = machlink::core::recipe::plan_operations(&spec, intake::Target::Post(post))?;
+            print_warnings(&p.warnings);
+            let svg = preview::svg_with(Some(&p.shape), Some(&p.toolpath), &opts);
+            write_drawing(&a.output, &svg)?;
+            eprintln!("wrote {}", a.output.display());
+            return Ok(());
+        }
         let (shape, warnings) = intake::read_shape(&spec)?;
         print_warnings(&warnings);
         match spec.operation {

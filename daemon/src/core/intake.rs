@@ -30,6 +30,10 @@ pub struct JobSpec {
     /// What to make of a shape; none for a G-code file, which runs as it is.
     #[serde(default)]
     pub operation: Option<Operation>,
+    /// A job of several operations, in their order, each with its tool and the geometry it
+    /// takes (a recipe's list); instead of `operation`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub operations: Vec<crate::core::recipe::JobOperation>,
     /// The geometric tolerance of every approximation (reading curves, offsets, fitting,
     /// tessellating), mm; none: the operation's own (0.001 for 2D, 0.01 for 3D).
     #[serde(default)]
@@ -158,6 +162,8 @@ pub enum Operation {
     PocketFeedControl(offset_core::cutsim::feed::FeedControlledPocket),
     /// Sew stitches along the shape.
     Stitch(StitchParams),
+    /// Drill the circles (and DXF points) the drill's size; bore larger ones.
+    Drill(offset_core::ops::DrillParams),
     /// 3D: clear a mesh's stock level by level (z-level pockets), leaving an allowance.
     Rough3d(Rough3dParams),
     /// 3D: drop-cutter raster finishing of a mesh, gouge-free.
@@ -173,6 +179,7 @@ impl Operation {
             Operation::Profile(_) => "profile",
             Operation::Pocket(_) | Operation::PocketFeedControl(_) => "pocket",
             Operation::Stitch(_) => "stitch",
+            Operation::Drill(_) => "drill",
             Operation::Rough3d(_) => "rough3d",
             Operation::Finish3d(_) => "finish3d",
             Operation::Waterline(_) => "waterline",
@@ -225,6 +232,8 @@ pub struct Planned {
     pub warnings: Vec<String>,
     /// The operation's name, or `gcode` for a G-code file.
     pub operation: String,
+    /// A job of operations: each one's tool, lengths and time.
+    pub figures: Vec<crate::core::recipe::OperationFigures>,
 }
 
 /// Turns a job into a checked program for `target`. Nothing is sent anywhere: a refused
@@ -233,8 +242,14 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
     if let Some(t) = spec.tolerance {
         check_tolerance(t)?;
     }
+    let mut figures = Vec::new();
     let (toolpath, shape, mesh, mut warnings) = match spec.input.kind() {
         InputKind::Gcode => return plan_gcode(spec, target),
+        InputKind::Shape if !spec.operations.is_empty() => {
+            let p = crate::core::recipe::plan_operations(spec, target)?;
+            figures = p.figures;
+            (p.toolpath, Some(p.shape), None, p.warnings)
+        }
         InputKind::Shape => {
             let (shape, warnings) = read_shape(spec)?;
             let toolpath = toolpath(spec, &shape)?;
@@ -258,13 +273,13 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
         program,
         shape,
         mesh,
-        toolpath,
         warnings,
-        operation: spec
-            .operation
-            .as_ref()
-            .map_or("", Operation::name)
-            .to_string(),
+        operation: match &spec.operation {
+            Some(op) => op.name().to_string(),
+            None => toolpath.operation.clone(),
+        },
+        toolpath,
+        figures,
     })
 }
 
@@ -349,6 +364,7 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
         &offset_core::io::ReadOptions {
             layers: spec.layers.clone(),
             tolerance: spec.tolerance.unwrap_or(DEFAULT_TOLERANCE),
+            ..Default::default()
         },
     )
     .map_err(|e| IntakeError::Input(e.to_string()))?;
@@ -396,6 +412,15 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
         }
         Operation::Stitch(p) => offset_core::stitch::stitch(shape, p)
             .map_err(|e| format!("cannot plan the stitches: {e}")),
+        Operation::Drill(p) => {
+            // drilled holes are canned cycles: nothing to fit
+            let (holes, _) = offset_core::ops::drill::holes_in(shape);
+            let mut tp = offset_core::ops::drill(&holes, p)
+                .map(|(tp, _)| tp)
+                .map_err(|e| IntakeError::Plan(format!("cannot plan the drilling: {e}")))?;
+            tp.source = spec.input.file_name.clone();
+            return Ok(tp);
+        }
         other => {
             return Err(IntakeError::Input(format!(
                 "{} is a 2D shape: {} plans meshes (.stl) and point grids (.csv)",
@@ -482,6 +507,7 @@ fn plan_gcode(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError
         toolpath: program.moves,
         warnings: Vec::new(),
         operation: "gcode".into(),
+        figures: Vec::new(),
     })
 }
 

@@ -9,6 +9,7 @@ pub mod check;
 pub mod intake;
 pub mod machine;
 pub mod planner;
+pub mod recipe;
 pub mod registry;
 pub mod resume;
 pub mod scheduler;

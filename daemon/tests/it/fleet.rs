@@ -122,6 +122,7 @@ fn spec(machine: &str, k: usize) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes(&format!("job{k}.nc"), program(k).into_bytes()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

@@ -116,6 +116,7 @@ proptest! {
             machine: Some("mill".into()),
             input: Input::from_bytes("x.nc", bytes),
             operation: None,
+            operations: Vec::new(),
             tolerance: None,
             layers: Vec::new(),
             post: None,

@@ -252,6 +252,7 @@ async fn a_kind_defined_in_a_test_runs_a_job_through_the_daemon() {
             },
             ..Default::default()
         })),
+        operations: Vec::new(),
         tolerance: Some(1e-3),
         layers: vec![],
         post: None,

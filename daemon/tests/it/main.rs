@@ -24,3 +24,4 @@ mod toolpaths_cli;
 mod cli_stl_files;
 mod simulate_cli;
 mod nothing_moves_without_the_operator;
+mod shop_jobs_cli;

@@ -28,6 +28,7 @@ fn job(machine: &str, text: &str) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes("part.nc", text.as_bytes().to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

@@ -34,6 +34,9 @@ pub struct DxfOptions {
     /// lines and arcs ([`crate::biarc`]); when false they come as the points they are or
     /// were flattened into.
     pub fit: bool,
+    /// Read only entities of these colours (AutoCAD colour numbers; an entity without its
+    /// own colour, or BYLAYER, takes its layer's from the LAYER table); all when empty.
+    pub colors: Vec<i64>,
 }
 
 impl Default for DxfOptions {
@@ -42,6 +45,7 @@ impl Default for DxfOptions {
             layers: Vec::new(),
             tolerance: 1e-3,
             fit: true,
+            colors: Vec::new(),
         }
     }
 }
@@ -205,6 +209,120 @@ impl Entity<'_> {
     }
 }
 
+/// An entity's colour number: its own (group 62), else (absent, 0 BYBLOCK or 256 BYLAYER)
+/// its layer's from the LAYER table, else 7.
+fn entity_color(e: &Entity, layer: &str, layer_colors: &HashMap<String, i64>) -> i64 {
+    match e.int(62) {
+        0 | 256 => layer_colors
+            .get(&layer.to_uppercase())
+            .copied()
+            .filter(|&c| c > 0 && c < 256)
+            .unwrap_or(7),
+        c => c.abs(),
+    }
+}
+
+/// One entity of a drawing's ENTITIES section as a recipe sees it: what it is, where, and
+/// for circles and points, the hole it makes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DxfEntity {
+    /// The entity type (`CIRCLE`, `LINE`, `POINT`, `INSERT`, …).
+    pub kind: String,
+    pub layer: String,
+    /// The entity's handle (group 5), when it has one.
+    pub handle: Option<String>,
+    /// The line of the file its record starts on.
+    pub line: usize,
+    /// Its colour number (see [`DxfOptions::colors`]).
+    pub color: i64,
+    /// A CIRCLE's or POINT's centre, mm.
+    pub center: Option<Point>,
+    /// A CIRCLE's diameter, mm (0 for a POINT).
+    pub diameter: f64,
+}
+
+impl DxfEntity {
+    /// The entity as messages name it: `CIRCLE (handle 2A, line 120) on layer HOLES`.
+    pub fn describe(&self) -> String {
+        match &self.handle {
+            Some(h) => format!("{} (handle {h}, line {}) on layer {}", self.kind, self.line, self.layer),
+            None => format!("{} (line {}) on layer {}", self.kind, self.line, self.layer),
+        }
+    }
+}
+
+/// The entities of a DXF file's ENTITIES section (not those inside the blocks an INSERT
+/// places, which count as the INSERT), with their layers, colours and, for circles and
+/// points, centres in mm.
+pub fn entities(bytes: &[u8], file: &str) -> Result<Vec<DxfEntity>, ImportError> {
+    let gs = groups(bytes, file)?;
+    let mut scale = 1.0;
+    let mut warnings = Vec::new();
+    let mut section = String::new();
+    let mut layer_colors: HashMap<String, i64> = HashMap::new();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < gs.len() {
+        if gs[i].code != 0 {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        i += 1;
+        while i < gs.len() && gs[i].code != 0 {
+            i += 1;
+        }
+        let e = Entity {
+            kind: gs[start].value.as_str(),
+            groups: &gs[start + 1..i],
+            line: gs[start].line,
+        };
+        match e.kind {
+            "SECTION" => {
+                section = e
+                    .groups
+                    .iter()
+                    .find(|g| g.code == 2)
+                    .map(|g| g.value.to_ascii_uppercase())
+                    .unwrap_or_default();
+                if section == "HEADER" {
+                    scale = header_scale(e.groups, &mut warnings);
+                }
+            }
+            "ENDSEC" => section.clear(),
+            "LAYER" if section == "TABLES" => {
+                if let Some(name) = e.groups.iter().find(|g| g.code == 2) {
+                    layer_colors.insert(name.value.to_uppercase(), e.int(62).abs());
+                }
+            }
+            "VERTEX" | "SEQEND" | "ATTRIB" => {}
+            kind if section == "ENTITIES" => {
+                let layer = e.layer().to_string();
+                let (center, diameter) = match kind {
+                    "CIRCLE" | "POINT" => {
+                        let c = Point::new(e.req(10, file)?, e.req(20, file)?) * scale;
+                        let d = if kind == "CIRCLE" { 2.0 * e.req(40, file)? * scale } else { 0.0 };
+                        let c = if e.ocs_x(file)? < 0.0 { Point::new(-c.x, c.y) } else { c };
+                        (Some(c), d)
+                    }
+                    _ => (None, 0.0),
+                };
+                out.push(DxfEntity {
+                    kind: kind.to_string(),
+                    color: entity_color(&e, &layer, &layer_colors),
+                    layer,
+                    handle: e.groups.iter().find(|g| g.code == 5).map(|g| g.value.clone()),
+                    line: e.line,
+                    center,
+                    diameter,
+                });
+            }
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
 /// The number in group `g` of entity `e` (named only in the error: finding the handle
 /// takes a walk over the entity's groups).
 fn parse_num(g: &Group, file: &str, e: &Entity) -> Result<f64, ImportError> {
@@ -240,6 +358,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     let mut records: Vec<Entity> = Vec::new();
     let mut blocks: HashMap<String, Block> = HashMap::new();
     let mut block: Option<(String, Block)> = None;
+    let mut layer_colors: HashMap<String, i64> = HashMap::new();
     let mut i = 0;
     while i < gs.len() {
         if gs[i].code != 0 {
@@ -270,6 +389,11 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 }
             }
             "ENDSEC" => section.clear(),
+            "LAYER" if section == "TABLES" => {
+                if let Some(name) = body.iter().find(|g| g.code == 2) {
+                    layer_colors.insert(name.value.to_uppercase(), rec.int(62).abs());
+                }
+            }
             _ if section == "ENTITIES" => records.push(rec),
             "BLOCK" if section == "BLOCKS" => {
                 let name = body
@@ -302,8 +426,10 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             _ => {}
         }
     }
-    let wanted = |layer: &str| {
-        opts.layers.is_empty() || opts.layers.iter().any(|l| l.eq_ignore_ascii_case(layer))
+    let wanted = |layer: &str, e: &Entity| {
+        (opts.layers.is_empty() || opts.layers.iter().any(|l| l.eq_ignore_ascii_case(layer)))
+            && (opts.colors.is_empty()
+                || opts.colors.contains(&entity_color(e, layer, &layer_colors)))
     };
     let mut pieces: Vec<Polyline> = Vec::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
@@ -344,7 +470,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 if k < w.records.len() && w.records[k].kind == "SEQEND" {
                     k += 1;
                 }
-                if !wanted(&layer) {
+                if !wanted(&layer, e) {
                     continue;
                 }
                 let flags = e.int(70);
@@ -448,7 +574,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 }
                 continue;
             }
-            if !wanted(&layer) {
+            if !wanted(&layer, e) {
                 continue;
             }
             match e.kind {

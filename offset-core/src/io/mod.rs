@@ -22,6 +22,9 @@ pub struct ReadOptions {
     pub layers: Vec<String>,
     /// Chaining, curve and arc-fitting tolerance, mm (0: the default, 0.001).
     pub tolerance: f64,
+    /// DXF: read only entities of these colours (all when empty; see
+    /// [`dxf::DxfOptions::colors`]).
+    pub colors: Vec<i64>,
 }
 
 /// The largest coordinate a shape may have, in mm after units (10 km): beyond it the
@@ -60,6 +63,7 @@ pub fn read_shape_with(
                 &dxf::DxfOptions {
                     layers: opts.layers.clone(),
                     tolerance: tol,
+                    colors: opts.colors.clone(),
                     ..Default::default()
                 },
             )?;

@@ -1,10 +1,14 @@
-//! Operations: turn shapes into tool paths (profile, pocket) with entries that never plunge into material, and stitch paths.
+//! Operations: turn shapes into tool paths (profile, pocket, drill) with entries that never plunge into material, and stitch paths; jobs of several of them.
 
+pub mod drill;
 pub mod entry;
+pub mod job;
 pub mod pocket;
 pub mod profile;
 
+pub use drill::{drill, Cycle, DrillParams, Hole};
 pub use entry::Entry;
+pub use job::{join, Step, StepFigures, Take};
 pub use pocket::{pocket, pocket_safe_links, pocket_with, PocketParams, Stepover};
 pub use profile::{profile, ProfileParams, Side};
 

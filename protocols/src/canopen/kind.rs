@@ -37,7 +37,13 @@ impl Unit for Move {
             ),
             Move::Dwell { seconds } => format!("dwell {seconds} s"),
             Move::Spindle { rpm } => format!("spindle {rpm} rpm"),
-            Move::ToolChange { tool } => format!("tool change T{tool}"),
+            Move::ToolChange { tool, name, .. } if !name.is_empty() => {
+                format!("tool change T{tool} ({name})")
+            }
+            Move::ToolChange { tool, .. } => format!("tool change T{tool}"),
+            Move::Drill { at, bottom, .. } => {
+                format!("drill X{:.3} Y{:.3} to Z{bottom:.3}", at.x, at.y)
+            }
             Move::Comment { text } => format!("({text})"),
             Move::Stop => "program stop".into(),
             Move::Stitch { to } => format!("stitch X{:.3} Y{:.3}", to.x, to.y),
@@ -56,6 +62,9 @@ pub struct MovesPost;
 
 /// The moves of a tool path a CANopen machine can run, or the first it cannot, named.
 pub fn machining_moves(tp: &Toolpath) -> Result<Vec<Move>, PostError> {
+    // drilling cycles go as the rapids, lines and dwells they make
+    let expanded = tp.expanded();
+    let tp = &expanded;
     for (i, m) in tp.moves.iter().enumerate() {
         if matches!(
             m,

@@ -334,6 +334,7 @@ impl Path {
                 Move::Stop
                 | Move::Spindle { .. }
                 | Move::ToolChange { .. }
+                | Move::Drill { .. }
                 | Move::Comment { .. } => None,
             };
             if let Some((geom, feed, to)) = seg {

@@ -691,11 +691,20 @@ impl GrblLink {
                                 self.wco = s.wco;
                             }
                             let mut status = s.to_status(self.wco);
-                            if status.state == DeviceState::Held && !held {
-                                // a hold nobody here asked for: M0/M1 or the machine's button
-                                status.state = DeviceState::NeedsOperator {
-                                    reason: OperatorReason::ProgramStop,
-                                };
+                            // (once it paused itself it waits for the operator, whether or
+                            // not the daemon holds it too)
+                            if status.state == DeviceState::Held && (!held || machine_paused) {
+                                // a hold nobody here asked for: M0/M1 or the machine's button;
+                                // the last program stop sent may name the tool to load
+                                let reason = lines[..next]
+                                    .iter()
+                                    .rev()
+                                    .find(|l| l.starts_with("M0") || l.starts_with("M1"))
+                                    .and_then(|l| crate::gcode::tool_to_load(l))
+                                    .map_or(OperatorReason::ProgramStop, |(number, name)| {
+                                        OperatorReason::LoadTool { number, name }
+                                    });
+                                status.state = DeviceState::NeedsOperator { reason };
                                 if !machine_paused {
                                     machine_paused = true;
                                     let _ = events.send(LinkEvent::Message(

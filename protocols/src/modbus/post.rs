@@ -58,6 +58,9 @@ fn target(index: usize, p: P3) -> Result<[i32; 3], ModbusPostError> {
 /// (a drive or PLC handles them itself) and are left out; sewing moves and program stops are
 /// refused. The last block is always `End`.
 pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
+    // drilling cycles go as the rapids, lines and dwells they make
+    let expanded = tp.expanded();
+    let tp = &expanded;
     let mut out = Vec::with_capacity(tp.moves.len() + 1);
     let mut pos = P3::default();
     let mut last = [0i32; 3];
@@ -108,7 +111,10 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
                     center: [0, 0],
                 }
             }
-            Move::Spindle { .. } | Move::ToolChange { .. } | Move::Comment { .. } => continue,
+            Move::Spindle { .. }
+            | Move::ToolChange { .. }
+            | Move::Comment { .. }
+            | Move::Drill { .. } => continue,
             Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
                 return Err(ModbusPostError::Unsupported {
                     index,

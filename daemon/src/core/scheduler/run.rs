@@ -740,7 +740,7 @@ impl Job<'_> {
                             let _ = self.on_command(Request::Pause);
                             self.inner.note(
                                 self.id,
-                                Some(&format!("the machine waits: {reason}; `machlink resume {}` goes on", self.id)),
+                                Some(&format!("needs operator: {reason}, then `machlink resume {}`", self.id)),
                             );
                         }
                     }

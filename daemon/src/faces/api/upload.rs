@@ -204,6 +204,7 @@ async fn whole_file(
         machine: Some(machine),
         input: crate::core::intake::Input::from_bytes(&file, bytes.to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

@@ -139,6 +139,7 @@ pub fn file_job(machine: &str, name: &str, text: &str) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes(name, text.as_bytes().to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

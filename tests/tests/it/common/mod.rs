@@ -134,6 +134,7 @@ pub fn job(machine: &str, file_name: &str, text: &str) -> JobSpec {
         machine: Some(machine.into()),
         input: Input::from_bytes(file_name, text.as_bytes().to_vec()),
         operation: None,
+        operations: Vec::new(),
         tolerance: None,
         layers: Vec::new(),
         post: None,

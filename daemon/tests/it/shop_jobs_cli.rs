@@ -1,0 +1,668 @@
+//! Shop jobs through the binary: the sign plate of docs/examples (sign.dxf, sign.toml) —
+//! 3 mm holes drilled with T1 in pecks, a pocket with an island and the plate cut out with
+//! T2 (4 tabs), the 8 mm holes bored with T2 — planned into one program for every G-code
+//! post and read back by the `gcode` crate: two tool changes, every drilled hole at its
+//! circle's centre reaching the depth peck by peck, the bored holes to size, the pocket and
+//! the profile held to what the single-operation tests hold. A recipe that leaves entities
+//! untaken names each, and one naming a tool the machine lacks is refused naming both.
+//! Against the simulated GRBL through the daemon: the job stops at each tool change, shows
+//! the tool to load, nothing moves until `resume`, and every line of the planned program
+//! reaches the controller once.
+
+use crate::common;
+use crate::proc;
+
+use common::cli::{ok, run as machlink, stderr};
+use machlink::core::store::{JobRecord, JobState};
+use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn example(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../docs/examples")
+        .join(name)
+}
+
+/// The sign's figures, as docs/examples/sign.dxf draws them and sign.toml cuts them.
+const PLATE: [f64; 4] = [0.0, 0.0, 120.0, 80.0];
+const SMALL_HOLES: [[f64; 2]; 4] = [[8.0, 8.0], [112.0, 8.0], [112.0, 72.0], [8.0, 72.0]];
+const BIG_HOLES: [[f64; 2]; 2] = [[25.0, 40.0], [95.0, 40.0]];
+const POCKET: [f64; 4] = [45.0, 20.0, 75.0, 60.0];
+const ISLAND: [f64; 4] = [55.0, 35.0, 65.0, 45.0];
+const DEPTH: f64 = 6.5;
+const POCKET_DEPTH: f64 = 3.0;
+const R_PLANE: f64 = 1.0;
+const PECK: f64 = 2.0;
+const T2_RADIUS: f64 = 3.0;
+
+/// A move as read back by the `gcode` crate.
+#[derive(Clone, Copy, Debug)]
+struct Mv {
+    from: [f64; 3],
+    to: [f64; 3],
+    rapid: bool,
+    arc: Option<([f64; 2], bool)>,
+}
+
+impl Mv {
+    /// Points along the move, about every 0.05 mm, ends included.
+    fn samples(&self) -> Vec<[f64; 3]> {
+        let [x0, y0, z0] = self.from;
+        let [x1, y1, z1] = self.to;
+        match self.arc {
+            None => {
+                let len = (x1 - x0).hypot(y1 - y0).hypot(z1 - z0);
+                let n = ((len / 0.05).ceil() as usize).clamp(1, 20_000);
+                (0..=n)
+                    .map(|i| {
+                        let t = i as f64 / n as f64;
+                        [x0 + (x1 - x0) * t, y0 + (y1 - y0) * t, z0 + (z1 - z0) * t]
+                    })
+                    .collect()
+            }
+            Some(([cx, cy], ccw)) => {
+                let (r, sweep) = self.radius_sweep();
+                let a0 = (y0 - cy).atan2(x0 - cx);
+                let _ = ccw;
+                let n = ((r * sweep.abs() / 0.05).ceil() as usize).clamp(1, 20_000);
+                (0..=n)
+                    .map(|i| {
+                        let t = i as f64 / n as f64;
+                        let a = a0 + sweep * t;
+                        [cx + r * a.cos(), cy + r * a.sin(), z0 + (z1 - z0) * t]
+                    })
+                    .collect()
+            }
+        }
+    }
+    fn radius_sweep(&self) -> (f64, f64) {
+        let Some(([cx, cy], ccw)) = self.arc else {
+            return (0.0, 0.0);
+        };
+        let [x0, y0, _] = self.from;
+        let [x1, y1, _] = self.to;
+        let r = (x0 - cx).hypot(y0 - cy);
+        let a0 = (y0 - cy).atan2(x0 - cx);
+        let a1 = (y1 - cy).atan2(x1 - cx);
+        let tau = std::f64::consts::TAU;
+        let mut s = a1 - a0;
+        if ccw {
+            while s <= 1e-12 {
+                s += tau;
+            }
+        } else {
+            while s >= -1e-12 {
+                s -= tau;
+            }
+        }
+        (r, s)
+    }
+}
+
+/// A canned drilling cycle as read back: G81/G82/G83 and its words.
+#[derive(Clone, Copy, Debug)]
+struct Cycle {
+    g: u32,
+    xy: [f64; 2],
+    z: f64,
+    r: f64,
+    q: Option<f64>,
+}
+
+/// What a program does, as the `gcode` crate reads it: moves, canned cycles and tool
+/// changes (T M6), in absolute millimetres.
+struct Read {
+    moves: Vec<Mv>,
+    cycles: Vec<Cycle>,
+    m6: Vec<u32>,
+}
+
+fn read(text: &str, post: &str) -> Read {
+    use gcode::{Code, Value};
+    let program =
+        gcode::parse(text).unwrap_or_else(|e| panic!("{post}: gcode reads no program: {e:?}"));
+    let mut at = [0.0f64; 3];
+    let mut motion: Option<u32> = None;
+    let mut out = Read {
+        moves: Vec::new(),
+        cycles: Vec::new(),
+        m6: Vec::new(),
+    };
+    for block in &program.blocks {
+        let mut words: Vec<(char, f64)> = Vec::new();
+        let mut cycle = None;
+        let mut m6 = false;
+        let mut tool = None;
+        for code in &block.codes {
+            let args = match code {
+                Code::General(g) => {
+                    let n = g.number.major();
+                    assert!(n != 20 && n != 91, "{post}: G{n} (inches or relative)");
+                    if n <= 3 {
+                        motion = Some(n);
+                    }
+                    if (81..=83).contains(&n) {
+                        cycle = Some(n);
+                    }
+                    if n == 80 {
+                        motion = None;
+                    }
+                    &g.args
+                }
+                Code::Miscellaneous(m) => {
+                    m6 |= m.number.major() == 6;
+                    &m.args
+                }
+                Code::ToolChange(t) => {
+                    tool = Some(t.number.major());
+                    &t.args
+                }
+                _ => continue,
+            };
+            for a in args {
+                if let Value::Literal(v) = a.value {
+                    words.push((a.letter.to_ascii_uppercase(), f64::from(v)));
+                }
+            }
+        }
+        for w in &block.word_addresses {
+            if let Value::Literal(v) = w.value {
+                words.push((w.letter.to_ascii_uppercase(), f64::from(v)));
+            }
+        }
+        let get = |c: char| words.iter().find(|w| w.0 == c).map(|w| w.1);
+        if m6 {
+            let t = tool.or(get('T').map(|t| t as u32));
+            out.m6.push(t.expect("M6 names its tool"));
+        }
+        if let Some(g) = cycle {
+            let c = Cycle {
+                g,
+                xy: [get('X').unwrap(), get('Y').unwrap()],
+                z: get('Z').unwrap(),
+                r: get('R').unwrap(),
+                q: get('Q'),
+            };
+            out.cycles.push(c);
+            at = [c.xy[0], c.xy[1], at[2]]; // G98: back to the start height
+            continue;
+        }
+        if !words.iter().any(|w| matches!(w.0, 'X' | 'Y' | 'Z')) {
+            continue;
+        }
+        let to = [
+            get('X').unwrap_or(at[0]),
+            get('Y').unwrap_or(at[1]),
+            get('Z').unwrap_or(at[2]),
+        ];
+        let arc = match motion {
+            Some(m @ (2 | 3)) => Some((
+                [
+                    at[0] + get('I').unwrap_or(0.0),
+                    at[1] + get('J').unwrap_or(0.0),
+                ],
+                m == 3,
+            )),
+            _ => None,
+        };
+        if motion.is_some() {
+            out.moves.push(Mv {
+                from: at,
+                to,
+                rapid: motion == Some(0),
+                arc,
+            });
+        }
+        at = to;
+    }
+    out
+}
+
+fn near(a: [f64; 2], b: [f64; 2], tol: f64) -> bool {
+    (a[0] - b[0]).hypot(a[1] - b[1]) <= tol
+}
+
+/// Distance from (x, y) to the rectangle's outline, and whether it lies inside.
+fn to_rect(x: f64, y: f64, [x0, y0, x1, y1]: [f64; 4]) -> (f64, bool) {
+    let inside = x > x0 && x < x1 && y > y0 && y < y1;
+    let d = if inside {
+        (x - x0).min(x1 - x).min(y - y0).min(y1 - y)
+    } else {
+        let dx = (x0 - x).max(0.0).max(x - x1);
+        let dy = (y0 - y).max(0.0).max(y - y1);
+        dx.hypot(dy)
+    };
+    (d, inside)
+}
+
+/// The depths LinuxCNC's G83 feeds to: `peck` at a time down from the R plane.
+fn pecks(r: f64, bottom: f64, peck: f64) -> Vec<f64> {
+    let mut out = Vec::new();
+    let mut z = r;
+    loop {
+        z -= peck;
+        if z <= bottom + 1e-9 {
+            out.push(bottom);
+            return out;
+        }
+        out.push(z);
+    }
+}
+
+fn plan(post: &str, dir: &Path) -> (String, String) {
+    let out = dir.join(format!("sign.{post}"));
+    let o = machlink(&[
+        "plan".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        example("sign.toml").as_os_str(),
+        "--post".as_ref(),
+        post.as_ref(),
+        "-o".as_ref(),
+        out.as_os_str(),
+    ]);
+    ok(&o, &format!("plan --post {post}"));
+    (std::fs::read_to_string(&out).unwrap(), stderr(&o))
+}
+
+#[test]
+fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_post() {
+    let dir = tempfile::tempdir().unwrap();
+    for post in ["grbl", "linuxcnc", "generic"] {
+        let (text, said) = plan(post, dir.path());
+        let r = read(&text, post);
+
+        // two tool changes: T1 loaded first, then T2
+        if post == "grbl" {
+            let stops: Vec<&str> = text.lines().filter(|l| l.starts_with("M0")).collect();
+            assert_eq!(
+                stops,
+                ["M0 (load T1: 3 mm drill)", "M0 (load T2: 6 mm flat end mill)"],
+                "{post}"
+            );
+            assert!(r.m6.is_empty() && r.cycles.is_empty(), "{post}: GRBL has neither");
+        } else {
+            assert_eq!(r.m6, vec![1, 2], "{post}");
+        }
+        assert!(said.contains("tool changes: 2"), "{post}: {said}");
+        assert!(
+            said.contains("4 holes drilled, 0 bored") && said.contains("0 holes drilled, 2 bored"),
+            "{said}"
+        );
+
+        // every 3 mm hole drilled once at its circle's centre, to the depth, peck by peck
+        let want = pecks(R_PLANE, -DEPTH, PECK);
+        for c in SMALL_HOLES {
+            if post == "grbl" {
+                let at: Vec<&Mv> = r
+                    .moves
+                    .iter()
+                    .filter(|m| near([m.to[0], m.to[1]], c, 1e-6) && near([m.from[0], m.from[1]], c, 1e-6))
+                    .collect();
+                let feeds: Vec<f64> = at.iter().filter(|m| !m.rapid).map(|m| m.to[2]).collect();
+                assert_eq!(feeds, want, "{post}: the pecks at {c:?}");
+                // between two pecks the drill goes up to the R plane to clear the chips,
+                // and each peck starts just above the last one's depth
+                for (k, w) in at.windows(2).enumerate() {
+                    if !w[1].rapid && k > 0 && w[1].from[2] < R_PLANE - 1e-9 {
+                        let prev = feeds.iter().rev().find(|&&z| z > w[1].to[2] + 1e-9).copied();
+                        if let Some(p) = prev {
+                            assert!((w[1].from[2] - (p + 0.254)).abs() < 1e-3, "{post}: {w:?}");
+                        }
+                    }
+                }
+                let retracts = at.iter().filter(|m| m.rapid && (m.to[2] - R_PLANE).abs() < 1e-9).count();
+                assert_eq!(retracts, want.len(), "{post}: the retracts at {c:?}");
+            } else {
+                let cy: Vec<&Cycle> = r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).collect();
+                assert_eq!(cy.len(), 1, "{post}: the cycle at {c:?}");
+                let y = cy[0];
+                assert_eq!((y.g, y.z, y.r, y.q), (83, -DEPTH, R_PLANE, Some(PECK)), "{post}: {y:?}");
+            }
+        }
+        if post != "grbl" {
+            assert_eq!(r.cycles.len(), SMALL_HOLES.len(), "{post}: only the 3 mm holes are cycles");
+        }
+
+        // the 8 mm holes bored to size: every arc about a hole's centre at radius 4 − 3,
+        // down to the depth, with a full lap at the depth
+        for c in BIG_HOLES {
+            let arcs: Vec<&Mv> = r
+                .moves
+                .iter()
+                .filter(|m| m.arc.is_some_and(|(ac, _)| near(ac, c, 1e-3)))
+                .collect();
+            assert!(arcs.len() >= 4, "{post}: the bore at {c:?}");
+            for a in &arcs {
+                let (rad, _) = a.radius_sweep();
+                assert!((rad + T2_RADIUS - 4.0).abs() <= 1e-3, "{post}: bore radius {rad} at {c:?}");
+            }
+            let low = arcs.iter().map(|a| a.to[2]).fold(f64::INFINITY, f64::min);
+            assert!((low + DEPTH).abs() < 1e-9, "{post}: the bore at {c:?} reaches {low}");
+            let lap: f64 = arcs
+                .iter()
+                .filter(|a| a.from[2] == -DEPTH && a.to[2] == -DEPTH)
+                .map(|a| a.radius_sweep().1.abs())
+                .sum();
+            assert!(lap >= std::f64::consts::TAU - 1e-6, "{post}: the finishing lap at {c:?} sweeps {lap}");
+        }
+
+        // the profile: every point cut outside the plate at the tool radius from it, down to
+        // the depth, with tabs standing 1 mm (4 of them, at the last pass)
+        // the pocket: every point cut in it at least the radius from its walls and the
+        // island, to the pocket's depth, and its floor cleared
+        let mut profile_low = f64::INFINITY;
+        let mut pocket_low = f64::INFINITY;
+        let mut floor: Vec<[f64; 2]> = Vec::new();
+        let mut tab_tops = 0;
+        for (k, m) in r.moves.iter().enumerate().filter(|(_, m)| !m.rapid) {
+            if m.to[2] == -DEPTH + 1.0 && m.from[2] == m.to[2] && to_rect(m.to[0], m.to[1], PLATE).1 == false {
+                tab_tops += 1;
+            }
+            for [x, y, z] in m.samples() {
+                if z >= -1e-6 {
+                    continue;
+                }
+                let (dp, inside_plate) = to_rect(x, y, PLATE);
+                if !inside_plate {
+                    assert!((dp - T2_RADIUS).abs() <= 2e-3, "{post}: move {k} at ({x}, {y}, {z}) is {dp} from the plate");
+                    profile_low = profile_low.min(z);
+                    continue;
+                }
+                let (dw, in_pocket) = to_rect(x, y, POCKET);
+                if in_pocket {
+                    let (di, in_island) = to_rect(x, y, ISLAND);
+                    assert!(!in_island || false, "{post}: move {k} at ({x}, {y}, {z}) cuts the island");
+                    assert!(dw >= T2_RADIUS - 2e-3 && di >= T2_RADIUS - 2e-3, "{post}: move {k} at ({x}, {y}, {z}) gouges: {dw} from the wall, {di} from the island");
+                    pocket_low = pocket_low.min(z);
+                    if (z + POCKET_DEPTH).abs() < 1e-6 {
+                        floor.push([x, y]);
+                    }
+                }
+            }
+        }
+        assert!((profile_low + DEPTH).abs() < 1e-6, "{post}: the profile reaches {profile_low}");
+        assert!((pocket_low + POCKET_DEPTH).abs() < 1e-6, "{post}: the pocket reaches {pocket_low}");
+        assert!(tab_tops >= 4, "{post}: {tab_tops} runs over tab tops");
+        // the floor: every point of the pocket the tool can reach (not the outer corners
+        // a round tool leaves) lies within the radius of a cut at the pocket's depth
+        let mut uncut = Vec::new();
+        let mut x = POCKET[0] + 0.25;
+        while x < POCKET[2] {
+            let mut y = POCKET[1] + 0.25;
+            while y < POCKET[3] {
+                let corner = (x - POCKET[0]).min(POCKET[2] - x) < T2_RADIUS
+                    && (y - POCKET[1]).min(POCKET[3] - y) < T2_RADIUS;
+                if !to_rect(x, y, ISLAND).1 && !corner {
+                    let d = floor.iter().map(|p| (p[0] - x).hypot(p[1] - y)).fold(f64::INFINITY, f64::min);
+                    if d > T2_RADIUS + 0.03 {
+                        uncut.push((x, y, d));
+                    }
+                }
+                y += 0.5;
+            }
+            x += 0.5;
+        }
+        assert!(uncut.is_empty(), "{post}: the pocket leaves {} points uncut, e.g. {:?}", uncut.len(), &uncut[..uncut.len().min(5)]);
+    }
+}
+
+#[test]
+fn a_recipe_that_leaves_entities_untaken_names_each_and_an_empty_operation_is_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        r#"
+[[operations]]
+op = "drill"
+tool = { number = 1, diameter = 3.0 }
+take = { layers = ["HOLES"], diameter = [2.9, 3.1] }
+depth = 3.0
+
+[[operations]]
+name = "engrave"
+op = "profile"
+side = "on"
+take = { layers = ["TEXT*"] }
+"#,
+    )
+    .unwrap();
+    let out = dir.path().join("holes.nc");
+    let o = machlink(&[
+        "plan".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+    ]);
+    ok(&o, "plan holes.toml");
+    let e = stderr(&o);
+    assert!(e.contains("engrave takes nothing from sign.dxf"), "{e}");
+    // the outline, the pocket's two loops and the two 8 mm circles, each by handle
+    let untaken: Vec<&str> = e.lines().filter(|l| l.contains("is taken by no operation")).collect();
+    assert_eq!(untaken.len(), 5, "{e}");
+    for want in [
+        "LWPOLYLINE (handle 101, line",
+        "on layer OUTLINE",
+        "CIRCLE (handle 106, line",
+        "CIRCLE (handle 107, line",
+        "on layer POCKET",
+    ] {
+        assert!(untaken.iter().any(|l| l.contains(want)), "{want}: {e}");
+    }
+    // a G-code tool number without a machine to look it up in is refused, saying what to do
+    std::fs::write(&recipe, "[[operations]]\nop = \"drill\"\ntool = 3\n").unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("tool T3") && stderr(&o).contains("inline"), "{}", stderr(&o));
+}
+
+fn cli(socket: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_machlink"))
+        .args(args)
+        .arg("--socket")
+        .arg(socket)
+        .stdin(Stdio::null())
+        .output()
+        .expect("machlink runs")
+}
+
+fn out(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn job(socket: &Path, id: i64) -> JobRecord {
+    let o = cli(socket, &["jobs", "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let jobs: Vec<JobRecord> = serde_json::from_slice(&o.stdout).unwrap();
+    jobs.into_iter().find(|j| j.id == id).expect("the job")
+}
+
+fn wait(socket: &Path, id: i64, what: &str, f: impl Fn(&JobRecord) -> bool) -> JobRecord {
+    let until = Instant::now() + Duration::from_secs(120);
+    loop {
+        let j = job(socket, id);
+        if f(&j) {
+            return j;
+        }
+        assert!(Instant::now() < until, "job {id} never {what}: {j:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The program lines the controller received, in order.
+fn received(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<String> {
+    sim.events()
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::Received { n: Some(_), line } => Some(line),
+            _ => None,
+        })
+        .collect()
+}
+
+fn executed(sim: &machlink_sim::grbl::GrblSimHandle) -> usize {
+    sim.events()
+        .iter()
+        .filter(|e| matches!(e, TraceEvent::Executed(_)))
+        .count()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"router\"\nlink = \"grbl\"\nport = \"{}\"\ntools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 6.0 }} ]\n",
+            port.display()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let (planned, _) = plan("grbl", dir.path());
+    let sign = example("sign.dxf");
+    let recipe = example("sign.toml");
+
+    // a tool the machine lacks is refused, naming the tool and the machine
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[[operations]]\nop = \"drill\"\ntool = 5\n").unwrap();
+    let o = cli(&sock, &["submit", sign.to_str().unwrap(), "--machine", "router", "--recipe", bad.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("T5") && stderr(&o).contains("machine `router` does not have"),
+        "{}",
+        stderr(&o)
+    );
+
+    let o = cli(&sock, &["submit", sign.to_str().unwrap(), "--machine", "router", "--recipe", recipe.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let id: i64 = out(&o).trim().parse().unwrap();
+    let tools = ["load T1 (3 mm drill)", "load T2 (6 mm flat end mill)"];
+    for tool in tools {
+        let j = wait(&sock, id, "paused for a tool", |j| {
+            j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
+        });
+        assert_eq!(
+            j.note.as_deref(),
+            Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
+        );
+        // `machines` shows the tool to load
+        let until = Instant::now() + Duration::from_secs(20);
+        loop {
+            let o = cli(&sock, &["machines"]);
+            if out(&o).contains(&format!("needs operator: {tool}")) {
+                break;
+            }
+            assert!(Instant::now() < until, "{}", out(&o));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // nothing moves while the operator changes the tool
+        let (moved, at) = (executed(&sim), sim.position());
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!((executed(&sim), sim.position()), (moved, at), "it moved during the change to {tool}");
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    wait(&sock, id, "completed", |j| j.state == JobState::Completed);
+    // every line of the program `plan` writes reached the controller once, in order
+    let got = received(&sim);
+    let want: Vec<String> = planned.lines().map(|l| l.replace(' ', "").to_uppercase()).collect();
+    let got_norm: Vec<String> = got.iter().map(|l| l.replace(' ', "").to_uppercase()).collect();
+    assert_eq!(got_norm, want, "the controller's lines against the planned program");
+}
+
+/// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
+/// TRIM 2, STOP 3, END 4, COLOR_CHANGE 5). Fails (never skips) without pyembroidery.
+fn pyembroidery_commands(path: &Path) -> Vec<u32> {
+    let script = "import sys, json, pyembroidery\n\
+        p = pyembroidery.read(sys.argv[1])\n\
+        print(json.dumps([int(c) & 0xFF for x, y, c in p.stitches]))";
+    let out = Command::new("python3")
+        .arg("-c")
+        .arg(script)
+        .arg(path)
+        .output()
+        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
+    assert!(
+        out.status.success(),
+        "python3 with pyembroidery is needed for this test (run .ci/run); reading {} failed: {}",
+        path.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON")
+}
+
+/// Two seams on two DXF layers, open polylines 40 mm long.
+fn seams_dxf() -> String {
+    let mut s = String::from("0\nSECTION\n2\nENTITIES\n");
+    for (k, layer) in ["SEAM-RED", "SEAM-BLUE"].iter().enumerate() {
+        let y = 10.0 + 20.0 * k as f64;
+        s.push_str(&format!(
+            "0\nLWPOLYLINE\n5\n{}\n8\n{layer}\n90\n2\n70\n0\n10\n0.0\n20\n{y}\n10\n40.0\n20\n{y}\n",
+            200 + k
+        ));
+    }
+    s.push_str("0\nENDSEC\n0\nEOF\n");
+    s
+}
+
+#[test]
+fn a_two_thread_seam_job_changes_colour_once_in_dst_and_jef() {
+    let dir = tempfile::tempdir().unwrap();
+    let dxf = dir.path().join("seams.dxf");
+    std::fs::write(&dxf, seams_dxf()).unwrap();
+    let recipe = dir.path().join("seams.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
+         [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n",
+    )
+    .unwrap();
+    for post in ["dst", "jef"] {
+        let out = dir.path().join(format!("seams.{post}"));
+        let o = machlink(&[
+            "plan".as_ref(),
+            dxf.as_os_str(),
+            "--recipe".as_ref(),
+            recipe.as_os_str(),
+            "--post".as_ref(),
+            post.as_ref(),
+            "-o".as_ref(),
+            out.as_os_str(),
+        ]);
+        ok(&o, &format!("plan seams --post {post}"));
+        let cmds = pyembroidery_commands(&out);
+        let changes: Vec<usize> = cmds
+            .iter()
+            .enumerate()
+            .filter(|(_, &c)| c == 5)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(changes.len(), 1, "{post}: {cmds:?}");
+        // both seams are sewn, one on each side of the change
+        let before = cmds[..changes[0]].iter().filter(|&&c| c == 0).count();
+        let after = cmds[changes[0]..].iter().filter(|&&c| c == 0).count();
+        assert!(before >= 10 && after >= 10, "{post}: {before} stitches, then {after}");
+    }
+}
