@@ -457,6 +457,8 @@ pub enum Need {
     Operate(Scope),
     /// Admin only.
     Admin,
+    /// Anyone, without a token: the dashboard's own files (`dashboard`), which hold no data.
+    Page,
 }
 
 /// Which machine an operating route acts on.
@@ -543,6 +545,12 @@ pub const ROUTES: &[Route] = &[
         false,
     ),
     route("POST", "/access/reload", Need::Admin, false),
+    // the dashboard (`dashboard`): its files, and what it draws and plans before a submit
+    route("GET", "/", Need::Page, false),
+    route("GET", "/dashboard/app.js", Need::Page, false),
+    route("GET", "/dashboard/style.css", Need::Page, false),
+    route("GET", "/jobs/{id}/path", Need::Read, false),
+    route("POST", "/plan", Need::Operate(Scope::Body), false),
 ];
 
 /// The route table's line for a request, if any.
@@ -918,6 +926,9 @@ pub async fn authenticate(
         .get::<ConnectInfo<Peer>>()
         .map(|c| c.0.clone())
         .unwrap_or(Peer::UnixUnknown);
+    if route_of(req.method(), req.uri().path()).is_some_and(|r| r.need == Need::Page) {
+        return next.run(req).await;
+    }
     match access.authenticate(&peer, bearer(&req)) {
         Ok(p) => {
             req.extensions_mut().insert(p);
@@ -954,6 +965,9 @@ pub struct Gate {
 /// machine not granted, route not in the table) or 409 (someone else's lock); writes every
 /// state change, allowed or refused, to the audit log.
 pub async fn authorize(State(gate): State<Gate>, req: Request, next: Next) -> Response {
+    if route_of(req.method(), req.uri().path()).is_some_and(|r| r.need == Need::Page) {
+        return next.run(req).await;
+    }
     let Some(p) = req.extensions().get::<Principal>().cloned() else {
         return Denied(StatusCode::FORBIDDEN, "the caller is unknown".into()).into_response();
     };
@@ -1032,7 +1046,7 @@ fn decide(
         );
     };
     match route.need {
-        Need::Read => (Ok(()), None, None),
+        Need::Read | Need::Page => (Ok(()), None, None),
         Need::Admin if p.role == Role::Admin => (Ok(()), None, None),
         Need::Admin => (
             Err(Denied(

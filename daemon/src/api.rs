@@ -116,6 +116,7 @@ pub fn router_with(
         .route("/jobs/{id}/events", get(events))
         .route("/machines/{name}/gcode", post(crate::upload::gcode))
         .merge(crate::access_api::routes())
+        .merge(crate::dashboard::routes())
         .route_layer(middleware::from_fn_with_state(
             gate,
             crate::access::authorize,

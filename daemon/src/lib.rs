@@ -17,6 +17,7 @@ pub mod check;
 pub mod client;
 pub mod config;
 pub mod daemon;
+pub mod dashboard;
 pub mod events;
 pub mod fleet;
 pub mod fsperm;
