@@ -68,6 +68,9 @@ function deviceState(st) {
       const why = st.reason === "other" ? st.text : (st.reason || "").replace(/_/g, " ");
       return { key: "needs_operator", text: "needs operator" + (why ? ": " + why : "") };
     }
+    case "unknown":
+      // some kinds (CANopen) report only while a job runs
+      return { key: s, text: "no report yet" };
     default:
       return { key: s, text: s };
   }
@@ -240,7 +243,11 @@ async function follow(signal) {
   let lost = false;
   while (!signal.aborted) {
     try {
-      const r = await fetch("/events", { headers: { Authorization: "Bearer " + S.token }, cache: "no-store", signal });
+      // one controller per stream: a failed read-back ends a stream that went quiet without
+      // closing (a daemon gone with its connections half open)
+      S.stream = new AbortController();
+      signal.addEventListener("abort", () => S.stream.abort(), { once: true });
+      const r = await fetch("/events", { headers: { Authorization: "Bearer " + S.token }, cache: "no-store", signal: S.stream.signal });
       if (r.status === 401) return logout("the daemon no longer knows this token");
       if (!r.ok) throw new ApiError(r.status, r.statusText);
       await loadAll(); // after the stream is open: nothing falls between
@@ -730,7 +737,7 @@ async function previewSubmit() {
 }
 
 async function queueSubmit(ev) {
-  ev.preventDefault();
+  if (ev) ev.preventDefault();
   $("sub-error").textContent = "";
   try {
     const j = await api("POST", "/jobs", await jobSpec());
@@ -758,7 +765,10 @@ async function start(token) {
   follow(S.abort.signal);
   S.timers.push(
     setInterval(() => {
-      if (S.conn === "live") Promise.all([loadMachines(), loadJobs(), loadLocks()]).then(schedule, () => {});
+      if (S.conn === "live")
+        Promise.all([loadMachines(), loadJobs(), loadLocks()]).then(schedule, (e) => {
+          if (!(e instanceof ApiError) && S.stream) S.stream.abort();
+        });
     }, REFRESH_MS),
     setInterval(() => {
       if (S.conn === "live") loadHealth().catch(() => {});
@@ -815,6 +825,7 @@ document.addEventListener("DOMContentLoaded", () => {
     schedule();
   });
   $("sub-preview").addEventListener("click", previewSubmit);
+  $("sub-queue").addEventListener("click", () => queueSubmit());
   $("submit-form").addEventListener("submit", queueSubmit);
   // `machlink dashboard` hands the page its key in the URL's fragment (never sent anywhere)
   const given = new URLSearchParams(location.hash.slice(1)).get("token");
