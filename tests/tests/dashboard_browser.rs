@@ -234,6 +234,7 @@ mod webdriver {
                     "width": width, "height": height, "deviceScaleFactor": 1, "mobile": false } })),
             )
             .await;
+            self.js("window.scrollTo(0, 0);", json!([])).await;
             tokio::time::sleep(Duration::from_millis(400)).await;
             let b64 = self.cmd("GET", "/screenshot", None).await;
             use base64::Engine;
