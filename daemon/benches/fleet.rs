@@ -9,8 +9,8 @@
 #[path = "../tests/common/nats.rs"]
 mod nats;
 
-use machlink::fleet::client::FleetClient;
-use machlink::intake::{Input, JobSpec};
+use machlink::core::intake::{Input, JobSpec};
+use machlink::services::fleet::client::FleetClient;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 fn rss(pid: u32) -> u64 {
-    machlink::memory::resident_bytes(Some(pid)).unwrap_or(0)
+    machlink::services::memory::resident_bytes(Some(pid)).unwrap_or(0)
 }
 
 fn mb(b: u64) -> f64 {

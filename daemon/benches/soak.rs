@@ -8,9 +8,9 @@
 //! `cargo bench -p machlink --bench soak` (`-- --minutes M --time-scale K` to change the
 //! simulated duration and speed-up; default 10 and 5).
 
-use machlink::client::{Client, Endpoint};
-use machlink::intake::{Input, JobSpec};
-use machlink::store::JobState;
+use machlink::core::intake::{Input, JobSpec};
+use machlink::core::store::JobState;
+use machlink::faces::client::{Client, Endpoint};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
 use machlink_sim::modbus::{ModbusSim, SimConfig};
 use std::path::{Path, PathBuf};

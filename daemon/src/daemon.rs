@@ -1,13 +1,14 @@
 //! The daemon put together: store, the machines' kinds started, scheduler and API listeners.
 
-use crate::access::{Access, Peer};
-use crate::api;
-use crate::audit::Audit;
 use crate::config::Config;
-use crate::events;
-use crate::metrics::Metrics;
-use crate::scheduler::{JournalPolicy, MachineSetup, Scheduler};
-use crate::store::{Store, StoreError};
+use crate::core::scheduler::{JournalPolicy, MachineSetup, Scheduler};
+use crate::core::store::{Store, StoreError};
+use crate::faces::api;
+use crate::faces::api::service;
+use crate::services::access::{Access, Peer};
+use crate::services::audit::Audit;
+use crate::services::events;
+use crate::services::metrics::Metrics;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -19,7 +20,7 @@ pub enum DaemonError {
     #[error(transparent)]
     Store(#[from] StoreError),
     #[error(transparent)]
-    Socket(#[from] crate::fsperm::SocketError),
+    Socket(#[from] crate::services::fsperm::SocketError),
     #[error("{0}")]
     Access(String),
     #[error("cannot open the audit log {path}: {source}")]
@@ -66,7 +67,7 @@ pub struct StartOptions {
     pub config_path: Option<PathBuf>,
     /// How jobs are planned (default: `intake::plan`), in a forked child either way; tests
     /// hand in a planner that panics or overflows its stack.
-    pub planner: Option<crate::planner::PlanFn>,
+    pub planner: Option<crate::core::planner::PlanFn>,
     /// Also serve `GET /metrics` alone (read-only, no token) on this TCP address.
     pub metrics_listen: Option<String>,
 }
@@ -92,7 +93,7 @@ pub struct Daemon {
     /// The address `GET /metrics` is served on alone, when asked (`metrics_listen`).
     pub metrics_addr: Option<SocketAddr>,
     /// The daemon's metrics and events (`GET /metrics`, `GET /events`).
-    pub service: events::Service,
+    pub service: service::Service,
     /// Who may do what, the machines' locks and the audit log.
     pub access: Arc<Access>,
     servers: Vec<JoinHandle<()>>,
@@ -104,7 +105,7 @@ impl Daemon {
     pub async fn start(config: Config, opts: StartOptions) -> Result<Daemon, DaemonError> {
         // everything about access is checked before anything is opened or started
         if let Some(t) = &opts.token {
-            crate::access::check_token_strength(t)
+            crate::services::access::check_token_strength(t)
                 .map_err(|e| DaemonError::Access(format!("--token: {e}")))?;
         }
         let tls = match (&opts.listen, &opts.tcp_security) {
@@ -114,7 +115,7 @@ impl Daemon {
                 )))
             }
             (Some(_), TcpSecurity::Tls { cert, key }) => {
-                Some(crate::tls::server_config(cert, key).map_err(DaemonError::Access)?)
+                Some(crate::services::tls::server_config(cert, key).map_err(DaemonError::Access)?)
             }
             _ => None,
         };
@@ -122,15 +123,15 @@ impl Daemon {
         let group = config.access.socket_group.as_ref().map(|g| g.0);
         let socket = opts.socket.clone().unwrap_or(config.daemon.socket.clone());
         if let Some(dir) = socket.parent().filter(|d| !d.as_os_str().is_empty()) {
-            crate::fsperm::socket_folder(dir, group)?;
+            crate::services::fsperm::socket_folder(dir, group)?;
         }
-        crate::fsperm::check_socket_path(&socket)?;
+        crate::services::fsperm::check_socket_path(&socket)?;
         let store_path = config.daemon.store.clone();
         let store_err = |source| DaemonError::StoreMode {
             path: store_path.display().to_string(),
             source,
         };
-        crate::fsperm::private_store(&store_path).map_err(store_err)?;
+        crate::services::fsperm::private_store(&store_path).map_err(store_err)?;
         let audit_path = config.access.audit_log.clone().unwrap_or_else(|| {
             let mut name = store_path
                 .file_stem()
@@ -155,7 +156,7 @@ impl Daemon {
             ));
         }
         let store = Store::open(&config.daemon.store)?;
-        crate::fsperm::private_companions(&store_path).map_err(store_err)?;
+        crate::services::fsperm::private_companions(&store_path).map_err(store_err)?;
         let mut machines = Vec::new();
         for m in &config.machines {
             let device =
@@ -181,25 +182,25 @@ impl Daemon {
             },
         )?;
         // a live daemon's socket is never taken over; a dead one's is removed
-        crate::fsperm::clear_socket_path(&socket).await?;
+        crate::services::fsperm::clear_socket_path(&socket).await?;
         let listener = bind_unix(&socket, group)?;
-        let planner = opts.planner.unwrap_or(crate::intake::plan);
+        let planner = opts.planner.unwrap_or(crate::core::intake::plan);
         let mut servers = Vec::new();
         let metrics = Arc::new(Metrics::new());
         scheduler.attach_metrics(metrics.clone());
         servers.push(tokio::spawn(metrics.clone().follow(scheduler.subscribe())));
         servers.push(tokio::spawn(events::log_jobs(scheduler.subscribe())));
-        let service = events::Service {
+        let service = service::Service {
             sched: scheduler.clone(),
             metrics,
         };
-        servers.extend(crate::webhooks::start(
+        servers.extend(crate::services::webhooks::start(
             &config.webhooks,
             scheduler.subscribe(),
             service.metrics.clone(),
         ));
         if let Some(fleet) = config.fleet.clone() {
-            servers.push(tokio::spawn(crate::fleet::node::run(
+            servers.push(tokio::spawn(crate::services::fleet::node::run(
                 fleet,
                 scheduler.clone(),
                 service.metrics.clone(),
@@ -209,7 +210,7 @@ impl Daemon {
             scheduler.clone(),
             access.clone(),
             planner,
-            events::router(service.clone()),
+            service::router(service.clone()),
         );
         servers.push(serve_api(listener, app, "the Unix socket"));
         servers.push(tokio::spawn(give_back_after_jobs(scheduler.clone())));
@@ -221,11 +222,11 @@ impl Daemon {
                 scheduler.clone(),
                 access.clone(),
                 planner,
-                events::router(service.clone()),
+                service::router(service.clone()),
             );
             match tls {
                 Some(cfg) => {
-                    let l = crate::tls::TlsListener::new(l, cfg).map_err(|source| {
+                    let l = crate::services::tls::TlsListener::new(l, cfg).map_err(|source| {
                         DaemonError::Listen {
                             what: addr.clone(),
                             source,
@@ -251,7 +252,7 @@ impl Daemon {
         if let Some(addr) = opts.metrics_listen {
             let l = bind_tcp(&addr).await?;
             metrics_addr = l.local_addr().ok();
-            let app = events::metrics_router(service.clone());
+            let app = service::metrics_router(service.clone());
             servers.push(tokio::spawn(async move {
                 if let Err(e) = axum::serve(l, app).await {
                     tracing::error!("the metrics listener stopped: {e}");
@@ -350,7 +351,7 @@ fn bind_unix(
     path: &std::path::Path,
     group: Option<u32>,
 ) -> Result<tokio::net::UnixListener, DaemonError> {
-    Ok(crate::fsperm::bind_private(path, group)?)
+    Ok(crate::services::fsperm::bind_private(path, group)?)
 }
 
 /// Gives freed memory back to the system each time a job ends (a large program is freed
@@ -359,13 +360,13 @@ async fn give_back_after_jobs(sched: Scheduler) {
     let mut rx = sched.subscribe();
     loop {
         match rx.recv().await {
-            Ok(crate::scheduler::Event::State { state, .. }) if state.is_final() => {
+            Ok(crate::core::scheduler::Event::State { state, .. }) if state.is_final() => {
                 // the worker drops the program right after it records the final state
                 tokio::time::sleep(std::time::Duration::from_millis(200)).await;
                 let store = sched.store().clone();
                 let _ = tokio::task::spawn_blocking(move || {
                     store.release_memory();
-                    crate::memory::give_back();
+                    crate::services::memory::give_back();
                 })
                 .await;
             }

@@ -9,29 +9,8 @@
 //! `audit`; `tls`, `fsperm`, `limits` and `planner` keep the daemon unreachable to others
 //! and up whatever a client sends (docs/security.md).
 
-pub mod access;
-pub mod access_api;
-pub mod api;
-pub mod audit;
-pub mod check;
-pub mod client;
 pub mod config;
+pub mod core;
 pub mod daemon;
-pub mod dashboard;
-pub mod events;
-pub mod fleet;
-pub mod fsperm;
-pub mod intake;
-pub mod limits;
-pub mod locate;
-pub mod memory;
-pub mod metrics;
-pub mod planner;
-pub mod registry;
-pub mod resume;
-pub mod scheduler;
-pub mod store;
-pub mod systemd;
-pub mod tls;
-pub mod upload;
-pub mod webhooks;
+pub mod faces;
+pub mod services;

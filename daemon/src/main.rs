@@ -107,8 +107,8 @@ fn main() {
         }
         let unreachable = e.chain().any(|c| {
             matches!(
-                c.downcast_ref::<machlink::client::ClientError>(),
-                Some(machlink::client::ClientError::Unreachable(_))
+                c.downcast_ref::<machlink::faces::client::ClientError>(),
+                Some(machlink::faces::client::ClientError::Unreachable(_))
             )
         });
         // one sentence: the chain of causes joined, no backtrace, nothing a device sent that

@@ -6,8 +6,8 @@
 
 mod proc;
 
-use machlink::intake::{JobSpec, Operation};
-use machlink::store::{JobId, JobState};
+use machlink::core::intake::{JobSpec, Operation};
+use machlink::core::store::{JobId, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
 use machlink_sim::sewing::{spawn_on_pty, SewingSimConfig, TraceLine};
@@ -97,7 +97,7 @@ async fn sigkill_at_random_moments_loses_and_repeats_no_unit_on_grbl_sewing_and_
     let mut press_blocks: Vec<usize> = Vec::new();
     let mut sewer_records: Vec<usize> = Vec::new();
     let mut current: BTreeMap<&str, (usize, JobId)> = BTreeMap::new();
-    async fn submit(d: &Daemon, m: &str, k: usize) -> machlink::store::JobRecord {
+    async fn submit(d: &Daemon, m: &str, k: usize) -> machlink::core::store::JobRecord {
         let spec = match m {
             "sewer" => sewing_job(k),
             m => gcode_job(m, k).0,

@@ -6,7 +6,7 @@
 mod common;
 
 use common::cli::{machlink, run, stderr};
-use machlink::client::{Client, Endpoint};
+use machlink::faces::client::{Client, Endpoint};
 use std::io::{BufRead, BufReader};
 
 struct Child(std::process::Child);
@@ -64,13 +64,13 @@ async fn the_dashboard_proxy_serves_the_page_and_passes_only_keyed_requests() {
         .await
         .unwrap();
     assert_eq!(st.as_u16(), 200);
-    assert_eq!(page, machlink::dashboard::PAGE.as_bytes());
+    assert_eq!(page, machlink::faces::dashboard::PAGE.as_bytes());
     // the API: with the key, as the daemon's own user (admin); without it or with another, refused
     let who = through(Some(key)).whoami().await.unwrap();
     assert_eq!(who["role"], "admin", "{who}");
     assert!(who["from"].as_str().unwrap().starts_with("unix socket"), "{who}");
     assert_eq!(through(Some(key)).machines().await.unwrap()[0].name, "bench");
-    for wrong in [None, Some(machlink::access::new_token().unwrap())] {
+    for wrong in [None, Some(machlink::services::access::new_token().unwrap())] {
         let (st, body) = through(wrong.as_deref())
             .raw(hyper::Method::GET, "/machines", None)
             .await

@@ -13,11 +13,11 @@
 mod common;
 
 use common::nats::{start_nats, Nats};
-use machlink::client::{Client, Endpoint};
-use machlink::fleet::client::FleetClient;
-use machlink::fleet::FleetJob;
-use machlink::intake::{Input, JobSpec};
-use machlink::store::{JobRecord, JobState};
+use machlink::core::intake::{Input, JobSpec};
+use machlink::core::store::{JobRecord, JobState};
+use machlink::faces::client::{Client, Endpoint};
+use machlink::services::fleet::client::FleetClient;
+use machlink::services::fleet::FleetJob;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
 use std::collections::{BTreeMap, HashMap};
 use std::path::PathBuf;
@@ -322,7 +322,7 @@ async fn three_daemons_run_300_jobs_exactly_once_through_a_kill() {
     let mut taken: HashMap<String, (String, JobRecord)> = HashMap::new();
     for node in &nodes {
         for j in node.client().jobs().await.expect("the daemon's jobs") {
-            let id = machlink::fleet::node::fleet_id(&j)
+            let id = machlink::services::fleet::node::fleet_id(&j)
                 .expect("every job came from the fleet")
                 .to_string();
             assert!(
@@ -367,7 +367,7 @@ async fn three_daemons_run_300_jobs_exactly_once_through_a_kill() {
     let resumed: Vec<usize> = interrupted
         .iter()
         .map(|j| {
-            let id = machlink::fleet::node::fleet_id(j).unwrap();
+            let id = machlink::services::fleet::node::fleet_id(j).unwrap();
             ids[id]
         })
         .collect();
@@ -406,8 +406,8 @@ async fn three_daemons_run_300_jobs_exactly_once_through_a_kill() {
 async fn a_job_not_stored_comes_again_and_a_stored_one_is_not_taken_twice() {
     use async_nats::jetstream::{self, consumer::pull};
     use futures::StreamExt;
-    use machlink::fleet::{self, FleetMachine, Submission};
-    use machlink::store::{NewJob, Store};
+    use machlink::core::store::{NewJob, Store};
+    use machlink::services::fleet::{self, FleetMachine, Submission};
 
     let tmp = tempfile::tempdir().unwrap();
     let nats = start_nats(tmp.path());
@@ -517,7 +517,7 @@ async fn a_job_not_stored_comes_again_and_a_stored_one_is_not_taken_twice() {
     let jobs = d.scheduler.jobs().unwrap();
     let ids: Vec<&str> = jobs
         .iter()
-        .filter_map(machlink::fleet::node::fleet_id)
+        .filter_map(machlink::services::fleet::node::fleet_id)
         .collect();
     assert_eq!(
         ids,

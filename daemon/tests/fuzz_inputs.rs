@@ -4,9 +4,9 @@
 //! checked as it streams in is refused or taken exactly as the whole file is.
 //! Cases per property: 4000, scaled by `PROPTEST_CASES / 256`.
 
-use machlink::check::{gcode_program, GcodeCheck};
-use machlink::config::{MachineConfig, WorkArea};
-use machlink::intake::{self, Input, JobSpec};
+use machlink::core::check::{gcode_program, GcodeCheck};
+use machlink::core::intake::{self, Input, JobSpec};
+use machlink::core::machine::{MachineConfig, WorkArea};
 use proptest::prelude::*;
 
 /// 4000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).
@@ -16,7 +16,7 @@ fn cases() -> u32 {
 
 fn machine() -> MachineConfig {
     let mut m = MachineConfig::new(
-        &machlink::registry::standard(),
+        &machlink::core::registry::standard(),
         "mill",
         "sim-grbl",
         serde_json::json!({}),

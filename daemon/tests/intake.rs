@@ -88,7 +88,7 @@ async fn submit_stores_exactly_the_program_plan_writes_for_every_operation_and_p
     std::fs::write(&dxf, INCH_DXF).unwrap();
     let pocket = dir.path().join("pocket.json");
     std::fs::write(&pocket, POCKET).unwrap();
-    let mut registry = machlink::registry::standard();
+    let mut registry = machlink::core::registry::standard();
     registry.add_kind(SinkKind);
     let toml = format!(
         "[daemon]\nstore = \"{store}\"\nsocket = \"{sock}\"\n\n\

@@ -5,11 +5,11 @@
 //! API. Nothing in daemon/ knows it.
 
 use futures::future::BoxFuture;
-use machlink::client::{Client, Endpoint};
 use machlink::config::Config;
+use machlink::core::intake::{Input, JobSpec, Operation};
+use machlink::core::store::JobState;
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{Input, JobSpec, Operation};
-use machlink::store::JobState;
+use machlink::faces::client::{Client, Endpoint};
 use machlink_protocols::kind::{started, MachineKind, OpenLink};
 use machlink_protocols::post::{lines_file, Post, PostError, PostFor};
 use machlink_protocols::{
@@ -222,7 +222,7 @@ const PART: &str = r#"{ "units": "mm", "paths": [ { "closed": true, "vertices": 
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_kind_defined_in_a_test_runs_a_job_through_the_daemon() {
-    let mut registry = machlink::registry::standard();
+    let mut registry = machlink::core::registry::standard();
     registry.add_kind(PlotterKind);
     let dir = tempfile::tempdir().unwrap();
     let toml = format!(

@@ -2,11 +2,11 @@
 //! the test ran (completed, cancelled, failed on a port that does not exist), on the API
 //! socket and on the `--metrics-listen` address alike.
 
-use machlink::client::{Client, Endpoint};
 use machlink::config::Config;
+use machlink::core::intake::{Input, JobSpec};
+use machlink::core::store::{JobId, JobRecord, JobState};
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{Input, JobSpec};
-use machlink::store::{JobId, JobRecord, JobState};
+use machlink::faces::client::{Client, Endpoint};
 use prometheus_parse::{Scrape, Value};
 use std::path::Path;
 use std::time::Duration;
@@ -105,7 +105,7 @@ async fn metrics_counters_match_the_jobs_run() {
     // held once it streams
     loop {
         match all.next().await.unwrap() {
-            Some(machlink::scheduler::Event::State { job, state, .. })
+            Some(machlink::core::scheduler::Event::State { job, state, .. })
                 if job == first.id && state == JobState::Running =>
             {
                 break

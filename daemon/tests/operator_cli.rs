@@ -7,8 +7,8 @@
 
 mod proc;
 
-use machlink::scheduler::Event;
-use machlink::store::{JobRecord, JobState};
+use machlink::core::scheduler::Event;
+use machlink::core::store::{JobRecord, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 use proc::*;
 use std::path::Path;

@@ -502,7 +502,7 @@ fn machlink_metrics(socket: &Path) -> String {
 #[test]
 fn config_md_documents_every_kind_and_its_keys() {
     let doc = std::fs::read_to_string(repo().join("docs/config.md")).unwrap();
-    let registry = machlink::registry::standard();
+    let registry = machlink::core::registry::standard();
     for kind in registry.kinds() {
         let link = kind.link();
         assert!(

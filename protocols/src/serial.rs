@@ -1,8 +1,36 @@
-//! Serial ports: open a controller's port (USB-serial or a pty) as an async byte stream.
+//! Serial ports: open a controller's port (USB-serial or a pty) as an async byte stream, and
+//! the settings every serial kind shares (`port`, `baud`): their default, their check and the
+//! warning for a port that is not there yet. GRBL, sewing, Modbus RTU and SLCAN CANopen all
+//! take them from here.
 
 use crate::link::LinkError;
 use crate::untrusted::Guarded;
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
+
+/// 115200 baud, GRBL 1.1's default (and most USB-serial controllers').
+pub fn default_baud() -> u32 {
+    115_200
+}
+
+/// Warns of a serial port that is not there (yet): its jobs fail until it is.
+pub fn warn_missing_port(machine: &str, port: &str) {
+    if !std::path::Path::new(port).exists() {
+        tracing::warn!(
+            "machine `{machine}`: the port {port} does not exist (yet); its jobs fail until it does"
+        );
+    }
+}
+
+/// Checks a serial port setting and its speed.
+pub fn check_port(port: &str, baud: u32) -> Result<(), String> {
+    if port.trim().is_empty() {
+        return Err("port must not be empty".into());
+    }
+    if baud == 0 {
+        return Err("baud must be above 0".into());
+    }
+    Ok(())
+}
 
 /// Opens `port` at `baud`, 8N1, no flow control; the error names the port, and says
 /// `PortBusy` when another program (or a link closed a moment ago) holds it. Reads pass the

@@ -4,10 +4,10 @@
 mod common;
 
 use common::*;
-use machlink::access::{hex, new_token, token_hash, ROUTES};
-use machlink::client::{Client, Endpoint};
+use machlink::core::store::{JobId, JobState};
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::store::{JobId, JobState};
+use machlink::faces::client::{Client, Endpoint};
+use machlink::services::access::{hex, new_token, token_hash, ROUTES};
 use std::path::Path;
 
 /// The tokens of the test cell, by name.
@@ -418,7 +418,7 @@ async fn the_audit_log_names_each_action_and_its_token() {
     let (st, _) = post(&a, &format!("/jobs/{job}/cancel"), None).await;
     assert_eq!(st, 200);
     let _ = v.jobs().await.unwrap();
-    let log = machlink::audit::read(d.access.audit.path()).unwrap();
+    let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     use std::os::unix::fs::PermissionsExt;
     let mode = std::fs::metadata(d.access.audit.path())
         .unwrap()

@@ -127,7 +127,7 @@ async fn bad_requests_get_one_sentence() {
     let done = wait_end(&client(&d), id).await;
     assert_eq!(
         done.state,
-        machlink::store::JobState::Completed,
+        machlink::core::store::JobState::Completed,
         "{:?}",
         done.error
     );

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
+use machlink::core::scheduler::OverridePatch;
+use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink::scheduler::OverridePatch;
-use machlink::store::JobState;
 use machlink_protocols::{DeviceState, Operation};
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter, Motion};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
@@ -215,8 +215,8 @@ async fn unlock_home_jog_and_overrides_on_the_simulated_grbl() {
         .to_string();
     assert!(e.contains("unlock is not possible on this machine"), "{e}");
     let square = r#"{ "units": "mm", "paths": [ { "closed": true, "vertices": [[0,0,0],[60,0,0],[60,60,0],[0,60,0]] } ] }"#;
-    let stitches = machlink::intake::JobSpec {
-        operation: Some(machlink::intake::Operation::Stitch(Default::default())),
+    let stitches = machlink::core::intake::JobSpec {
+        operation: Some(machlink::core::intake::Operation::Stitch(Default::default())),
         ..common::job("sewer", "square.json", square)
     };
     let sew = c.submit(&stitches).await.unwrap();

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
+use machlink::core::intake::Operation;
+use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink::intake::Operation;
-use machlink::store::JobState;
 use machlink_protocols::DeviceState;
 use machlink_sim::canopen::kind::SimCanopen;
 use offset_core::ops::{Cutting, PocketParams, Stepover};
@@ -26,10 +26,10 @@ fn machine(faults: &str) -> String {
 }
 
 /// A 24 × 16 mm pocket, 1 mm deep, as a job for `gantry`.
-fn pocket_job() -> machlink::intake::JobSpec {
+fn pocket_job() -> machlink::core::intake::JobSpec {
     let part = r#"{ "units": "mm", "paths": [ { "closed": true,
       "vertices": [[0,0,0],[24,0,0],[24,16,0],[0,16,0]] } ] }"#;
-    machlink::intake::JobSpec {
+    machlink::core::intake::JobSpec {
         operation: Some(Operation::Pocket(PocketParams {
             cut: Cutting {
                 tool: offset_core::Tool::flat(6.0),

@@ -12,10 +12,10 @@
 mod common;
 
 use common::*;
-use machlink::access::{hex, new_token, token_hash};
-use machlink::client::{Client, Endpoint};
+use machlink::services::access::{hex, new_token, token_hash};
+use machlink::faces::client::{Client, Endpoint};
 use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
-use machlink::store::JobState;
+use machlink::core::store::JobState;
 use machlink_sim::grbl::GrblSimHandle;
 use machlink_sim::sewing::SewingSim;
 use serde_json::{json, Value};
@@ -592,7 +592,7 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     );
     assert!((sim.received_lines() as usize) < lines.len(), "the job ended before the hold");
     // the audit log names the page's pause as it names the CLI's: the token and the route
-    let log = machlink::audit::read(d.access.audit.path()).unwrap();
+    let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     let pause = log
         .iter()
         .find(|r| r.action == format!("POST /jobs/{}/pause", job.id))
@@ -607,8 +607,8 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     // a thread break on the sewing machine: "needs operator"
     let pocket = r#"{ "units": "mm", "paths": [ { "closed": true,
       "vertices": [[-30,-20,0],[30,-20,0],[30,20,0],[-30,20,0]] } ] }"#;
-    let stitch = machlink::intake::JobSpec {
-        operation: Some(machlink::intake::Operation::Stitch(
+    let stitch = machlink::core::intake::JobSpec {
+        operation: Some(machlink::core::intake::Operation::Stitch(
             offset_core::stitch::StitchParams {
                 stitch_length: 2.5,
                 ..Default::default()
@@ -684,7 +684,7 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     assert_eq!(forged[0], 403, "{forged}");
     assert!(forged[1].as_str().unwrap().contains("may only read"), "{forged}");
     assert_eq!(admin.job(job.id).await.unwrap().state, JobState::Paused);
-    let log = machlink::audit::read(d.access.audit.path()).unwrap();
+    let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     assert!(
         log.iter().any(|r| r.token.as_deref() == Some("floor-viewer")
             && r.action == format!("POST /jobs/{}/cancel", job.id)
@@ -733,7 +733,7 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
 /// on TCP needs one. The page's whole size stays under the 300 KB docs/dashboard.md states.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn only_the_page_is_served_without_a_token_and_it_is_small() {
-    use machlink::dashboard::{PAGE, SCRIPT, STYLE};
+    use machlink::faces::dashboard::{PAGE, SCRIPT, STYLE};
     let cell = Cell::new();
     let _d = cell.start().await;
     let anon = cell.tls(None);

@@ -5,8 +5,8 @@
 mod common;
 
 use common::*;
+use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink::store::JobState;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig};
 
 /// A GRBL machine on a simulator with a 600 × 400 × 50 mm work area and a 3000 mm/min limit.

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
+use machlink::core::intake::{IntakeError, JobSpec, Planned, Target};
+use machlink::core::store::JobState;
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{IntakeError, JobSpec, Planned, Target};
-use machlink::store::JobState;
 
 /// The planner of this test: the real one, except for two files whose planning really
 /// overflows its stack or panics (the fault a pathological shape can cause).
@@ -26,7 +26,7 @@ fn faulty_planner(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeE
             Err(IntakeError::Plan(format!("reached {}", dive(0))))
         }
         "panic.json" => panic!("a planner bug on purpose"),
-        _ => machlink::intake::plan(spec, target),
+        _ => machlink::core::intake::plan(spec, target),
     }
 }
 
@@ -38,7 +38,9 @@ const SQUARE: &str =
 
 fn shape_job(machine: &str, file_name: &str) -> JobSpec {
     let mut j = job(machine, file_name, SQUARE);
-    j.operation = Some(machlink::intake::Operation::Profile(Default::default()));
+    j.operation = Some(machlink::core::intake::Operation::Profile(
+        Default::default(),
+    ));
     j
 }
 
@@ -171,7 +173,7 @@ async fn an_oversized_body_is_refused_in_json() {
     .await;
     let c = client(&d);
     // declared larger than the limit: refused before a byte of it is read
-    let big = vec![b' '; (machlink::limits::MAX_JSON_BODY) + 1];
+    let big = vec![b' '; (machlink::faces::api::limits::MAX_JSON_BODY) + 1];
     let (st, body) = c
         .raw(hyper::Method::POST, "/jobs", Some(big))
         .await

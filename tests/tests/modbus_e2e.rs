@@ -3,8 +3,8 @@
 //! and a daemon crash in the middle of a job resumes without losing or repeating a block.
 
 use machlink::config::Config;
+use machlink::core::store::{JobRecord, JobState, NewJob};
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::store::{JobRecord, JobState, NewJob};
 use machlink_protocols::modbus::{post_blocks, MotionBlock};
 use machlink_protocols::Program;
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig, TraceEvent};
@@ -57,7 +57,7 @@ fn submit(d: &Daemon, blocks: &[MotionBlock]) -> JobRecord {
 
 async fn wait_for(
     d: &Daemon,
-    id: machlink::store::JobId,
+    id: machlink::core::store::JobId,
     done: impl Fn(&JobRecord) -> bool,
 ) -> JobRecord {
     let t = tokio::time::Instant::now();

@@ -5,8 +5,8 @@ mod common;
 
 use common::*;
 use futures::future::BoxFuture;
+use machlink::core::store::{JobState, Store};
 use machlink::daemon::StartOptions;
-use machlink::store::{JobState, Store};
 use machlink_protocols::grbl::resume::{reposition, ResumeOptions};
 use machlink_protocols::grbl::{GrblLink, GrblOptions};
 use machlink_protocols::kind::{started, MachineKind, OpenLink};
@@ -207,7 +207,7 @@ async fn a_job_interrupted_by_a_crash_resumes_without_repeating_or_skipping_a_li
     let dir = tempfile::tempdir().unwrap();
     let lines = zigzag(2000);
     let stop_at = 777;
-    let mut registry = machlink::registry::standard();
+    let mut registry = machlink::core::registry::standard();
     registry.add_kind(StopAtKind);
     let d = start_with(
         dir.path(),

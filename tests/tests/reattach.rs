@@ -7,9 +7,9 @@
 mod common;
 
 use common::*;
+use machlink::core::intake::{JobSpec, Operation};
+use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink::intake::{JobSpec, Operation};
-use machlink::store::JobState;
 use machlink_protocols::DeviceState;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 use machlink_sim::sewing::{spawn_on_pty, SewingSimConfig, TraceLine};

@@ -7,8 +7,8 @@
 mod common;
 
 use common::*;
-use machlink::intake::{JobSpec, Operation};
-use machlink::store::JobState;
+use machlink::core::intake::{JobSpec, Operation};
+use machlink::core::store::JobState;
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter, Motion};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig};
 use offset_core::ops::{Cutting, PocketParams, ProfileParams, Side};

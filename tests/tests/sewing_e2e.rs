@@ -4,9 +4,9 @@
 mod common;
 
 use common::*;
+use machlink::core::intake::{self, JobSpec, Operation, Target};
+use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink::intake::{self, JobSpec, Operation, Target};
-use machlink::store::JobState;
 use machlink_protocols::sewing::{StitchKind, StitchRecord};
 use machlink_sim::sewing::SewingSim;
 use offset_core::stitch::StitchParams;
@@ -97,7 +97,7 @@ fn a_two_row_stitch_plan_written_as_dst_reads_back_with_both_rows() {
         machine: None,
         ..pocket_job()
     };
-    let registry = machlink::registry::standard();
+    let registry = machlink::core::registry::standard();
     let post = registry.post("dst").unwrap();
     let planned = intake::plan(&spec, Target::Post(post)).unwrap();
     let records = planned.program.units::<StitchRecord>().unwrap().to_vec();

@@ -4,7 +4,7 @@
 mod common;
 
 use common::*;
-use machlink::store::JobState;
+use machlink::core::store::JobState;
 use machlink_sim::grbl::{GrblFault, GrblSimConfig};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -122,8 +122,8 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
         ..Default::default()
     })
     .await;
-    let spec = machlink::intake::JobSpec {
-        operation: Some(machlink::intake::Operation::Profile(
+    let spec = machlink::core::intake::JobSpec {
+        operation: Some(machlink::core::intake::Operation::Profile(
             offset_core::ops::ProfileParams {
                 side: offset_core::ops::Side::On,
                 cut: offset_core::ops::Cutting {
@@ -149,8 +149,8 @@ async fn a_planned_shape_job_runs_whole_and_follows_the_planned_path() {
     assert_eq!(executed, expected_motion(&lines));
     assert_eq!(sim.received_lines(), lines.len() as u64);
     assert_eq!(sim.rx_overflows(), 0);
-    let (part, _) = machlink::intake::read_shape(&spec).unwrap();
-    let planned = machlink::intake::toolpath(&spec, &part).unwrap();
+    let (part, _) = machlink::core::intake::read_shape(&spec).unwrap();
+    let planned = machlink::core::intake::toolpath(&spec, &part).unwrap();
     let dev = machlink_sim::grbl::max_deviation(&planned, &trace);
     assert!(dev < 0.01, "the machine strayed {dev} mm from the plan");
 }

@@ -5,9 +5,9 @@
 mod common;
 
 use common::*;
-use machlink::access::new_token;
-use machlink::client::{Client, ClientError, Endpoint};
 use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
+use machlink::faces::client::{Client, ClientError, Endpoint};
+use machlink::services::access::new_token;
 use std::path::{Path, PathBuf};
 
 const MACHINE: &str = "[[machine]]\nname = \"bench\"\nlink = \"sim-grbl\"\ntime_scale = 100.0\n";
@@ -164,7 +164,7 @@ async fn plaintext_tcp_only_when_spelled_out_and_never_with_a_weak_token() {
         token: Some(token.clone()),
     });
     assert_eq!(c.machines().await.unwrap()[0].name, "bench");
-    let log = machlink::audit::read(d.access.audit.path()).unwrap();
+    let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     assert!(
         log.iter()
             .any(|r| r.action.starts_with("listen plaintext") && r.outcome.contains("insecure")),

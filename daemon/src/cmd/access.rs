@@ -2,8 +2,8 @@
 //! it), `lock` / `release` (a machine's control lock), `locks`, `whoami`, `reload`.
 
 use super::connect::ClientArgs;
-use super::operate::runtime;
-use machlink::access::{hex, new_token, token_hash, Role};
+use super::runtime;
+use machlink::services::access::{hex, new_token, token_hash, Role};
 
 #[derive(clap::Args)]
 pub struct TokenArgs {

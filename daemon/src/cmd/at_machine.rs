@@ -1,9 +1,10 @@
 //! The operator at the machine: `unlock`, `home`, `jog` between jobs, and `override` of a
 //! running job. Each is refused in a sentence when the machine's kind cannot do it.
 
-use super::operate::{runtime, ClientArgs};
-use machlink::scheduler::OverridePatch;
-use machlink::store::JobId;
+use super::operate::ClientArgs;
+use super::runtime;
+use machlink::core::scheduler::OverridePatch;
+use machlink::core::store::JobId;
 use machlink_protocols::Operation;
 
 #[derive(clap::Args)]

@@ -1,7 +1,7 @@
 //! How every client command reaches the daemon: its Unix socket (by default), or TCP over TLS
 //! with the daemon's CA, or plaintext TCP when spelled out; with a bearer token when needed.
 
-use machlink::client::{Client, Endpoint};
+use machlink::faces::client::{Client, Endpoint};
 use std::path::PathBuf;
 
 /// How to reach the daemon (every client command takes these).
@@ -57,14 +57,15 @@ impl ClientArgs {
             },
             (None, _) => {
                 // an unreadable config is named, and the default tried
-                let path =
-                    machlink::locate::socket(self.socket.as_deref(), self.config.as_deref(), |k| {
-                        std::env::var(k).ok()
-                    })
-                    .unwrap_or_else(|e| {
-                        eprintln!("machlink: warning: {e}");
-                        machlink::config::default_socket()
-                    });
+                let path = machlink::faces::locate::socket(
+                    self.socket.as_deref(),
+                    self.config.as_deref(),
+                    |k| std::env::var(k).ok(),
+                )
+                .unwrap_or_else(|e| {
+                    eprintln!("machlink: warning: {e}");
+                    machlink::config::default_socket()
+                });
                 match &self.token {
                     Some(t) => Endpoint::UnixToken {
                         path,

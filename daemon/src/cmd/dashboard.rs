@@ -5,14 +5,14 @@
 //! which the page keeps as its token); the page's own files need no key, as on the daemon.
 
 use super::connect::ClientArgs;
-use super::operate::runtime;
+use super::runtime;
 use anyhow::Context;
 use axum::body::Body;
 use axum::extract::{Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use machlink::access::{route_of, Need};
-use machlink::client::Endpoint;
+use machlink::services::access::{route_of, Need};
+use machlink::faces::client::Endpoint;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -35,7 +35,7 @@ pub fn run(a: DashboardArgs) -> anyhow::Result<()> {
         Endpoint::Unix(path) => (path, None),
         Endpoint::UnixToken { path, token } => (path, Some(token)),
     };
-    let key = machlink::access::new_token().map_err(anyhow::Error::msg)?;
+    let key = machlink::services::access::new_token().map_err(anyhow::Error::msg)?;
     let proxy = Arc::new(Proxy {
         socket: path.clone(),
         key: key.clone(),
@@ -93,7 +93,7 @@ struct Proxy {
 fn refuse(status: StatusCode, why: &str) -> Response {
     (
         status,
-        axum::Json(machlink::api::ErrorBody { error: why.into() }),
+        axum::Json(machlink::faces::api::error::ErrorBody { error: why.into() }),
     )
         .into_response()
 }

@@ -4,10 +4,11 @@
 
 use super::operate::watch_job;
 use anyhow::Context;
-use machlink::client::{Client, Endpoint};
-use machlink::config::{Config, MachineConfig};
+use machlink::config::Config;
+use machlink::core::intake::{self, Input, JobSpec, Operation};
+use machlink::core::machine::MachineConfig;
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{self, Input, JobSpec, Operation};
+use machlink::faces::client::{Client, Endpoint};
 use machlink_sim::grbl::GrblSimHandle;
 use offset_core::ops::{Cutting, ProfileParams, Side};
 use offset_core::Tool;
@@ -71,7 +72,7 @@ pub fn run(a: DemoArgs) -> anyhow::Result<()> {
     let planned = intake::toolpath(&spec, &shape)?;
 
     let dir = tempfile::tempdir().context("cannot make a temporary directory")?;
-    let registry = machlink::registry::standard();
+    let registry = machlink::core::registry::standard();
     let mut config = Config::empty();
     config.daemon.store = dir.path().join("demo.db");
     config.daemon.socket = dir.path().join("demo.sock");

@@ -1,8 +1,9 @@
 //! `machlink events`: follows every job's state changes (the daemon's `GET /events`) until
 //! interrupted, for scripts and dashboards.
 
-use super::operate::{runtime, ClientArgs};
-use machlink::scheduler::Event;
+use super::operate::ClientArgs;
+use super::runtime;
+use machlink::core::scheduler::Event;
 use std::io::Write;
 
 #[derive(clap::Args)]

@@ -1,8 +1,8 @@
 //! `--fleet nats://…` on `submit` and `jobs`: the fleet of daemons from any host.
 
-use super::operate::runtime;
-use machlink::fleet::client::FleetClient;
-use machlink::intake::JobSpec;
+use super::runtime;
+use machlink::core::intake::JobSpec;
+use machlink::services::fleet::client::FleetClient;
 use std::path::PathBuf;
 
 /// How to reach the fleet.

@@ -2,7 +2,7 @@
 //! into the one `JobSpec` the intake takes. Every default is the operation's own (offset-core
 //! `Default`), so a flag left out here means what a key left out of a JSON job means.
 
-use machlink::intake::{Input, JobSpec, Operation};
+use machlink::core::intake::{Input, JobSpec, Operation};
 use offset_core::mesh::{Cutter, CutterShape, Finish3dParams, Rough3dParams, WaterlineParams};
 use offset_core::ops::{Cutting, Entry, PocketParams, ProfileParams, Side, Stepover};
 use offset_core::stitch::StitchParams;

@@ -26,3 +26,12 @@ pub fn out(text: &str) -> anyhow::Result<()> {
     o.flush()?;
     Ok(())
 }
+
+/// The single-threaded async runtime a client command runs on.
+pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    use anyhow::Context;
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("cannot start the async runtime")
+}

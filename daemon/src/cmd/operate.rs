@@ -1,10 +1,10 @@
 //! The operator's commands against a running daemon: jobs, machines, watch, pause, resume, cancel.
 
-use anyhow::Context;
+use super::runtime;
 use indicatif::{ProgressBar, ProgressStyle};
-use machlink::client::Client;
-use machlink::scheduler::Event;
-use machlink::store::{JobId, JobRecord, JobState};
+use machlink::core::scheduler::Event;
+use machlink::core::store::{JobId, JobRecord, JobState};
+use machlink::faces::client::Client;
 use std::io::{IsTerminal, Write};
 use std::time::Duration;
 
@@ -69,13 +69,6 @@ pub struct ResumeArgs {
     pub json: bool,
     #[command(flatten)]
     pub client: ClientArgs,
-}
-
-pub fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .context("cannot start the async runtime")
 }
 
 fn progress(j: &JobRecord) -> String {

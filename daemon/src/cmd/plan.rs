@@ -1,9 +1,9 @@
 //! `machlink plan`: plan a job offline and write the program as the post's file. The
-//! planning is the intake's (`machlink::intake::plan`), the same `submit` uses.
+//! planning is the intake's (`machlink::core::intake::plan`), the same `submit` uses.
 
 use super::job::{print_warnings, JobArgs};
 use anyhow::Context;
-use machlink::intake::{self, Target};
+use machlink::core::intake::{self, Target};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -22,7 +22,7 @@ pub struct PlanCmdArgs {
 }
 
 pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
-    let registry = machlink::registry::standard();
+    let registry = machlink::core::registry::standard();
     let post = registry.post(&a.post).with_context(|| {
         format!(
             "there is no post `{}` (known: {})",

@@ -3,7 +3,7 @@
 
 use super::job::{print_warnings, JobArgs};
 use anyhow::Context;
-use machlink::intake::{self, Input, InputKind, JobSpec};
+use machlink::core::intake::{self, Input, InputKind, JobSpec};
 use offset_core::preview;
 use std::path::PathBuf;
 

@@ -88,18 +88,18 @@ pub fn run(a: ServeArgs) -> anyhow::Result<()> {
                 .map(|t| format!(", metrics on http://{t}/metrics"))
                 .unwrap_or_default(),
         );
-        machlink::systemd::ready(&format!(
+        machlink::services::systemd::ready(&format!(
             "serving {machines} machine(s) at {}",
             d.socket.display()
         ));
-        let watchdog = tokio::spawn(machlink::systemd::watchdog(d.scheduler.clone()));
+        let watchdog = tokio::spawn(machlink::services::systemd::watchdog(d.scheduler.clone()));
         let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())
             .context("cannot watch for SIGTERM")?;
         tokio::select! {
             _ = tokio::signal::ctrl_c() => {}
             _ = term.recv() => {}
         }
-        machlink::systemd::stopping();
+        machlink::services::systemd::stopping();
         tracing::info!(
             "stopping: running machines are feed-held; their jobs resume with `machlink resume`"
         );

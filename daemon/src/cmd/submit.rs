@@ -40,7 +40,7 @@ pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
     }
     let client = a.client.client();
     // a G-code file with nothing to plan is streamed from disk as it is
-    let stream_gcode = machlink::intake::is_gcode_file(&a.file.to_string_lossy())
+    let stream_gcode = machlink::core::intake::is_gcode_file(&a.file.to_string_lossy())
         && a.job.op.is_none()
         && a.post.is_none();
     let spec = if stream_gcode {
@@ -48,7 +48,7 @@ pub fn run(a: SubmitArgs) -> anyhow::Result<()> {
     } else {
         Some(a.job.spec(&a.file, Some(a.machine.clone()), a.post)?)
     };
-    super::operate::runtime()?.block_on(async {
+    super::runtime()?.block_on(async {
         let job = match &spec {
             Some(spec) => client.submit(spec).await?,
             None => client.submit_gcode_file(&a.machine, &a.file).await?,

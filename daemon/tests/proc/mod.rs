@@ -2,8 +2,8 @@
 //! machines (in this test's process, so they outlive the daemon) it drives.
 #![allow(dead_code)]
 
-use machlink::client::{Client, Endpoint};
-use machlink::intake::{Input, JobSpec};
+use machlink::core::intake::{Input, JobSpec};
+use machlink::faces::client::{Client, Endpoint};
 use machlink_protocols::gcode::{post, GcodeOptions};
 use offset_core::{Move, Point, Toolpath, P3};
 use std::path::{Path, PathBuf};

@@ -2,7 +2,7 @@
 //! every SYNC (docs/canopen.md), its settings, and the `moves` post whose units — the Toolpath
 //! IR's moves themselves — its machines run.
 
-use super::bus::{self, BusSpec};
+use super::adapter::{self, BusSpec};
 use super::cia402::Mode;
 use super::master::{Axis, CanopenLink, CanopenOptions, Pace};
 use super::trajectory::AxisLimits;
@@ -307,7 +307,7 @@ pub fn open_canopen(
     opts: CanopenOptions,
 ) -> BoxFuture<'static, Result<Box<dyn Link<Move>>, LinkError>> {
     Box::pin(async move {
-        let bus = bus::open(&spec).await?;
+        let bus = adapter::open(&spec).await?;
         Ok(Box::new(CanopenLink::new(bus, opts)) as Box<dyn Link<Move>>)
     })
 }
@@ -350,7 +350,7 @@ impl MachineKind for CanopenKind {
     }
     fn start(&self, machine: &str, s: &CanopenSettings) -> BoxFuture<'static, std::io::Result<()>> {
         if let Ok(BusSpec::Slcan { port, .. }) = s.own.bus.parse::<BusSpec>() {
-            crate::grbl::kind::warn_missing_port(machine, &port);
+            crate::serial::warn_missing_port(machine, &port);
         }
         started(())
     }

@@ -7,6 +7,7 @@
 //! [`nmt`], [`pdo`], [`od`], [`cia402`]); the [`trajectory`] planner (no I/O); the [`master`]
 //! session; and the machine [`kind`].
 
+pub mod adapter;
 pub mod bus;
 pub mod cia402;
 pub mod frame;
@@ -21,7 +22,8 @@ pub mod slcan;
 pub mod socketcan;
 pub mod trajectory;
 
-pub use bus::{BusError, BusSpec, CanBus};
+pub use adapter::BusSpec;
+pub use bus::{BusError, CanBus};
 pub use frame::CanFrame;
 pub use kind::{CanopenKind, CanopenSettings, DriveSettings, MovesPost};
 pub use master::{Axis, CanopenLink, CanopenOptions, Pace};

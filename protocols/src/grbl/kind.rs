@@ -9,6 +9,7 @@ use crate::link::{
     Reattach, ResumePlan, SendJournal, StreamEnd,
 };
 use crate::post::{PostError, PostFor};
+use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};
@@ -103,11 +104,6 @@ pub fn gcode_time(lines: &[String], rapid: f64) -> Option<f64> {
 /// 3000 to 10000).
 pub const ESTIMATE_RAPID: f64 = 3000.0;
 
-/// 115200 baud, GRBL 1.1's default.
-pub fn default_baud() -> u32 {
-    115_200
-}
-
 /// The G-code posts a GRBL controller runs.
 pub fn grbl_posts() -> Vec<PostFor<String>> {
     vec![Arc::new(GcodePost(Dialect::Grbl))]
@@ -116,26 +112,6 @@ pub fn grbl_posts() -> Vec<PostFor<String>> {
 /// A GRBL machine's G-code file: its lines as they are (the intake has checked them).
 pub fn gcode_file_units(lines: &[String]) -> Option<Result<Vec<String>, PostError>> {
     Some(Ok(lines.to_vec()))
-}
-
-/// Warns of a serial port that is not there (yet): its jobs fail until it is.
-pub fn warn_missing_port(machine: &str, port: &str) {
-    if !std::path::Path::new(port).exists() {
-        tracing::warn!(
-            "machine `{machine}`: the port {port} does not exist (yet); its jobs fail until it does"
-        );
-    }
-}
-
-/// Checks a serial port setting and its speed.
-pub fn check_port(port: &str, baud: u32) -> Result<(), String> {
-    if port.trim().is_empty() {
-        return Err("port must not be empty".into());
-    }
-    if baud == 0 {
-        return Err("baud must be above 0".into());
-    }
-    Ok(())
 }
 
 impl MachineKind for GrblKind {

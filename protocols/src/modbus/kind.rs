@@ -4,10 +4,10 @@
 use super::link::{ModbusLink, ModbusSettings, Parity, Transport};
 use super::map::{MotionBlock, WordOrder};
 use super::post::{post_blocks, ModbusPost};
-use crate::grbl::kind::{check_port, default_baud, warn_missing_port};
 use crate::kind::{started, Joined, MachineKind, OpenLink};
 use crate::link::{Link, LinkError};
 use crate::post::{PostError, PostFor};
+use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};

@@ -11,6 +11,7 @@ pub mod map;
 pub mod post;
 mod ring;
 pub mod session;
+pub mod settings;
 pub mod transport;
 
 pub use kind::{ModbusKind, ModbusRtuKind, ModbusTcpKind, RingSettings, RingTransport};

@@ -1,12 +1,12 @@
 //! The ring protocol of docs/modbus.md over a session: checks the map, starts a job at the host's sequence, fills the ring, commits and starts, follows the consumed sequence, and after a failure resynchronises so that no block is lost or executed twice.
 
 use super::frame::{exception, Request, Response};
-use super::link::{ModbusError, ModbusSettings};
 use super::map::{
     fault_name, reg, Command, Layout, ModbusState, MotionBlock, Status, WordOrder, BLOCK_REGISTERS,
     MAP_VERSION, MAX_READ_REGISTERS, STATUS_REGISTERS,
 };
 use super::session::{Backoff, Session};
+use super::settings::{ModbusError, ModbusSettings};
 use crate::link::{Control, LinkEvent, StreamEnd};
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};

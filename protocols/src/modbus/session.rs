@@ -1,7 +1,7 @@
 //! A session with one Modbus device: has its transport opened (or takes a stream handed in), gives every request a timeout, reopens after failures, and paces retries with backoff.
 
 use super::frame::{Request, Response};
-use super::link::ModbusError;
+use super::settings::ModbusError;
 use super::transport::{
     Barrier, ByteStream, Endpoint, Framing, ReplyFate, Wire, WireCounters, WireError,
 };

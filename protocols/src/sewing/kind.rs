@@ -3,10 +3,10 @@
 
 use super::link::{SewingLink, SewingTiming};
 use super::{dst, jef, records, RecordLimits, StitchRecord};
-use crate::grbl::kind::{check_port, default_baud, warn_missing_port};
 use crate::kind::{started, MachineKind, OpenLink};
 use crate::link::Link;
 use crate::post::{Post, PostError, PostFor};
+use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};

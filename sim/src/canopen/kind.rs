@@ -4,7 +4,7 @@
 use super::adapter::{spawn_adapter, AdapterHandle};
 use super::{DriveFault, SimDrives};
 use futures::future::BoxFuture;
-use machlink_protocols::canopen::bus::open_slcan;
+use machlink_protocols::canopen::adapter::open_slcan;
 use machlink_protocols::canopen::kind::{gcode_file_moves, moves_posts, DriveSettings};
 use machlink_protocols::canopen::master::{CanopenLink, Pace};
 use machlink_protocols::canopen::MemoryBus;

@@ -2,11 +2,11 @@
 //! programs, and what the simulator should execute from them.
 #![allow(dead_code)]
 
-use machlink::client::{Client, Endpoint};
 use machlink::config::Config;
+use machlink::core::intake::{Input, JobSpec};
+use machlink::core::store::{JobId, JobRecord, JobState};
 use machlink::daemon::{Daemon, StartOptions};
-use machlink::intake::{Input, JobSpec};
-use machlink::store::{JobId, JobRecord, JobState};
+use machlink::faces::client::{Client, Endpoint};
 use machlink_sim::grbl::interp::{clean_line, Action, Interpreter};
 use std::path::Path;
 use std::time::Duration;
