@@ -58,6 +58,8 @@ enum Command {
     Simulate(cmd::simulate::SimulateArgs),
     /// Follow every job's state changes (for scripts and dashboards).
     Events(cmd::events::EventsArgs),
+    /// The shop-floor dashboard in a browser: prints its URL (`--open` opens it).
+    Dashboard(cmd::dashboard::DashboardArgs),
     /// Check a configuration file offline: every mistake with its line and key.
     CheckConfig(cmd::check_config::CheckConfigArgs),
     /// Print the shell completion script (bash, zsh, fish, …).
@@ -158,6 +160,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Preview(a) => cmd::preview::run(a),
         Command::Simulate(a) => cmd::simulate::run(a),
         Command::Events(a) => cmd::events::run(a),
+        Command::Dashboard(a) => cmd::dashboard::run(a),
         Command::CheckConfig(a) => cmd::check_config::run(a),
         Command::Completions(a) => cmd::completions::completions(a, Cli::command()),
         Command::Man(a) => cmd::completions::man(a, Cli::command()),

@@ -39,7 +39,12 @@ pub struct ClientArgs {
 
 impl ClientArgs {
     pub fn client(&self) -> Client {
-        let endpoint = match (&self.connect, &self.ca) {
+        Client::new(self.endpoint())
+    }
+
+    /// Where the daemon is, as these options say.
+    pub fn endpoint(&self) -> Endpoint {
+        match (&self.connect, &self.ca) {
             (Some(addr), Some(ca)) => Endpoint::Tls {
                 addr: addr.clone(),
                 token: self.token.clone(),
@@ -69,7 +74,6 @@ impl ClientArgs {
                     None => Endpoint::Unix(path),
                 }
             }
-        };
-        Client::new(endpoint)
+        }
     }
 }

@@ -5,6 +5,7 @@ pub mod at_machine;
 pub mod check_config;
 pub mod completions;
 pub mod connect;
+pub mod dashboard;
 pub mod demo;
 pub mod events;
 pub mod fleet;

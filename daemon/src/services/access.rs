@@ -434,6 +434,9 @@ pub enum Need {
     Operate(Scope),
     /// Admin only.
     Admin,
+    /// Anyone, without a token: the dashboard's own files (`faces::dashboard`), which hold no
+    /// data.
+    Page,
 }
 
 /// Which machine an operating route acts on.
@@ -520,6 +523,12 @@ pub const ROUTES: &[Route] = &[
         false,
     ),
     route("POST", "/access/reload", Need::Admin, false),
+    // the dashboard (`faces::dashboard`): its files, and what it draws and plans before a submit
+    route("GET", "/", Need::Page, false),
+    route("GET", "/dashboard/app.js", Need::Page, false),
+    route("GET", "/dashboard/style.css", Need::Page, false),
+    route("GET", "/jobs/{id}/path", Need::Read, false),
+    route("POST", "/plan", Need::Operate(Scope::Body), false),
 ];
 
 /// The route table's line for a request, if any.

@@ -25,3 +25,4 @@ mod cli_stl_files;
 mod simulate_cli;
 mod nothing_moves_without_the_operator;
 mod shop_jobs_cli;
+mod dashboard_cli;

@@ -171,6 +171,8 @@ async fn try_route(
             post(c, &path, Some(serde_json::json!({ "feed": 110 }))).await
         }
         ("POST", "/jobs") => post(c, &path, Some(small_job("router"))).await,
+        // the dashboard's preview of a job before it is queued
+        ("POST", "/plan") => post(c, &path, Some(small_job("router"))).await,
         ("POST", "/machines/{name}/gcode") => {
             let (st, bytes) = c
                 .raw(

@@ -21,3 +21,4 @@ mod sewing_e2e;
 mod streaming;
 mod tls;
 mod toolpaths_grbl;
+mod dashboard_browser;

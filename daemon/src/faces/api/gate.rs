@@ -54,6 +54,9 @@ pub async fn authenticate(
         .get::<ConnectInfo<Peer>>()
         .map(|c| c.0.clone())
         .unwrap_or(Peer::UnixUnknown);
+    if route_of(req.method(), req.uri().path()).is_some_and(|r| r.need == Need::Page) {
+        return next.run(req).await;
+    }
     match access.authenticate(&peer, bearer(&req)) {
         Ok(p) => {
             req.extensions_mut().insert(p);
@@ -91,6 +94,9 @@ pub struct Gate {
 /// machine not granted, route not in the table) or 409 (someone else's lock); writes every
 /// state change, allowed or refused, to the audit log.
 pub async fn authorize(State(gate): State<Gate>, req: Request, next: Next) -> Response {
+    if route_of(req.method(), req.uri().path()).is_some_and(|r| r.need == Need::Page) {
+        return next.run(req).await;
+    }
     let Some(p) = req.extensions().get::<Principal>().cloned() else {
         return ApiError::from(AccessError::Forbidden("the caller is unknown".into()))
             .into_response();
@@ -169,7 +175,7 @@ fn decide(
         );
     };
     match route.need {
-        Need::Read => (Ok(()), None, None),
+        Need::Read | Need::Page => (Ok(()), None, None),
         Need::Admin if p.role == Role::Admin => (Ok(()), None, None),
         Need::Admin => (
             Err(AccessError::Forbidden(format!(

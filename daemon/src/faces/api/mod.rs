@@ -70,6 +70,7 @@ pub fn router_with(
             post(crate::faces::api::upload::gcode),
         )
         .merge(crate::faces::api::access::routes())
+        .merge(crate::faces::dashboard::routes())
         .route_layer(middleware::from_fn_with_state(
             gate,
             crate::faces::api::gate::authorize,
