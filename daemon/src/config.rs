@@ -172,7 +172,11 @@ impl Config {
         let raw: RawConfig = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
-                .map(|s| text.lines().nth(line_column(text, s.start).0 - 1).unwrap_or(""))
+                .map(|s| {
+                    text.lines()
+                        .nth(line_column(text, s.start).0 - 1)
+                        .unwrap_or("")
+                })
                 .unwrap_or("");
             let mut message = in_operators_words(e.message().trim(), line);
             if let Some(name) = e.span().and_then(|s| machine_at(text, s.start)) {
@@ -350,10 +354,7 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
                 format!("{after} ")
             };
             let axes = if n == "3" { " (X, Y, Z)" } else { "" };
-            out = format!(
-                "{}{which}must have {n} values{axes}, got {got}",
-                &out[..at]
-            );
+            out = format!("{}{which}must have {n} values{axes}, got {got}", &out[..at]);
         }
     }
     out
@@ -387,7 +388,10 @@ mod tests {
             "[[machine]]\nname = \"r\"\nlink = \"sim-grbl\"\nwork_area = { min = [0, 0], max = [1, 1, 1] }\n",
         )
         .unwrap_err();
-        assert!(e.contains("`min` must have 3 values (X, Y, Z), got 2"), "{e}");
+        assert!(
+            e.contains("`min` must have 3 values (X, Y, Z), got 2"),
+            "{e}"
+        );
     }
 
     #[test]

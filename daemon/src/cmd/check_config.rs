@@ -106,12 +106,13 @@ pub fn errors(text: &str, path: &Path) -> Vec<String> {
         }
     }
     // each of the other tables alone, with the machines that read (a fleet names them)
-    let others: Vec<usize> = (0..secs.len()).filter(|&k| secs[k].machine.is_none()).collect();
+    let others: Vec<usize> = (0..secs.len())
+        .filter(|&k| secs[k].machine.is_none())
+        .collect();
     for &k in &others {
         let part = only(text, |i| {
-            section_of(i).is_some_and(|s| {
-                s == k || secs[s].machine.is_some_and(|m| !broken.contains(&m))
-            })
+            section_of(i)
+                .is_some_and(|s| s == k || secs[s].machine.is_some_and(|m| !broken.contains(&m)))
         });
         if let Err(e) = Config::parse(&part, path) {
             found.push((line(&e), e.to_string()));

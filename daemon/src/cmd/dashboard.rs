@@ -11,8 +11,8 @@ use axum::body::Body;
 use axum::extract::{Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
-use machlink::services::access::{route_of, Need};
 use machlink::faces::client::Endpoint;
+use machlink::services::access::{route_of, Need};
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -77,7 +77,9 @@ fn show(url: &str, open: bool) -> anyhow::Result<()> {
             .spawn()
         {
             Ok(_) => {}
-            Err(e) => eprintln!("machlink: cannot open a browser (xdg-open: {e}); open the URL above"),
+            Err(e) => {
+                eprintln!("machlink: cannot open a browser (xdg-open: {e}); open the URL above")
+            }
         }
     }
     Ok(())
@@ -131,20 +133,31 @@ async fn forward(State(p): State<Arc<Proxy>>, mut req: Request) -> Response {
         Err(e) => {
             return refuse(
                 StatusCode::BAD_GATEWAY,
-                &format!("the daemon's socket {} does not answer: {e}", p.socket.display()),
+                &format!(
+                    "the daemon's socket {} does not answer: {e}",
+                    p.socket.display()
+                ),
             )
         }
     };
     let (mut send, conn) =
         match hyper::client::conn::http1::handshake(hyper_util::rt::TokioIo::new(stream)).await {
             Ok(x) => x,
-            Err(e) => return refuse(StatusCode::BAD_GATEWAY, &format!("the daemon's socket: {e}")),
+            Err(e) => {
+                return refuse(
+                    StatusCode::BAD_GATEWAY,
+                    &format!("the daemon's socket: {e}"),
+                )
+            }
         };
     tokio::spawn(async move {
         let _ = conn.await;
     });
     match send.send_request(req).await {
         Ok(resp) => resp.map(Body::new),
-        Err(e) => refuse(StatusCode::BAD_GATEWAY, &format!("the daemon's socket: {e}")),
+        Err(e) => refuse(
+            StatusCode::BAD_GATEWAY,
+            &format!("the daemon's socket: {e}"),
+        ),
     }
 }

@@ -231,7 +231,7 @@ impl JobArgs {
             Some(_) if self.op.is_some() => {
                 anyhow::bail!("give either --op or --recipe (--ops), not both")
             }
-            Some(file) => machlink::core::recipe::Recipe::from_path(file)?.operations,
+            Some(file) => machlink::core::intake::recipe::Recipe::from_path(file)?.operations,
         };
         Ok(JobSpec {
             machine,

@@ -50,7 +50,7 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
 
 /// Each operation of a job of several: its tool, lengths and time, and for drilling the
 /// tour's rapids against the file's order; then the number of tool changes.
-pub fn operation_figures(ops: &[machlink::core::recipe::OperationFigures]) -> String {
+pub fn operation_figures(ops: &[machlink::core::intake::recipe::OperationFigures]) -> String {
     let mut out = String::new();
     if ops.is_empty() {
         return out;

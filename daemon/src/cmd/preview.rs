@@ -83,7 +83,8 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             // a job of operations: planned as `plan` plans it (tools given inline)
             let registry = machlink::core::registry::standard();
             let post = registry.post("grbl").context("the grbl post")?;
-            let p = machlink::core::recipe::plan_operations(&spec, intake::Target::Post(post))?;
+            let p =
+                machlink::core::intake::recipe::plan_operations(&spec, intake::Target::Post(post))?;
             print_warnings(&p.warnings);
             let svg = preview::svg_with(Some(&p.shape), Some(&p.toolpath), &opts);
             write_drawing(&a.output, &svg)?;
@@ -175,8 +176,7 @@ fn render_options() -> resvg::usvg::Options<'static> {
 /// Renders the drawing to pixels.
 fn render_pixmap(svg: &str) -> anyhow::Result<resvg::tiny_skia::Pixmap> {
     use resvg::{tiny_skia, usvg};
-    let tree =
-        usvg::Tree::from_str(svg, &render_options()).context("cannot render the drawing")?;
+    let tree = usvg::Tree::from_str(svg, &render_options()).context("cannot render the drawing")?;
     let size = tree.size().to_int_size();
     let mut pixmap = tiny_skia::Pixmap::new(size.width(), size.height())
         .context("the drawing is too large to render")?;
@@ -200,7 +200,11 @@ mod tests {
     /// Pixels that differ between two renderings of the same size.
     fn differing(a: &resvg::tiny_skia::Pixmap, b: &resvg::tiny_skia::Pixmap) -> usize {
         assert_eq!((a.width(), a.height()), (b.width(), b.height()));
-        a.pixels().iter().zip(b.pixels()).filter(|(p, q)| p != q).count()
+        a.pixels()
+            .iter()
+            .zip(b.pixels())
+            .filter(|(p, q)| p != q)
+            .count()
     }
 
     /// The drawing without its text elements.
@@ -209,7 +213,9 @@ mod tests {
         let mut rest = svg;
         while let Some(at) = rest.find("<text") {
             out.push_str(&rest[..at]);
-            let end = rest[at..].find("</text>").map_or(rest.len(), |e| at + e + 7);
+            let end = rest[at..]
+                .find("</text>")
+                .map_or(rest.len(), |e| at + e + 7);
             rest = &rest[end..];
         }
         out.push_str(rest);
@@ -219,7 +225,9 @@ mod tests {
     /// A pocket-like plan: a helix entry, then a square at depth.
     fn plan() -> Toolpath {
         let mut tp = Toolpath::new("pocket");
-        tp.push(Move::Rapid { to: P3::new(10.0, 5.0, 3.0) });
+        tp.push(Move::Rapid {
+            to: P3::new(10.0, 5.0, 3.0),
+        });
         for k in 1..=4 {
             tp.push(Move::Arc {
                 to: P3::new(10.0, 5.0, 3.0 - k as f64),
@@ -229,7 +237,10 @@ mod tests {
             });
         }
         for (x, y) in [(40.0, 5.0), (40.0, 30.0), (10.0, 30.0), (10.0, 5.0)] {
-            tp.push(Move::Linear { to: P3::new(x, y, -1.0), feed: 800.0 });
+            tp.push(Move::Linear {
+                to: P3::new(x, y, -1.0),
+                feed: 800.0,
+            });
         }
         tp
     }
@@ -245,7 +256,10 @@ mod tests {
             swept: true,
         };
         let svg = preview::svg_with(None, Some(&plan()), &opts);
-        assert!(svg.contains("<text"), "the drawing has a legend and a scale");
+        assert!(
+            svg.contains("<text"),
+            "the drawing has a legend and a scale"
+        );
         let with = render_pixmap(&svg).unwrap();
         let bare = render_pixmap(&without_text(&svg)).unwrap();
         let text_pixels = differing(&with, &bare);

@@ -9,7 +9,6 @@ pub mod check;
 pub mod intake;
 pub mod machine;
 pub mod planner;
-pub mod recipe;
 pub mod registry;
 pub mod resume;
 pub mod scheduler;

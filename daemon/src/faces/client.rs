@@ -322,8 +322,10 @@ impl Client {
             Operation::Jog { x, y, z, feed } => (
                 "jog",
                 Some(
-                    serde_json::to_vec(&serde_json::json!({"x": x, "y": y, "z": z, "feed": feed, "yes": yes}))
-                        .map_err(|e| ClientError::Protocol(e.to_string()))?,
+                    serde_json::to_vec(
+                        &serde_json::json!({"x": x, "y": y, "z": z, "feed": feed, "yes": yes}),
+                    )
+                    .map_err(|e| ClientError::Protocol(e.to_string()))?,
                 ),
             ),
         };

@@ -36,7 +36,10 @@ const POLICY: &str = "default-src 'none'; script-src 'self'; style-src 'self'; i
 /// The page's routes, merged into the API's router (behind its route table).
 pub fn routes() -> Router<AppState> {
     Router::new()
-        .route("/", get(|| async { file(PAGE, "text/html; charset=utf-8") }))
+        .route(
+            "/",
+            get(|| async { file(PAGE, "text/html; charset=utf-8") }),
+        )
         .route(
             "/dashboard/app.js",
             get(|| async { file(SCRIPT, "text/javascript; charset=utf-8") }),
@@ -89,7 +92,12 @@ pub struct UnitPath {
 pub fn unit_moves(program: &Program) -> Option<Vec<Option<Move>>> {
     if let Some(lines) = program.units::<String>() {
         let mut reader = machlink_protocols::gcode_read::Reader::default();
-        return Some(lines.iter().map(|l| reader.line(l).ok().flatten()).collect());
+        return Some(
+            lines
+                .iter()
+                .map(|l| reader.line(l).ok().flatten())
+                .collect(),
+        );
     }
     if let Some(records) = program.units::<StitchRecord>() {
         return Some(
@@ -177,7 +185,12 @@ pub fn unit_path(moves: &[Option<Move>]) -> UnitPath {
                     let n = (((a1 - a0).abs() / 10f64.to_radians()).ceil() as usize).max(1);
                     for k in 1..n {
                         let a = a0 + (a1 - a0) * k as f64 / n as f64;
-                        push(&mut out, center.x + r * a.cos(), center.y + r * a.sin(), true);
+                        push(
+                            &mut out,
+                            center.x + r * a.cos(),
+                            center.y + r * a.sin(),
+                            true,
+                        );
                     }
                     push(&mut out, to.x, to.y, true);
                 }
@@ -216,7 +229,10 @@ fn program_path(program: &Program) -> Result<(UnitPath, Vec<Option<Move>>), ApiE
 }
 
 /// `GET /jobs/{id}/path`: the job's program drawn unit by unit, for the page's preview.
-async fn job_path(State(st): State<AppState>, Path(id): Path<String>) -> Result<Response, ApiError> {
+async fn job_path(
+    State(st): State<AppState>,
+    Path(id): Path<String>,
+) -> Result<Response, ApiError> {
     let id: JobId = id.parse().map_err(|_| {
         ApiError(
             StatusCode::BAD_REQUEST,
@@ -320,10 +336,16 @@ mod tests {
 
     #[test]
     fn a_gcode_program_is_drawn_unit_by_unit_with_its_arcs_as_chords() {
-        let lines: Vec<String> = ["G21 G90", "G0 X10 Y0", "G1 X20 F600", "G2 X30 Y0 I5 J0", "M5"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let lines: Vec<String> = [
+            "G21 G90",
+            "G0 X10 Y0",
+            "G1 X20 F600",
+            "G2 X30 Y0 I5 J0",
+            "M5",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         let p = unit_path(&unit_moves(&Program::new("grbl", lines)).unwrap());
         assert_eq!(p.total, 5);
         // the origin, the rapid, the line, the half circle in 18 chords; M5 adds nothing

@@ -50,8 +50,8 @@ fn cut_x_extent(nc: &Path) -> (f64, f64) {
 fn a_multi_solid_ascii_stl_is_roughed_round_every_solid() {
     let dir = tempfile::tempdir().unwrap();
     // the first solid is a block the stock equals; the second stands 40 mm to its right
-    let mut text = write_ascii_stl(&cuboid(V3::ZERO, V3::new(20.0, 20.0, 10.0)))
-        .replace("machlink", "box0");
+    let mut text =
+        write_ascii_stl(&cuboid(V3::ZERO, V3::new(20.0, 20.0, 10.0))).replace("machlink", "box0");
     text.push_str(
         &write_ascii_stl(&cuboid(V3::new(60.0, 0.0, 0.0), V3::new(80.0, 20.0, 6.0)))
             .replace("machlink", "box1"),

@@ -68,8 +68,14 @@ async fn the_dashboard_proxy_serves_the_page_and_passes_only_keyed_requests() {
     // the API: with the key, as the daemon's own user (admin); without it or with another, refused
     let who = through(Some(key)).whoami().await.unwrap();
     assert_eq!(who["role"], "admin", "{who}");
-    assert!(who["from"].as_str().unwrap().starts_with("unix socket"), "{who}");
-    assert_eq!(through(Some(key)).machines().await.unwrap()[0].name, "bench");
+    assert!(
+        who["from"].as_str().unwrap().starts_with("unix socket"),
+        "{who}"
+    );
+    assert_eq!(
+        through(Some(key)).machines().await.unwrap()[0].name,
+        "bench"
+    );
     for wrong in [None, Some(machlink::services::access::new_token().unwrap())] {
         let (st, body) = through(wrong.as_deref())
             .raw(hyper::Method::GET, "/machines", None)

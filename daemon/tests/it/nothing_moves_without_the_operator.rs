@@ -103,7 +103,10 @@ async fn a_restarted_daemon_leaves_a_held_grbl_machine_still_and_its_queue_waits
         .submit(&file_job("mill", "two.nc", &two.join("\n")))
         .await
         .unwrap();
-    wait_job(&daemon, j1.id, "running past line 25", |j| j.acked_units >= 25).await;
+    wait_job(&daemon, j1.id, "running past line 25", |j| {
+        j.acked_units >= 25
+    })
+    .await;
     assert!(daemon.terminate().success(), "{}", daemon.log());
     // the shutdown held the machine; let it come to rest
     tokio::time::sleep(Duration::from_millis(300)).await;
@@ -119,12 +122,19 @@ async fn a_restarted_daemon_leaves_a_held_grbl_machine_still_and_its_queue_waits
         "the restarted daemon moved the machine by itself: {moved:?}\n{}",
         daemon.log()
     );
-    assert_eq!(grbl.position(), pos_at_stop, "the tool stands where the stop left it");
+    assert_eq!(
+        grbl.position(),
+        pos_at_stop,
+        "the tool stands where the stop left it"
+    );
     let (s1, s2) = (c.job(j1.id).await.unwrap(), c.job(j2.id).await.unwrap());
     assert_eq!(s1.state, JobState::Interrupted, "{s1:?}");
     assert_eq!(s2.state, JobState::Queued, "{s2:?}");
     assert!(
-        s2.note.as_deref().unwrap_or("").contains(&format!("holds job {}", j1.id)),
+        s2.note
+            .as_deref()
+            .unwrap_or("")
+            .contains(&format!("holds job {}", j1.id)),
         "the queued job says why it waits: {:?}",
         s2.note
     );
@@ -151,7 +161,11 @@ async fn a_restarted_daemon_leaves_a_held_grbl_machine_still_and_its_queue_waits
             _ => None,
         })
         .collect();
-    assert_eq!(received, [one, two].concat(), "every line received once, in order");
+    assert_eq!(
+        received,
+        [one, two].concat(),
+        "every line received once, in order"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -180,7 +194,10 @@ async fn resume_without_a_terminal_or_yes_sends_nothing_to_a_modbus_machine_and_
         .submit(&file_job("press", "press.nc", &lines.join("\n")))
         .await
         .unwrap();
-    wait_job(&daemon, j.id, "running past block 5", |j| j.acked_units >= 5).await;
+    wait_job(&daemon, j.id, "running past block 5", |j| {
+        j.acked_units >= 5
+    })
+    .await;
     assert!(daemon.terminate().success(), "{}", daemon.log());
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, _, consumed, _) = press.registers();
@@ -204,7 +221,9 @@ async fn resume_without_a_terminal_or_yes_sends_nothing_to_a_modbus_machine_and_
     tokio::time::sleep(Duration::from_secs(2)).await;
     let after: Vec<ModbusEvent> = press.events_from(at_stop);
     assert!(
-        !after.iter().any(|e| matches!(e, ModbusEvent::Executed { .. })),
+        !after
+            .iter()
+            .any(|e| matches!(e, ModbusEvent::Executed { .. })),
         "the machine moved: {after:?}"
     );
     assert_eq!(press.registers().2, consumed);
@@ -242,14 +261,20 @@ async fn a_jog_is_checked_against_the_work_area_and_max_feed_and_asks_below_the_
             .count()
     };
 
-    let o = cli(dir.path(), &["jog", "router", "--x", "1000", "--feed", "500"]);
+    let o = cli(
+        dir.path(),
+        &["jog", "router", "--x", "1000", "--feed", "500"],
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(
         stderr(&o).contains("outside machine `router`'s work area (X 0 to 300)"),
         "{}",
         stderr(&o)
     );
-    let o = cli(dir.path(), &["jog", "router", "--x", "10", "--feed", "9000"]);
+    let o = cli(
+        dir.path(),
+        &["jog", "router", "--x", "10", "--feed", "9000"],
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("3000 mm/min"), "{}", stderr(&o));
     assert_eq!(jogs(&grbl), 0, "a refused jog moves nothing");
@@ -261,11 +286,17 @@ async fn a_jog_is_checked_against_the_work_area_and_max_feed_and_asks_below_the_
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("below the stock top"), "{}", stderr(&o));
     assert_eq!(jogs(&grbl), 1);
-    let o = cli(dir.path(), &["jog", "router", "--x", "5", "--feed", "300", "--yes"]);
+    let o = cli(
+        dir.path(),
+        &["jog", "router", "--x", "5", "--feed", "300", "--yes"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(jogs(&grbl), 2);
     let p = grbl.position();
-    assert!((p[0] - 5.0).abs() < 1e-6 && (p[2] + 2.0).abs() < 1e-6, "{p:?}");
+    assert!(
+        (p[0] - 5.0).abs() < 1e-6 && (p[2] + 2.0).abs() < 1e-6,
+        "{p:?}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -282,7 +313,8 @@ async fn a_canopen_drive_fault_waits_for_unlock_before_the_next_job_runs() {
     );
     let daemon = Daemon::start(dir.path()).await;
     let c = daemon.client();
-    let program = "G21 G90\nG0 Z3\nG0 X0 Y0\nG1 Z-1 F400\nG1 X24 F1800\nG1 Y16\nG1 X0\nG1 Y0\nG0 Z3\n";
+    let program =
+        "G21 G90\nG0 Z3\nG0 X0 Y0\nG1 Z-1 F400\nG1 X24 F1800\nG1 Y16\nG1 X0\nG1 Y0\nG0 Z3\n";
     let first = c
         .submit(&file_job("gantry", "plate.nc", program))
         .await
@@ -297,7 +329,10 @@ async fn a_canopen_drive_fault_waits_for_unlock_before_the_next_job_runs() {
     let refused = wait_job(&daemon, next.id, "ended", |j| j.state.is_final()).await;
     assert_eq!(refused.state, JobState::Failed, "{refused:?}");
     let e = refused.error.unwrap_or_default();
-    assert!(e.contains("in fault from before this job") && e.contains("unlock"), "{e}");
+    assert!(
+        e.contains("in fault from before this job") && e.contains("unlock"),
+        "{e}"
+    );
     let o = cli(dir.path(), &["unlock", "gantry"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let after = c
@@ -343,7 +378,12 @@ impl Cell {
                 .filter(|w| (w[1].actual - w[0].actual).abs() > 0.5)
                 .count() as u64;
         }
-        [("mill", grbl), ("press", press), ("sewer", sewer), ("gantry", moved)]
+        [
+            ("mill", grbl),
+            ("press", press),
+            ("sewer", sewer),
+            ("gantry", moved),
+        ]
     }
 
     /// Waits (bounded) until no machine has moved for `quiet`: what a killed daemon left
@@ -371,7 +411,11 @@ fn zigzag(rows: usize) -> machlink::core::intake::JobSpec {
     let mut vertices = Vec::new();
     for row in 0..rows {
         let y = -60.0 + row as f64 * 7.0;
-        let (a, b) = if row % 2 == 0 { (-110.0, 110.0) } else { (110.0, -110.0) };
+        let (a, b) = if row % 2 == 0 {
+            (-110.0, 110.0)
+        } else {
+            (110.0, -110.0)
+        };
         vertices.push([a, y, 0.0]);
         vertices.push([b, y, 0.0]);
     }
@@ -492,9 +536,9 @@ async fn stops_at_random_moments_move_no_machine_until_the_operator_resumes() {
         let c = daemon.client();
         let all = c.jobs().await.unwrap();
         for (i, (m, was)) in before.iter().enumerate() {
-            let stopped = all
-                .iter()
-                .any(|j| j.machine == *m && matches!(j.state, JobState::Interrupted | JobState::Paused));
+            let stopped = all.iter().any(|j| {
+                j.machine == *m && matches!(j.state, JobState::Interrupted | JobState::Paused)
+            });
             if stopped {
                 checked += 1;
                 assert_eq!(
@@ -512,7 +556,10 @@ async fn stops_at_random_moments_move_no_machine_until_the_operator_resumes() {
             }
         }
     }
-    assert!(checked >= STOPS, "only {checked} machines were found stopped; seed {seed}");
+    assert!(
+        checked >= STOPS,
+        "only {checked} machines were found stopped; seed {seed}"
+    );
     // every job ends, completed, once the operator has resumed what stopped
     let until = Instant::now() + Duration::from_secs(240);
     loop {

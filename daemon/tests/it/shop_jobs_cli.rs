@@ -279,10 +279,16 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
             let stops: Vec<&str> = text.lines().filter(|l| l.starts_with("M0")).collect();
             assert_eq!(
                 stops,
-                ["M0 (load T1: 3 mm drill)", "M0 (load T2: 6 mm flat end mill)"],
+                [
+                    "M0 (load T1: 3 mm drill)",
+                    "M0 (load T2: 6 mm flat end mill)"
+                ],
                 "{post}"
             );
-            assert!(r.m6.is_empty() && r.cycles.is_empty(), "{post}: GRBL has neither");
+            assert!(
+                r.m6.is_empty() && r.cycles.is_empty(),
+                "{post}: GRBL has neither"
+            );
         } else {
             assert_eq!(r.m6, vec![1, 2], "{post}");
         }
@@ -299,7 +305,9 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 let at: Vec<&Mv> = r
                     .moves
                     .iter()
-                    .filter(|m| near([m.to[0], m.to[1]], c, 1e-6) && near([m.from[0], m.from[1]], c, 1e-6))
+                    .filter(|m| {
+                        near([m.to[0], m.to[1]], c, 1e-6) && near([m.from[0], m.from[1]], c, 1e-6)
+                    })
                     .collect();
                 let feeds: Vec<f64> = at.iter().filter(|m| !m.rapid).map(|m| m.to[2]).collect();
                 assert_eq!(feeds, want, "{post}: the pecks at {c:?}");
@@ -307,23 +315,38 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 // and each peck starts just above the last one's depth
                 for (k, w) in at.windows(2).enumerate() {
                     if !w[1].rapid && k > 0 && w[1].from[2] < R_PLANE - 1e-9 {
-                        let prev = feeds.iter().rev().find(|&&z| z > w[1].to[2] + 1e-9).copied();
+                        let prev = feeds
+                            .iter()
+                            .rev()
+                            .find(|&&z| z > w[1].to[2] + 1e-9)
+                            .copied();
                         if let Some(p) = prev {
                             assert!((w[1].from[2] - (p + 0.254)).abs() < 1e-3, "{post}: {w:?}");
                         }
                     }
                 }
-                let retracts = at.iter().filter(|m| m.rapid && (m.to[2] - R_PLANE).abs() < 1e-9).count();
+                let retracts = at
+                    .iter()
+                    .filter(|m| m.rapid && (m.to[2] - R_PLANE).abs() < 1e-9)
+                    .count();
                 assert_eq!(retracts, want.len(), "{post}: the retracts at {c:?}");
             } else {
                 let cy: Vec<&Cycle> = r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).collect();
                 assert_eq!(cy.len(), 1, "{post}: the cycle at {c:?}");
                 let y = cy[0];
-                assert_eq!((y.g, y.z, y.r, y.q), (83, -DEPTH, R_PLANE, Some(PECK)), "{post}: {y:?}");
+                assert_eq!(
+                    (y.g, y.z, y.r, y.q),
+                    (83, -DEPTH, R_PLANE, Some(PECK)),
+                    "{post}: {y:?}"
+                );
             }
         }
         if post != "grbl" {
-            assert_eq!(r.cycles.len(), SMALL_HOLES.len(), "{post}: only the 3 mm holes are cycles");
+            assert_eq!(
+                r.cycles.len(),
+                SMALL_HOLES.len(),
+                "{post}: only the 3 mm holes are cycles"
+            );
         }
 
         // the 8 mm holes bored to size: every arc about a hole's centre at radius 4 − 3,
@@ -337,16 +360,25 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
             assert!(arcs.len() >= 4, "{post}: the bore at {c:?}");
             for a in &arcs {
                 let (rad, _) = a.radius_sweep();
-                assert!((rad + T2_RADIUS - 4.0).abs() <= 1e-3, "{post}: bore radius {rad} at {c:?}");
+                assert!(
+                    (rad + T2_RADIUS - 4.0).abs() <= 1e-3,
+                    "{post}: bore radius {rad} at {c:?}"
+                );
             }
             let low = arcs.iter().map(|a| a.to[2]).fold(f64::INFINITY, f64::min);
-            assert!((low + DEPTH).abs() < 1e-9, "{post}: the bore at {c:?} reaches {low}");
+            assert!(
+                (low + DEPTH).abs() < 1e-9,
+                "{post}: the bore at {c:?} reaches {low}"
+            );
             let lap: f64 = arcs
                 .iter()
                 .filter(|a| a.from[2] == -DEPTH && a.to[2] == -DEPTH)
                 .map(|a| a.radius_sweep().1.abs())
                 .sum();
-            assert!(lap >= std::f64::consts::TAU - 1e-6, "{post}: the finishing lap at {c:?} sweeps {lap}");
+            assert!(
+                lap >= std::f64::consts::TAU - 1e-6,
+                "{post}: the finishing lap at {c:?} sweeps {lap}"
+            );
         }
 
         // the profile: every point cut outside the plate at the tool radius from it, down to
@@ -358,7 +390,10 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
         let mut floor: Vec<[f64; 2]> = Vec::new();
         let mut tab_tops = 0;
         for (k, m) in r.moves.iter().enumerate().filter(|(_, m)| !m.rapid) {
-            if m.to[2] == -DEPTH + 1.0 && m.from[2] == m.to[2] && to_rect(m.to[0], m.to[1], PLATE).1 == false {
+            if m.to[2] == -DEPTH + 1.0
+                && m.from[2] == m.to[2]
+                && to_rect(m.to[0], m.to[1], PLATE).1 == false
+            {
                 tab_tops += 1;
             }
             for [x, y, z] in m.samples() {
@@ -367,14 +402,20 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 }
                 let (dp, inside_plate) = to_rect(x, y, PLATE);
                 if !inside_plate {
-                    assert!((dp - T2_RADIUS).abs() <= 2e-3, "{post}: move {k} at ({x}, {y}, {z}) is {dp} from the plate");
+                    assert!(
+                        (dp - T2_RADIUS).abs() <= 2e-3,
+                        "{post}: move {k} at ({x}, {y}, {z}) is {dp} from the plate"
+                    );
                     profile_low = profile_low.min(z);
                     continue;
                 }
                 let (dw, in_pocket) = to_rect(x, y, POCKET);
                 if in_pocket {
                     let (di, in_island) = to_rect(x, y, ISLAND);
-                    assert!(!in_island || false, "{post}: move {k} at ({x}, {y}, {z}) cuts the island");
+                    assert!(
+                        !in_island || false,
+                        "{post}: move {k} at ({x}, {y}, {z}) cuts the island"
+                    );
                     assert!(dw >= T2_RADIUS - 2e-3 && di >= T2_RADIUS - 2e-3, "{post}: move {k} at ({x}, {y}, {z}) gouges: {dw} from the wall, {di} from the island");
                     pocket_low = pocket_low.min(z);
                     if (z + POCKET_DEPTH).abs() < 1e-6 {
@@ -383,8 +424,14 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 }
             }
         }
-        assert!((profile_low + DEPTH).abs() < 1e-6, "{post}: the profile reaches {profile_low}");
-        assert!((pocket_low + POCKET_DEPTH).abs() < 1e-6, "{post}: the pocket reaches {pocket_low}");
+        assert!(
+            (profile_low + DEPTH).abs() < 1e-6,
+            "{post}: the profile reaches {profile_low}"
+        );
+        assert!(
+            (pocket_low + POCKET_DEPTH).abs() < 1e-6,
+            "{post}: the pocket reaches {pocket_low}"
+        );
         assert!(tab_tops >= 4, "{post}: {tab_tops} runs over tab tops");
         // the floor: every point of the pocket the tool can reach (not the outer corners
         // a round tool leaves) lies within the radius of a cut at the pocket's depth
@@ -396,7 +443,10 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 let corner = (x - POCKET[0]).min(POCKET[2] - x) < T2_RADIUS
                     && (y - POCKET[1]).min(POCKET[3] - y) < T2_RADIUS;
                 if !to_rect(x, y, ISLAND).1 && !corner {
-                    let d = floor.iter().map(|p| (p[0] - x).hypot(p[1] - y)).fold(f64::INFINITY, f64::min);
+                    let d = floor
+                        .iter()
+                        .map(|p| (p[0] - x).hypot(p[1] - y))
+                        .fold(f64::INFINITY, f64::min);
                     if d > T2_RADIUS + 0.03 {
                         uncut.push((x, y, d));
                     }
@@ -405,7 +455,12 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
             }
             x += 0.5;
         }
-        assert!(uncut.is_empty(), "{post}: the pocket leaves {} points uncut, e.g. {:?}", uncut.len(), &uncut[..uncut.len().min(5)]);
+        assert!(
+            uncut.is_empty(),
+            "{post}: the pocket leaves {} points uncut, e.g. {:?}",
+            uncut.len(),
+            &uncut[..uncut.len().min(5)]
+        );
     }
 }
 
@@ -443,7 +498,10 @@ take = { layers = ["TEXT*"] }
     let e = stderr(&o);
     assert!(e.contains("engrave takes nothing from sign.dxf"), "{e}");
     // the outline, the pocket's two loops and the two 8 mm circles, each by handle
-    let untaken: Vec<&str> = e.lines().filter(|l| l.contains("is taken by no operation")).collect();
+    let untaken: Vec<&str> = e
+        .lines()
+        .filter(|l| l.contains("is taken by no operation"))
+        .collect();
     assert_eq!(untaken.len(), 5, "{e}");
     for want in [
         "LWPOLYLINE (handle 101, line",
@@ -465,7 +523,11 @@ take = { layers = ["TEXT*"] }
         out.as_os_str(),
     ]);
     assert!(!o.status.success());
-    assert!(stderr(&o).contains("tool T3") && stderr(&o).contains("inline"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("tool T3") && stderr(&o).contains("inline"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 fn cli(socket: &Path, args: &[&str]) -> Output {
@@ -547,7 +609,17 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
     // a tool the machine lacks is refused, naming the tool and the machine
     let bad = dir.path().join("bad.toml");
     std::fs::write(&bad, "[[operations]]\nop = \"drill\"\ntool = 5\n").unwrap();
-    let o = cli(&sock, &["submit", sign.to_str().unwrap(), "--machine", "router", "--recipe", bad.to_str().unwrap()]);
+    let o = cli(
+        &sock,
+        &[
+            "submit",
+            sign.to_str().unwrap(),
+            "--machine",
+            "router",
+            "--recipe",
+            bad.to_str().unwrap(),
+        ],
+    );
     assert!(!o.status.success());
     assert!(
         stderr(&o).contains("T5") && stderr(&o).contains("machine `router` does not have"),
@@ -555,7 +627,17 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
         stderr(&o)
     );
 
-    let o = cli(&sock, &["submit", sign.to_str().unwrap(), "--machine", "router", "--recipe", recipe.to_str().unwrap()]);
+    let o = cli(
+        &sock,
+        &[
+            "submit",
+            sign.to_str().unwrap(),
+            "--machine",
+            "router",
+            "--recipe",
+            recipe.to_str().unwrap(),
+        ],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let id: i64 = out(&o).trim().parse().unwrap();
     let tools = ["load T1 (3 mm drill)", "load T2 (6 mm flat end mill)"];
@@ -580,16 +662,29 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
         // nothing moves while the operator changes the tool
         let (moved, at) = (executed(&sim), sim.position());
         std::thread::sleep(Duration::from_millis(600));
-        assert_eq!((executed(&sim), sim.position()), (moved, at), "it moved during the change to {tool}");
+        assert_eq!(
+            (executed(&sim), sim.position()),
+            (moved, at),
+            "it moved during the change to {tool}"
+        );
         let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
     wait(&sock, id, "completed", |j| j.state == JobState::Completed);
     // every line of the program `plan` writes reached the controller once, in order
     let got = received(&sim);
-    let want: Vec<String> = planned.lines().map(|l| l.replace(' ', "").to_uppercase()).collect();
-    let got_norm: Vec<String> = got.iter().map(|l| l.replace(' ', "").to_uppercase()).collect();
-    assert_eq!(got_norm, want, "the controller's lines against the planned program");
+    let want: Vec<String> = planned
+        .lines()
+        .map(|l| l.replace(' ', "").to_uppercase())
+        .collect();
+    let got_norm: Vec<String> = got
+        .iter()
+        .map(|l| l.replace(' ', "").to_uppercase())
+        .collect();
+    assert_eq!(
+        got_norm, want,
+        "the controller's lines against the planned program"
+    );
 }
 
 /// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
@@ -663,6 +758,9 @@ fn a_two_thread_seam_job_changes_colour_once_in_dst_and_jef() {
         // both seams are sewn, one on each side of the change
         let before = cmds[..changes[0]].iter().filter(|&&c| c == 0).count();
         let after = cmds[changes[0]..].iter().filter(|&&c| c == 0).count();
-        assert!(before >= 10 && after >= 10, "{post}: {before} stitches, then {after}");
+        assert!(
+            before >= 10 && after >= 10,
+            "{post}: {before} stitches, then {after}"
+        );
     }
 }

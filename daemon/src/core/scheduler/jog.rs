@@ -84,15 +84,32 @@ mod tests {
 
     #[test]
     fn a_jog_past_the_work_area_is_refused_naming_the_axis_and_limit() {
-        let e = check(&router(), &jog(Some(1000.0), None, None, 500.0), Some([91.5, 0.0, 0.0]), false)
-            .unwrap_err();
+        let e = check(
+            &router(),
+            &jog(Some(1000.0), None, None, 500.0),
+            Some([91.5, 0.0, 0.0]),
+            false,
+        )
+        .unwrap_err();
         assert!(e.contains("X 1091.500") && e.contains("X 0 to 300"), "{e}");
-        assert!(check(&router(), &jog(Some(100.0), None, None, 500.0), Some([91.5, 0.0, 0.0]), false).is_ok());
+        assert!(check(
+            &router(),
+            &jog(Some(100.0), None, None, 500.0),
+            Some([91.5, 0.0, 0.0]),
+            false
+        )
+        .is_ok());
     }
 
     #[test]
     fn a_jog_faster_than_max_feed_is_refused() {
-        let e = check(&router(), &jog(None, None, Some(1.0), 9000.0), Some([0.0; 3]), false).unwrap_err();
+        let e = check(
+            &router(),
+            &jog(None, None, Some(1.0), 9000.0),
+            Some([0.0; 3]),
+            false,
+        )
+        .unwrap_err();
         assert!(e.contains("9000") && e.contains("3000"), "{e}");
     }
 
@@ -100,7 +117,10 @@ mod tests {
     fn an_xy_jog_below_the_stock_top_needs_the_operators_yes() {
         let below = Some([10.0, 10.0, -2.0]);
         let e = check(&router(), &jog(Some(5.0), None, None, 500.0), below, false).unwrap_err();
-        assert!(e.contains("below the stock top") && e.contains("--yes"), "{e}");
+        assert!(
+            e.contains("below the stock top") && e.contains("--yes"),
+            "{e}"
+        );
         assert!(check(&router(), &jog(Some(5.0), None, None, 500.0), below, true).is_ok());
         assert!(check(&router(), &jog(None, None, Some(5.0), 500.0), below, false).is_ok());
     }

@@ -418,7 +418,11 @@ impl Job<'_> {
         // nothing that makes motion
         let go_on = mode == Mode::Run || self.resume_requested;
         let handed = match inner.store.handed(id) {
-            Ok(h) => machlink_protocols::Handed { cut_off, go_on, ..h },
+            Ok(h) => machlink_protocols::Handed {
+                cut_off,
+                go_on,
+                ..h
+            },
             Err(e) => return Attached::Failed(e.to_string()),
         };
         let (ev_tx, mut ev_rx) = mpsc::unbounded_channel();
@@ -974,11 +978,9 @@ pub(super) async fn operate(
                 Some(p)
             }
             Err(LinkError::Unsupported(_)) => None,
-            Err(e) => {
-                return Err(SchedError::Refused(format!(
-                    "machine `{name}` could not say where it stands, so the jog cannot be checked: {e}"
-                )))
-            }
+            Err(e) => return Err(SchedError::Refused(format!(
+                "machine `{name}` could not say where it stands, so the jog cannot be checked: {e}"
+            ))),
         };
         super::jog::check(&m.config, op, at, confirmed).map_err(SchedError::Conflict)?;
     }
