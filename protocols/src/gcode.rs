@@ -953,8 +953,21 @@ mod tests {
         // ties and near ties (0.0005, 1.0005, 2.675), negative zero, big and huge values,
         // and a sweep of values on and between the 0.001 mm grid
         let mut vals = vec![
-            0.0005, -0.0005, 1.0005, 2.675, -2.675, 0.0015, 1e-300, -1e-300, 999.9995,
-            2147483.6475, -2147483.6485, 1e9 + 0.1234, -3.1e12, 12345.6785, 0.1 + 0.2,
+            0.0005,
+            -0.0005,
+            1.0005,
+            2.675,
+            -2.675,
+            0.0015,
+            1e-300,
+            -1e-300,
+            999.9995,
+            2147483.6475,
+            -2147483.6485,
+            1e9 + 0.1234,
+            -3.1e12,
+            12345.6785,
+            0.1 + 0.2,
         ];
         let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
         for i in 0..200_000 {
@@ -1035,9 +1048,15 @@ mod tests {
         // the one comment GRBL gets names the tool to load at the program stop
         assert!(!gl.iter().any(|l| l.contains("M6") || l.contains("but")));
         assert!(gl.iter().any(|l| l == "M0 (load T1)"), "{gl:?}");
-        let stop = gl.iter().position(|l| l.starts_with("M0 (load T2")).unwrap();
+        let stop = gl
+            .iter()
+            .position(|l| l.starts_with("M0 (load T2"))
+            .unwrap();
         assert_eq!(gl[stop], "M0 (load T2: 6 mm flat end mill)");
-        assert_eq!(tool_to_load(&gl[stop]), Some((2, "6 mm flat end mill".into())));
+        assert_eq!(
+            tool_to_load(&gl[stop]),
+            Some((2, "6 mm flat end mill".into()))
+        );
         assert_eq!(gl[stop - 1], "M5");
         assert_eq!(gl[stop + 1], "M3 S10000");
         let lc = post(

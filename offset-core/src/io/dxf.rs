@@ -245,7 +245,10 @@ impl DxfEntity {
     /// The entity as messages name it: `CIRCLE (handle 2A, line 120) on layer HOLES`.
     pub fn describe(&self) -> String {
         match &self.handle {
-            Some(h) => format!("{} (handle {h}, line {}) on layer {}", self.kind, self.line, self.layer),
+            Some(h) => format!(
+                "{} (handle {h}, line {}) on layer {}",
+                self.kind, self.line, self.layer
+            ),
             None => format!("{} (line {}) on layer {}", self.kind, self.line, self.layer),
         }
     }
@@ -301,8 +304,16 @@ pub fn entities(bytes: &[u8], file: &str) -> Result<Vec<DxfEntity>, ImportError>
                 let (center, diameter) = match kind {
                     "CIRCLE" | "POINT" => {
                         let c = Point::new(e.req(10, file)?, e.req(20, file)?) * scale;
-                        let d = if kind == "CIRCLE" { 2.0 * e.req(40, file)? * scale } else { 0.0 };
-                        let c = if e.ocs_x(file)? < 0.0 { Point::new(-c.x, c.y) } else { c };
+                        let d = if kind == "CIRCLE" {
+                            2.0 * e.req(40, file)? * scale
+                        } else {
+                            0.0
+                        };
+                        let c = if e.ocs_x(file)? < 0.0 {
+                            Point::new(-c.x, c.y)
+                        } else {
+                            c
+                        };
                         (Some(c), d)
                     }
                     _ => (None, 0.0),
@@ -311,7 +322,11 @@ pub fn entities(bytes: &[u8], file: &str) -> Result<Vec<DxfEntity>, ImportError>
                     kind: kind.to_string(),
                     color: entity_color(&e, &layer, &layer_colors),
                     layer,
-                    handle: e.groups.iter().find(|g| g.code == 5).map(|g| g.value.clone()),
+                    handle: e
+                        .groups
+                        .iter()
+                        .find(|g| g.code == 5)
+                        .map(|g| g.value.clone()),
                     line: e.line,
                     center,
                     diameter,

@@ -135,7 +135,12 @@ pub fn holes_in(shape: &Shape) -> (Vec<Hole>, Vec<Polyline>) {
             Some((center, r)) => holes.push(Hole {
                 center,
                 diameter: 2.0 * r,
-                name: format!("circle {} (path {i}) at ({:.3}, {:.3})", 2.0 * r, center.x, center.y),
+                name: format!(
+                    "circle {} (path {i}) at ({:.3}, {:.3})",
+                    2.0 * r,
+                    center.x,
+                    center.y
+                ),
             }),
             None => rest.push(p.clone()),
         }
@@ -152,7 +157,10 @@ pub fn circle_of(p: &Polyline) -> Option<(Point, f64)> {
     let mut sweep = 0.0;
     for s in p.segments() {
         let crate::geom::Segment::Arc {
-            center, radius, ccw, ..
+            center,
+            radius,
+            ccw,
+            ..
         } = s
         else {
             return None;
@@ -178,12 +186,17 @@ pub fn circle_of(p: &Polyline) -> Option<(Point, f64)> {
 pub fn drill(holes: &[Hole], p: &DrillParams) -> Result<(Toolpath, Tour), OpError> {
     p.check()?;
     if holes.is_empty() {
-        return Err(OpError::Empty("there are no holes (circles or points) to drill".into()));
+        return Err(OpError::Empty(
+            "there are no holes (circles or points) to drill".into(),
+        ));
     }
     let d = p.tool.diameter;
     for h in holes {
         if !(h.center.is_finite() && h.diameter.is_finite()) {
-            return Err(OpError::BadParam(format!("{} is not a finite hole", h.name)));
+            return Err(OpError::BadParam(format!(
+                "{} is not a finite hole",
+                h.name
+            )));
         }
         if h.diameter > 0.0 && h.diameter < d - p.diameter_tolerance {
             return Err(OpError::BadParam(format!(
@@ -222,7 +235,11 @@ pub fn drill(holes: &[Hole], p: &DrillParams) -> Result<(Toolpath, Tour), OpErro
                 retract: p.retract,
                 bottom: -p.depth,
                 peck: if p.cycle == Cycle::Peck { p.peck } else { 0.0 },
-                dwell: if p.cycle == Cycle::Dwell { p.dwell } else { 0.0 },
+                dwell: if p.cycle == Cycle::Dwell {
+                    p.dwell
+                } else {
+                    0.0
+                },
                 feed: p.feed,
             });
             t.drilled += 1;
@@ -327,8 +344,18 @@ pub fn tour(pts: &[Point]) -> Vec<usize> {
                 let a = node(&order, i as isize - 1);
                 let b = node(&order, i as isize);
                 let c = node(&order, j as isize);
-                let before = a.dist(b) + if j + 1 < n { c.dist(node(&order, j as isize + 1)) } else { 0.0 };
-                let after = a.dist(c) + if j + 1 < n { b.dist(node(&order, j as isize + 1)) } else { 0.0 };
+                let before = a.dist(b)
+                    + if j + 1 < n {
+                        c.dist(node(&order, j as isize + 1))
+                    } else {
+                        0.0
+                    };
+                let after = a.dist(c)
+                    + if j + 1 < n {
+                        b.dist(node(&order, j as isize + 1))
+                    } else {
+                        0.0
+                    };
                 if after < before - 1e-9 {
                     order[i..=j].reverse();
                     improved = true;
@@ -365,7 +392,11 @@ mod tests {
         seen.sort();
         assert_eq!(seen, (0..pts.len()).collect::<Vec<_>>());
         let file = path_length(&pts, &(0..pts.len()).collect::<Vec<_>>());
-        assert!(path_length(&pts, &order) < file, "{} vs {file}", path_length(&pts, &order));
+        assert!(
+            path_length(&pts, &order) < file,
+            "{} vs {file}",
+            path_length(&pts, &order)
+        );
     }
 
     #[test]
@@ -379,10 +410,15 @@ mod tests {
         };
         let (tp, t) = drill(&[hole(10.0, 10.0, 3.0), hole(30.0, 10.0, 8.0)], &p).unwrap();
         assert_eq!((t.drilled, t.bored), (1, 1));
-        let lows: Vec<P3> = tp.expanded().moves.iter().filter_map(|m| match m {
-            Move::Linear { to, .. } if (to.x - 10.0).abs() < 1e-12 => Some(*to),
-            _ => None,
-        }).collect();
+        let lows: Vec<P3> = tp
+            .expanded()
+            .moves
+            .iter()
+            .filter_map(|m| match m {
+                Move::Linear { to, .. } if (to.x - 10.0).abs() < 1e-12 => Some(*to),
+                _ => None,
+            })
+            .collect();
         // from the R plane at 1: -0.5, -2, -3.5, -4
         let zs: Vec<f64> = lows.iter().map(|p| p.z).collect();
         assert_eq!(zs, vec![-0.5, -2.0, -3.5, -4.0]);
@@ -392,9 +428,17 @@ mod tests {
             }
         }
         let small = drill(&[hole(0.0, 0.0, 2.0)], &p).unwrap_err().to_string();
-        assert!(small.contains("hole at (0, 0)") && small.contains("smaller"), "{small}");
+        assert!(
+            small.contains("hole at (0, 0)") && small.contains("smaller"),
+            "{small}"
+        );
         let no_bore = DrillParams { bore: false, ..p };
-        let e = drill(&[hole(30.0, 10.0, 8.0)], &no_bore).unwrap_err().to_string();
-        assert!(e.contains("hole at (30, 10)") && e.contains("bore = false"), "{e}");
+        let e = drill(&[hole(30.0, 10.0, 8.0)], &no_bore)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("hole at (30, 10)") && e.contains("bore = false"),
+            "{e}"
+        );
     }
 }

@@ -224,7 +224,12 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
         spindle = on;
         let st = part.stats(&k);
         out.moves.extend(part.moves);
-        out.warnings.extend(s.toolpath.warnings.iter().map(|w| format!("{}: {w}", s.name)));
+        out.warnings.extend(
+            s.toolpath
+                .warnings
+                .iter()
+                .map(|w| format!("{}: {w}", s.name)),
+        );
         figures.push(StepFigures {
             name: s.name.clone(),
             tool: s.tool,
@@ -268,26 +273,59 @@ mod tests {
 
     fn step(name: &str, n: u32, d: f64, rpm: f64) -> Step {
         let mut tp = Toolpath::new(name);
-        tp.tool = Some(Tool { number: n, ..Tool::flat(d) });
-        tp.push(Move::Rapid { to: P3::new(0.0, 0.0, 5.0) });
+        tp.tool = Some(Tool {
+            number: n,
+            ..Tool::flat(d)
+        });
+        tp.push(Move::Rapid {
+            to: P3::new(0.0, 0.0, 5.0),
+        });
         tp.push(Move::Spindle { rpm });
-        tp.push(Move::Linear { to: P3::new(0.0, 0.0, -1.0), feed: 100.0 });
-        tp.push(Move::Rapid { to: P3::new(0.0, 0.0, 5.0) });
-        Step { name: name.into(), toolpath: tp, tool: Tool { number: n, ..Tool::flat(d) }, tool_name: format!("{d} mm flat end mill") }
+        tp.push(Move::Linear {
+            to: P3::new(0.0, 0.0, -1.0),
+            feed: 100.0,
+        });
+        tp.push(Move::Rapid {
+            to: P3::new(0.0, 0.0, 5.0),
+        });
+        Step {
+            name: name.into(),
+            toolpath: tp,
+            tool: Tool {
+                number: n,
+                ..Tool::flat(d)
+            },
+            tool_name: format!("{d} mm flat end mill"),
+        }
     }
 
     #[test]
     fn a_tool_change_comes_only_where_the_tool_differs() {
-        let (tp, fig) = join(&[step("a", 1, 3.0, 10000.0), step("b", 2, 6.0, 12000.0), step("c", 2, 6.0, 12000.0)]);
-        let changes: Vec<u32> = tp.moves.iter().filter_map(|m| match m {
-            Move::ToolChange { tool, .. } => Some(*tool),
-            _ => None,
-        }).collect();
+        let (tp, fig) = join(&[
+            step("a", 1, 3.0, 10000.0),
+            step("b", 2, 6.0, 12000.0),
+            step("c", 2, 6.0, 12000.0),
+        ]);
+        let changes: Vec<u32> = tp
+            .moves
+            .iter()
+            .filter_map(|m| match m {
+                Move::ToolChange { tool, .. } => Some(*tool),
+                _ => None,
+            })
+            .collect();
         assert_eq!(changes, vec![1, 2]);
-        assert_eq!(fig.iter().map(|f| f.tool_change).collect::<Vec<_>>(), vec![true, true, false]);
+        assert_eq!(
+            fig.iter().map(|f| f.tool_change).collect::<Vec<_>>(),
+            vec![true, true, false]
+        );
         assert!(matches!(tp.moves[0], Move::ToolChange { tool: 1, .. }));
         // the spindle stops before the change and runs at the next speed after it
-        let i = tp.moves.iter().position(|m| matches!(m, Move::ToolChange { tool: 2, .. })).unwrap();
+        let i = tp
+            .moves
+            .iter()
+            .position(|m| matches!(m, Move::ToolChange { tool: 2, .. }))
+            .unwrap();
         assert_eq!(tp.moves[i - 1], Move::Spindle { rpm: 0.0 });
         assert_eq!(tp.moves[i + 1], Move::Spindle { rpm: 12000.0 });
         assert!(matches!(tp.moves[i + 2], Move::Dwell { .. }));

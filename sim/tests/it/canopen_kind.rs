@@ -398,7 +398,8 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_runs_the_next_after_unlock() {
+async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_runs_the_next_after_unlock(
+) {
     let mut m = Machine::start().await;
     // two depth passes: long enough for a silent node to be noticed before the end
     let job = m.program(&pocket_of_depth(2.0));
@@ -487,9 +488,14 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
         if in_fault {
             let (end, _) = m.stream(&next, |_, _, _| {}).await;
             let Err(LinkError::Alarm { text, .. }) = end else {
-                panic!("{what}: a drive in fault must refuse the next job until unlock, got {end:?}");
+                panic!(
+                    "{what}: a drive in fault must refuse the next job until unlock, got {end:?}"
+                );
             };
-            assert!(text.contains("unlock"), "{what}: \"{text}\" does not say unlock");
+            assert!(
+                text.contains("unlock"),
+                "{what}: \"{text}\" does not say unlock"
+            );
         }
         // after the operator's unlock the same link runs the next program
         m.link

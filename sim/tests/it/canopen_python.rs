@@ -224,8 +224,12 @@ async fn python_canopen_local_nodes_take_machlinks_configuration_nmt_and_setpoin
     // cycle, and the planner lands on it only when the corner's cap is what binds)
     let near = |p: &P3| p.dist(P3::new(8.0, 8.0, 2.0)) <= 0.05;
     assert!(
-        points.iter().any(|p| near(p) && (p.x - 8.0).abs() <= 1.0 / COUNTS && p.y < 8.0)
-            && points.iter().any(|p| near(p) && (p.y - 8.0).abs() <= 1.0 / COUNTS && p.x < 8.0),
+        points
+            .iter()
+            .any(|p| near(p) && (p.x - 8.0).abs() <= 1.0 / COUNTS && p.y < 8.0)
+            && points
+                .iter()
+                .any(|p| near(p) && (p.y - 8.0).abs() <= 1.0 / COUNTS && p.x < 8.0),
         "passes the far corner"
     );
 }

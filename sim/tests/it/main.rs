@@ -5,8 +5,13 @@
 
 mod common;
 
+mod canopen_disable;
+mod canopen_drive_rules;
 mod canopen_kind;
+mod canopen_line;
 mod canopen_python;
+mod canopen_python_rules;
+mod canopen_stops;
 mod conformance_grbl;
 mod conformance_modbus;
 mod conformance_sewing;
@@ -18,8 +23,3 @@ mod modbus_stream;
 mod sewing_sim;
 mod sewing_upload;
 mod trace_cli;
-mod canopen_disable;
-mod canopen_drive_rules;
-mod canopen_line;
-mod canopen_python_rules;
-mod canopen_stops;

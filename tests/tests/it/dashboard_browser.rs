@@ -12,10 +12,10 @@
 use crate::common;
 
 use common::*;
-use machlink::services::access::{hex, new_token, token_hash};
-use machlink::faces::client::{Client, Endpoint};
-use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
 use machlink::core::store::JobState;
+use machlink::daemon::{Daemon, StartOptions, TcpSecurity};
+use machlink::faces::client::{Client, Endpoint};
+use machlink::services::access::{hex, new_token, token_hash};
 use machlink_sim::grbl::GrblSimHandle;
 use machlink_sim::sewing::SewingSim;
 use serde_json::{json, Value};
@@ -90,9 +90,12 @@ mod webdriver {
         path: &str,
         body: Option<Value>,
     ) -> Result<Value, String> {
-        tokio::time::timeout(Duration::from_secs(60), request_once(port, method, path, body))
-            .await
-            .unwrap_or_else(|_| Err(format!("{method} {path}: no answer within 60 s")))
+        tokio::time::timeout(
+            Duration::from_secs(60),
+            request_once(port, method, path, body),
+        )
+        .await
+        .unwrap_or_else(|_| Err(format!("{method} {path}: no answer within 60 s")))
     }
 
     async fn request_once(
@@ -230,8 +233,10 @@ mod webdriver {
             self.cmd(
                 "POST",
                 "/goog/cdp/execute",
-                Some(json!({ "cmd": "Emulation.setDeviceMetricsOverride", "params": {
-                    "width": width, "height": height, "deviceScaleFactor": 1, "mobile": false } })),
+                Some(
+                    json!({ "cmd": "Emulation.setDeviceMetricsOverride", "params": {
+                    "width": width, "height": height, "deviceScaleFactor": 1, "mobile": false } }),
+                ),
             )
             .await;
             self.js("window.scrollTo(0, 0);", json!([])).await;
@@ -287,7 +292,11 @@ fn certificate(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
         .unwrap()
         .signed_by(&key, &ca)
         .unwrap();
-    let (a, c, k) = (dir.join("ca.pem"), dir.join("cert.pem"), dir.join("key.pem"));
+    let (a, c, k) = (
+        dir.join("ca.pem"),
+        dir.join("cert.pem"),
+        dir.join("key.pem"),
+    );
     std::fs::write(&a, ca.pem()).unwrap();
     std::fs::write(&c, cert.pem()).unwrap();
     std::fs::write(&k, key.serialize_pem()).unwrap();
@@ -383,7 +392,8 @@ async fn wait_page(s: &Session, what: &str, script: &str, args: Value, secs: u64
     panic!("the page never showed {what} within {secs} s (last answer: {last})");
 }
 
-const CARD_STATE: &str = "const c = document.querySelector(`article.machine[data-machine=\"${arguments[0]}\"]`); \
+const CARD_STATE: &str =
+    "const c = document.querySelector(`article.machine[data-machine=\"${arguments[0]}\"]`); \
      return c ? c.querySelector('.state').textContent : null;";
 
 /// The units the page shows done for job `id` (from its row in the jobs table).
@@ -441,13 +451,23 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     // the page loads over TLS, with nothing but its own files, and takes the token
     login(&s, &cell.url(), &cell.admin).await;
     let who = s
-        .js("return document.getElementById('who').textContent;", json!([]))
+        .js(
+            "return document.getElementById('who').textContent;",
+            json!([]),
+        )
         .await;
     assert_eq!(who, "command-line · admin");
     let stored = s
-        .js("return sessionStorage.getItem('machlink.token');", json!([]))
+        .js(
+            "return sessionStorage.getItem('machlink.token');",
+            json!([]),
+        )
         .await;
-    assert_eq!(stored, cell.admin.as_str(), "the token lives in session storage");
+    assert_eq!(
+        stored,
+        cell.admin.as_str(),
+        "the token lives in session storage"
+    );
     let cookies = s.js("return document.cookie;", json!([])).await;
     assert_eq!(cookies, "", "the page sets no cookie");
     let foreign = s
@@ -472,7 +492,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     // CANopen drives report only while a job runs: the page says so until one does
     assert_eq!(states["gantry"], "unknown: no report yet", "{states}");
     let square = "G21 G90\nG0 X0 Y0\nG1 X5 F900\nY5\nX0\nY0\n";
-    let moved = admin.submit(&common::job("gantry", "square.nc", square)).await.unwrap();
+    let moved = admin
+        .submit(&common::job("gantry", "square.nc", square))
+        .await
+        .unwrap();
     wait_until(&admin, moved.id, |j| j.state.is_final()).await;
     let gantry = wait_page(
         &s,
@@ -482,7 +505,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
         10,
     )
     .await;
-    assert!(["idle", "running"].contains(&gantry.as_str().unwrap()), "{gantry}");
+    assert!(
+        ["idle", "running"].contains(&gantry.as_str().unwrap()),
+        "{gantry}"
+    );
 
     eprintln!("dashboard: submit from the page");
     // a G-code job submitted from the page: preview, statistics, queue
@@ -506,7 +532,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     )
     .await;
     let stats = stats.as_str().unwrap();
-    assert!(stats.contains(&format!("{} units for router", lines.len())), "{stats}");
+    assert!(
+        stats.contains(&format!("{} units for router", lines.len())),
+        "{stats}"
+    );
     assert!(stats.contains("estimated time"), "{stats}");
     let on_router = || async {
         admin
@@ -532,7 +561,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
             .await;
         panic!("the page queued no job: {said}");
     };
-    assert_eq!((job.machine.as_str(), job.total_units), ("router", lines.len()));
+    assert_eq!(
+        (job.machine.as_str(), job.total_units),
+        ("router", lines.len())
+    );
     let sim = d.device::<GrblSimHandle>("router").unwrap();
 
     eprintln!("dashboard: progress");
@@ -554,7 +586,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
         }
         tokio::time::sleep(Duration::from_millis(150)).await;
     }
-    assert!(seen.len() >= 3, "the page's progress did not advance: {seen:?}");
+    assert!(
+        seen.len() >= 3,
+        "the page's progress did not advance: {seen:?}"
+    );
     assert!(
         seen.windows(2).all(|w| w[1].1 > w[0].1),
         "the simulator's trace did not grow along: {seen:?}"
@@ -590,7 +625,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
         (p0, t0),
         "the simulator moved while held"
     );
-    assert!((sim.received_lines() as usize) < lines.len(), "the job ended before the hold");
+    assert!(
+        (sim.received_lines() as usize) < lines.len(),
+        "the job ended before the hold"
+    );
     // the audit log names the page's pause as it names the CLI's: the token and the route
     let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     let pause = log
@@ -598,7 +636,12 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
         .find(|r| r.action == format!("POST /jobs/{}/pause", job.id))
         .unwrap_or_else(|| panic!("no record of the page's pause in {log:#?}"));
     assert_eq!(
-        (pause.token.as_deref(), pause.status, pause.outcome.as_str(), pause.machine.as_deref()),
+        (
+            pause.token.as_deref(),
+            pause.status,
+            pause.outcome.as_str(),
+            pause.machine.as_deref()
+        ),
         (Some("command-line"), 200, "done", Some("router"))
     );
     assert!(pause.from.starts_with("tcp 127.0.0.1:"), "{pause:?}");
@@ -672,7 +715,10 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
     let actions = actions.as_array().unwrap();
     assert!(actions.len() >= 40, "{actions:?}");
     let enabled: Vec<_> = actions.iter().filter(|a| a[1] == false).collect();
-    assert!(enabled.is_empty(), "a viewer's page has enabled actions: {enabled:?}");
+    assert!(
+        enabled.is_empty(),
+        "a viewer's page has enabled actions: {enabled:?}"
+    );
     let forged = s
         .js_async(
             "const done = arguments[arguments.length - 1]; \
@@ -682,13 +728,17 @@ async fn the_dashboard_in_chromium_shows_steers_and_survives_a_restart() {
         )
         .await;
     assert_eq!(forged[0], 403, "{forged}");
-    assert!(forged[1].as_str().unwrap().contains("may only read"), "{forged}");
+    assert!(
+        forged[1].as_str().unwrap().contains("may only read"),
+        "{forged}"
+    );
     assert_eq!(admin.job(job.id).await.unwrap().state, JobState::Paused);
     let log = machlink::services::audit::read(d.access.audit.path()).unwrap();
     assert!(
-        log.iter().any(|r| r.token.as_deref() == Some("floor-viewer")
-            && r.action == format!("POST /jobs/{}/cancel", job.id)
-            && r.status == 403),
+        log.iter()
+            .any(|r| r.token.as_deref() == Some("floor-viewer")
+                && r.action == format!("POST /jobs/{}/cancel", job.id)
+                && r.status == 403),
         "{log:#?}"
     );
 
@@ -746,7 +796,14 @@ async fn only_the_page_is_served_without_a_token_and_it_is_small() {
         assert_eq!(st.as_u16(), 200, "GET {path}");
         assert_eq!(got, body.as_bytes(), "GET {path}");
     }
-    for path in ["/machines", "/jobs", "/events", "/metrics", "/whoami", "/jobs/1/path"] {
+    for path in [
+        "/machines",
+        "/jobs",
+        "/events",
+        "/metrics",
+        "/whoami",
+        "/jobs/1/path",
+    ] {
         let (st, _) = anon.raw(hyper::Method::GET, path, None).await.unwrap();
         assert_eq!(st.as_u16(), 401, "GET {path} without a token");
     }

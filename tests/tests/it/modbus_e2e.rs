@@ -169,7 +169,8 @@ async fn daemon_streams_5000_blocks_over_modbus_rtu_under_faults() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_daemon_killed_mid_job_writes_nothing_until_resume_then_finishes_without_resending_a_block() {
+async fn a_daemon_killed_mid_job_writes_nothing_until_resume_then_finishes_without_resending_a_block(
+) {
     let dir = tempfile::tempdir().unwrap();
     // slow enough that the ring (40 blocks) still holds work when the daemon is back
     let sim = ModbusSim::spawn_tcp(
@@ -204,7 +205,10 @@ async fn a_daemon_killed_mid_job_writes_nothing_until_resume_then_finishes_witho
     let written_before_resume = sim.events_from(0).len();
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, _, consumed, _) = sim.registers();
-    assert_eq!(waits.acked_units, consumed as usize, "the store says where the device is");
+    assert_eq!(
+        waits.acked_units, consumed as usize,
+        "the store says where the device is"
+    );
     assert_eq!(sim.trace().len(), consumed as usize);
     assert!(
         !sim.events_from(written_before_resume)

@@ -978,9 +978,11 @@ pub(super) async fn operate(
                 Some(p)
             }
             Err(LinkError::Unsupported(_)) => None,
-            Err(e) => return Err(SchedError::Refused(format!(
+            Err(e) => {
+                return Err(SchedError::Refused(format!(
                 "machine `{name}` could not say where it stands, so the jog cannot be checked: {e}"
-            ))),
+            )))
+            }
         };
         super::jog::check(&m.config, op, at, confirmed).map_err(SchedError::Conflict)?;
     }
