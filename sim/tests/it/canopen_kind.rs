@@ -6,17 +6,13 @@
 //! Also: a cancel brakes on the path and a resume starts after the last acknowledged move;
 //! cyclic synchronous position paced by the clock thread; NMT commands from the link.
 
-use machlink_protocols::kind::{AnyKind, MachineLink, Registry};
-use machlink_protocols::{Control, DeviceState, LinkError, LinkEvent, Program, StreamEnd};
-use machlink_sim::canopen::kind::SimCanopen;
+use machlink_protocols::{Control, DeviceState, LinkError, LinkEvent, StreamEnd};
 use machlink_sim::canopen::{DriveFault, SyncRecord};
 use offset_core::geom::Segment;
 use offset_core::ops::{pocket, PocketParams, Stepover};
 use offset_core::toolpath::arc_segment;
 use offset_core::{Move, Polyline, Shape, Toolpath, Vertex, P3};
-use std::sync::Arc;
 use std::time::Duration;
-use tokio::sync::{mpsc, watch};
 
 const PERIOD: f64 = 0.002;
 const COUNTS: f64 = 100_000.0;
@@ -84,105 +80,30 @@ fn square(size: f64) -> Toolpath {
     tp
 }
 
-struct Machine {
-    registry: Registry,
-    device: machlink_protocols::kind::Device,
-    link: Box<dyn MachineLink>,
-}
+/// The drives' harness this file shares with the stop and disable tests.
+use crate::canopen_line::Machine;
 
-impl Machine {
-    async fn start() -> Machine {
-        Machine::start_with(settings()).await
-    }
-
-    async fn start_with(table: serde_json::Value) -> Machine {
-        let mut registry = Registry::new();
-        machlink_protocols::standard_kinds(&mut registry);
-        machlink_sim::kinds::register(&mut registry);
-        let kind: Arc<dyn AnyKind> = registry.kind("sim-canopen").expect("registered").clone();
-        let settings = kind.settings(table).expect("settings");
-        let device = kind.start("gantry", &settings).await.expect("drives start");
-        let link = kind
-            .open("gantry", &settings, &device)
-            .await
-            .expect("the link opens");
-        Machine {
-            registry,
-            device,
-            link,
-        }
-    }
-
-    fn sim(&self) -> &SimCanopen {
-        self.device
-            .downcast_ref::<SimCanopen>()
-            .expect("a sim-canopen device")
-    }
-
-    fn program(&self, tp: &Toolpath) -> Program {
-        self.registry
-            .post("moves")
-            .expect("the moves post")
-            .program(tp)
-            .expect("a program")
-    }
-
-    /// Streams `program`, letting `on_event` steer; returns the end and every event.
-    async fn stream(
-        &mut self,
-        program: &Program,
-        on_event: impl FnMut(&LinkEvent, &watch::Sender<Control>, &SimCanopen),
-    ) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
-        self.stream_from(program, 0, on_event).await
-    }
-
-    /// Streams `program` from unit `from`.
-    async fn stream_from(
-        &mut self,
-        program: &Program,
-        from: usize,
-        mut on_event: impl FnMut(&LinkEvent, &watch::Sender<Control>, &SimCanopen),
-    ) -> (Result<StreamEnd, LinkError>, Vec<LinkEvent>) {
-        let (tx, mut rx) = mpsc::unbounded_channel();
-        let (ctl, ctl_rx) = watch::channel(Control::Run);
-        let sim: &SimCanopen = self.device.downcast_ref::<SimCanopen>().unwrap();
-        let stream = self.link.stream(program, from, tx, ctl_rx);
-        let driver = async {
-            let mut seen = Vec::new();
-            while let Some(ev) = rx.recv().await {
-                on_event(&ev, &ctl, sim);
-                seen.push(ev);
-            }
-            seen
+/// The drives' records joined by SYNC: (sync, demand mm, actual mm) per axis.
+fn positions(m: &Machine) -> Vec<(u64, P3, P3)> {
+    let traces: Vec<Vec<SyncRecord>> = (1..=3).map(|n| m.sim().drives.trace(n)).collect();
+    let mut out = Vec::new();
+    for r in &traces[0] {
+        let at = |i: usize| traces[i].iter().find(|t| t.sync == r.sync).copied();
+        let (Some(y), Some(z)) = (at(1), at(2)) else {
+            continue;
         };
-        let both = async { tokio::join!(stream, driver) };
-        tokio::time::timeout(Duration::from_secs(120), both)
-            .await
-            .expect("the stream ends within two minutes")
+        let mm = |i: usize, c: f64| c / (SIGN[i] * COUNTS);
+        out.push((
+            r.sync,
+            P3::new(
+                mm(0, r.demand as f64),
+                mm(1, y.demand as f64),
+                mm(2, z.demand as f64),
+            ),
+            P3::new(mm(0, r.actual), mm(1, y.actual), mm(2, z.actual)),
+        ));
     }
-
-    /// The drives' records joined by SYNC: (sync, demand mm, actual mm) per axis.
-    fn positions(&self) -> Vec<(u64, P3, P3)> {
-        let traces: Vec<Vec<SyncRecord>> = (1..=3).map(|n| self.sim().drives.trace(n)).collect();
-        let mut out = Vec::new();
-        for r in &traces[0] {
-            let at = |i: usize| traces[i].iter().find(|t| t.sync == r.sync).copied();
-            let (Some(y), Some(z)) = (at(1), at(2)) else {
-                continue;
-            };
-            let mm = |i: usize, c: f64| c / (SIGN[i] * COUNTS);
-            out.push((
-                r.sync,
-                P3::new(
-                    mm(0, r.demand as f64),
-                    mm(1, y.demand as f64),
-                    mm(2, z.demand as f64),
-                ),
-                P3::new(mm(0, r.actual), mm(1, y.actual), mm(2, z.actual)),
-            ));
-        }
-        out
-    }
+    out
 }
 
 /// The tool path's pieces, in order from the origin, with offset-core's own geometry.
@@ -301,7 +222,7 @@ fn acked(events: &[LinkEvent]) -> Vec<usize> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_and_holds_on_it() {
-    let mut m = Machine::start().await;
+    let mut m = Machine::start_with(settings()).await;
     let tp = pocket_path();
     let program = m.program(&tp);
     let path = pieces(&tp, P3::default());
@@ -311,7 +232,7 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
     );
 
     // 1. the whole pocket
-    let (end, events) = m.stream(&program, |_, _, _| {}).await;
+    let (end, events) = m.stream(&program, 0, |_, _, _| {}).await;
     assert_eq!(end.expect("the pocket runs"), StreamEnd::Completed);
     let a = acked(&events);
     assert!(
@@ -323,7 +244,7 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
         Some(&(program.len() - 1)),
         "every move acknowledged"
     );
-    let pos = m.positions();
+    let pos = positions(&m);
     assert!(pos.len() > 1000, "{} SYNCs recorded", pos.len());
     let demand: Vec<P3> = pos.iter().map(|p| p.1).collect();
     let actual: Vec<P3> = pos.iter().map(|p| p.2).collect();
@@ -347,7 +268,7 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
     let mut held_at: Option<u64> = None;
     let mut resumed_at: Option<u64> = None;
     let (end, events) = m
-        .stream(&program, |ev, ctl, sim| match ev {
+        .stream(&program, 0, |ev, ctl, sim| match ev {
             LinkEvent::Acked { unit } if *unit >= third && !hold_sent => {
                 hold_sent = true;
                 ctl.send(Control::Hold).unwrap();
@@ -369,7 +290,7 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
         .iter()
         .any(|e| matches!(e, LinkEvent::Status(s) if s.state == DeviceState::Running)));
     let (held_at, resumed_at) = (held_at.expect("held"), resumed_at.unwrap());
-    let pos = m.positions();
+    let pos = positions(&m);
     let still: Vec<P3> = pos
         .iter()
         .filter(|p| p.0 > held_at && p.0 <= resumed_at)
@@ -400,7 +321,7 @@ async fn a_pocket_on_three_drives_over_slcan_follows_the_path_within_the_limits_
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_runs_the_next_after_unlock(
 ) {
-    let mut m = Machine::start().await;
+    let mut m = Machine::start_with(settings()).await;
     // two depth passes: long enough for a silent node to be noticed before the end
     let job = m.program(&pocket_of_depth(2.0));
     let next = m.program(&square(5.0));
@@ -447,7 +368,7 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
         let what = format!("{fault:?} on node {node}");
         assert!(m.sim().drives.inject(node, fault.clone()));
         m.sim().drives.clear_traces();
-        let (end, events) = m.stream(&job, |_, _, _| {}).await;
+        let (end, events) = m.stream(&job, 0, |_, _, _| {}).await;
         let Err(LinkError::Alarm { code: got, text }) = end else {
             panic!("{what}: the job should stop with an alarm, got {end:?}");
         };
@@ -486,7 +407,7 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
                 == machlink_protocols::canopen::cia402::PowerState::Fault
         });
         if in_fault {
-            let (end, _) = m.stream(&next, |_, _, _| {}).await;
+            let (end, _) = m.stream(&next, 0, |_, _, _| {}).await;
             let Err(LinkError::Alarm { text, .. }) = end else {
                 panic!(
                     "{what}: a drive in fault must refuse the next job until unlock, got {end:?}"
@@ -502,7 +423,7 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
             .operate(&machlink_protocols::link::Operation::Unlock)
             .await
             .unwrap_or_else(|e| panic!("{what}: unlock: {e}"));
-        let (end, events) = m.stream(&next, |_, _, _| {}).await;
+        let (end, events) = m.stream(&next, 0, |_, _, _| {}).await;
         assert_eq!(
             end.unwrap_or_else(|e| panic!("after {what}: {e}")),
             StreamEnd::Completed
@@ -518,13 +439,13 @@ async fn each_injected_fault_stops_the_job_with_the_drives_reason_and_the_link_r
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_cancelled_pocket_stops_on_the_path_disables_the_drives_and_resumes_after_the_last_acknowledged_move(
 ) {
-    let mut m = Machine::start().await;
+    let mut m = Machine::start_with(settings()).await;
     let tp = pocket_path();
     let program = m.program(&tp);
     let half = program.len() / 2;
     let mut sent = false;
     let (end, events) = m
-        .stream(&program, |ev, ctl, _| {
+        .stream(&program, 0, |ev, ctl, _| {
             if matches!(ev, LinkEvent::Acked { unit } if *unit >= half) && !sent {
                 sent = true;
                 ctl.send(Control::Cancel).unwrap();
@@ -541,7 +462,7 @@ async fn a_cancelled_pocket_stops_on_the_path_disables_the_drives_and_resumes_af
     );
     assert_eq!(acked(&events).last(), Some(&(done - 1)));
     // braked on the path within the limits, then disabled (switched on)
-    let pos = m.positions();
+    let pos = positions(&m);
     let demand: Vec<P3> = pos.iter().map(|p| p.1).collect();
     let (d, at) = worst_distance(&pieces(&tp, P3::default()), demand.iter().copied());
     assert!(d <= 1e-3, "a set-point is {d:.6} mm off the path at {at:?}");
@@ -556,7 +477,7 @@ async fn a_cancelled_pocket_stops_on_the_path_disables_the_drives_and_resumes_af
     }
     // resumed after the last acknowledged move: the rest of the program from where the
     // axes stood
-    let (end, events) = m.stream_from(&program, done, |_, _, _| {}).await;
+    let (end, events) = m.stream(&program, done, |_, _, _| {}).await;
     assert_eq!(end.expect("the rest runs"), StreamEnd::Completed);
     let a = acked(&events);
     assert_eq!(a.first().copied().map(|u| u >= done), Some(true), "{a:?}");
@@ -582,7 +503,7 @@ async fn cyclic_synchronous_position_paced_by_the_clock_follows_the_path_holds_a
     let program = m.program(&tp);
     let (mut hold_sent, mut held_at, mut resumed) = (false, None::<u64>, false);
     let (end, events) = m
-        .stream(&program, |ev, ctl, sim| match ev {
+        .stream(&program, 0, |ev, ctl, sim| match ev {
             LinkEvent::Acked { unit } if *unit >= 1 && !hold_sent => {
                 hold_sent = true;
                 ctl.send(Control::Hold).unwrap();
@@ -601,7 +522,7 @@ async fn cyclic_synchronous_position_paced_by_the_clock_follows_the_path_holds_a
     assert!(resumed, "held and resumed");
     assert_eq!(acked(&events).last(), Some(&(program.len() - 1)));
     // the drives moved only because their 0x607A set-points came mapped by RPDO
-    let pos = m.positions();
+    let pos = positions(&m);
     let demand: Vec<P3> = pos.iter().map(|p| p.1).collect();
     assert!(
         demand

@@ -62,7 +62,8 @@ pub fn line_job() -> Toolpath {
 pub struct Machine {
     registry: Registry,
     pub device: machlink_protocols::kind::Device,
-    link: Box<dyn MachineLink>,
+    /// The open link, for what a test asks of it beside streaming (unlock, NMT).
+    pub link: Box<dyn MachineLink>,
 }
 
 impl Machine {
