@@ -69,6 +69,11 @@ pub fn read_point_grid(bytes: &[u8], name: &str) -> Result<PointGrid, MeshError>
             .split(|c: char| c == ',' || c == ';' || c.is_whitespace())
             .filter(|s| !s.is_empty())
             .collect();
+        if fields.is_empty() {
+            // only separators (",,,"): as good as a blank line
+            lines.push(None);
+            continue;
+        }
         let nums: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
         let nums = match nums {
             Ok(v) => v,
