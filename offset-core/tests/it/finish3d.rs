@@ -3,7 +3,7 @@
 //! tolerance of the drop-cutter surface (measured square to each move), rows lie a step-over apart in the direction asked
 //! for, and line fitting keeps flat stretches to single moves.
 
-mod mesh_support;
+use crate::mesh_support;
 
 use mesh_support::dome_outside;
 use offset_core::mesh::shapes::height_field;

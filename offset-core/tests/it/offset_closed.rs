@@ -1,8 +1,7 @@
 //! Closed offsets of single polylines: known answers, the distance property and Clipper2's
 //! area on random star polygons with lines and arcs.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::geom::{Point, Polyline};
 use offset_core::offset::{offset_polyline, OffsetOptions};
 use proptest::prelude::*;

@@ -1,7 +1,6 @@
 //! Open offsets to the left and right, and the miter and chamfer joins.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::check::check_offset;
 use offset_core::geom::{Point, Polyline, Vertex};
 use offset_core::offset::{offset_polyline, Join, OffsetOptions};

@@ -3,7 +3,7 @@
 //! points and finished gives the sphere's exact tool-tip heights within the tolerance
 //! plus the fit error.
 
-mod mesh_support;
+use crate::mesh_support;
 
 use mesh_support::tip_over_sphere;
 use offset_core::mesh::bvh::Bvh;

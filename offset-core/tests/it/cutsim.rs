@@ -4,7 +4,7 @@
 //! the raster coverage check of the pocket tests; gouges, rapids through material and air
 //! cuts are found where they are.
 
-mod pocket_support;
+use crate::pocket_support;
 
 use offset_core::cutsim::{simulate, MoveKind, Part, Report, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Region, Shape};

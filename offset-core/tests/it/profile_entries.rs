@@ -5,7 +5,7 @@
 //! down into the material unless asked (or warned), never nearer the part than the tool
 //! radius.
 
-mod pocket_support;
+use crate::pocket_support;
 
 use offset_core::geom::{Point, Polyline, Shape};
 use offset_core::ops::{profile, Cutting, Entry, ProfileParams, Side};

@@ -5,8 +5,7 @@
 //! rule and by the distance checker; and the gear of issue 13, whose inward offset by 2 mm
 //! once carried a 1.8e-9 mm back-step at a seam the kernel then refused.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::check::first_crossing;
 use offset_core::geom::{Point, Polyline, Region};
 use offset_core::offset::{offset_region, OffsetOptions};

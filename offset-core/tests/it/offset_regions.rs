@@ -1,8 +1,7 @@
 //! Regions with islands: islands grow while the outer shrinks, merge, split the pocket,
 //! vanish, and swallow the outer (Park 2001); checked by distance and by Clipper2's area.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::check::first_crossing;
 use offset_core::geom::{Point, Polyline, Region};
 use offset_core::offset::{offset_region, OffsetError, OffsetOptions};

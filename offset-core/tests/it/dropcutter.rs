@@ -3,7 +3,7 @@
 //! height and no more above it than the tessellation error allows; and, for random meshes
 //! and cutters, no cutter location lets the cutter into any triangle.
 
-mod mesh_support;
+use crate::mesh_support;
 
 use mesh_support::*;
 use offset_core::mesh::{Cutter, DropCutter, Mesh, V3};

@@ -2,8 +2,7 @@
 //! distances, self-intersecting and non-finite input, wild input that must not panic, and
 //! repeated pocket passes that must not pile up vertices.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::geom::{Point, Polyline, Region, Shape, Vertex};
 use offset_core::offset::{
     offset_polyline, offset_region, offset_shape, Join, OffsetError, OffsetOptions,

@@ -11,8 +11,7 @@
 //! `path 1 crosses itself near (-18.5435, -6.9913)`. `closure/cap_level_7_5_first_pass.json`
 //! is that first pass as the kernel gave it.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::check::{check_offset, first_crossing};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::mesh::{shapes, slice_at};

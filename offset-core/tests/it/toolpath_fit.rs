@@ -13,7 +13,7 @@
 //! no nearer; at 0.01 and 0.001 mm its profile keeps the polygon's sides, whose offset lies
 //! between 350 − s and 350.
 
-mod pocket_support;
+use crate::pocket_support;
 
 use offset_core::biarc::{fit_toolpath, BiarcOptions};
 use offset_core::check::sampled_deviation;

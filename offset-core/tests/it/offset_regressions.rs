@@ -1,8 +1,7 @@
 //! The named adversarial cases in tests/regressions/: each offset must give the expected
 //! number of loops and area (closed forms, written in each file) and keep its distance.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::offset::{offset_shape, Join, OffsetOptions};
 
 #[test]

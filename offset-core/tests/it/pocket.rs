@@ -5,7 +5,7 @@
 //! tool radius from every wall and island; and no entry descends steeper than the ramp
 //! angle or goes straight down into the material.
 
-mod pocket_support;
+use crate::pocket_support;
 
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, pocket_with, Entry, OpError, PocketParams, Stepover};

@@ -5,8 +5,7 @@
 //! distances are made in stages (docs/offset.md, "Large distances"), small ones in one, so
 //! this also holds the two ways to the same answer.
 
-mod common;
-use common::*;
+use crate::common::*;
 use offset_core::check::{check_offset, first_crossing};
 use offset_core::geom::{Point, Polyline, Region};
 use offset_core::offset::{offset_region, OffsetOptions};
@@ -115,7 +114,7 @@ proptest! {
     /// Dense wavy outlines, with or without an island, shrunk or grown at five distances
     /// over three decades.
     #[test]
-    #[ignore = "minutes in the test profile (the two-way distance check at 1e-3 over three decades); run: cargo test --release -p offset-core --test offset_distances -- --ignored"]
+    #[ignore = "minutes in the test profile (the two-way distance check at 1e-3 over three decades); run: cargo test --release -p offset-core --test it offset_distances:: -- --ignored"]
     fn offsets_over_three_decades_are_valid_and_nested(
         n in 200usize..800,
         r0 in 30.0f64..60.0,
