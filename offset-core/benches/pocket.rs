@@ -9,7 +9,7 @@
 //!    points (not fitted on import).
 //! 3. Moves before and after fitting for sample shapes, and the fitter's own speed.
 
-#[path = "../tests/pocket_support/mod.rs"]
+#[path = "../tests/it/pocket_support/mod.rs"]
 mod pocket_support;
 
 use offset_core::biarc::{fit_points, fit_toolpath, BiarcOptions};

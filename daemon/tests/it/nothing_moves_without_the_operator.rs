@@ -6,6 +6,7 @@
 //! `unlock` like every kind's alarm. Each through the `machlink` binary against simulators
 //! that live in this test's process (so they outlive the daemon), checked on their traces.
 
+use crate::common::cli::{at_socket, stderr};
 use crate::proc;
 
 use machlink::core::store::{JobId, JobState};
@@ -13,26 +14,12 @@ use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
 use proc::*;
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
 
 /// `machlink ARGS --socket DIR/ml.sock`, stdin from /dev/null (no terminal), to the end.
 fn cli(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .env("RUST_LOG", "warn")
-        .env_remove("MACHLINK_SOCKET")
-        .env_remove("MACHLINK_CONFIG")
-        .env_remove("MACHLINK_TOKEN")
-        .args(args)
-        .arg("--socket")
-        .arg(dir.join("ml.sock"))
-        .stdin(Stdio::null())
-        .output()
-        .expect("machlink runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    at_socket(&dir.join("ml.sock"), args)
 }
 
 /// Waits (bounded) until job `id` satisfies `ok`; the job then.
@@ -408,18 +395,7 @@ impl Cell {
 
 /// A sewing job: an open zigzag of `rows` rows across the frame.
 fn zigzag(rows: usize) -> machlink::core::intake::JobSpec {
-    let mut vertices = Vec::new();
-    for row in 0..rows {
-        let y = -60.0 + row as f64 * 7.0;
-        let (a, b) = if row % 2 == 0 {
-            (-110.0, 110.0)
-        } else {
-            (110.0, -110.0)
-        };
-        vertices.push([a, y, 0.0]);
-        vertices.push([b, y, 0.0]);
-    }
-    let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });
+    let shape = crate::common::sewing::zigzag_seam(rows, -60.0, 7.0, 110.0);
     machlink::core::intake::JobSpec {
         operation: Some(machlink::core::intake::Operation::Stitch(
             offset_core::stitch::StitchParams {
@@ -427,7 +403,7 @@ fn zigzag(rows: usize) -> machlink::core::intake::JobSpec {
                 ..Default::default()
             },
         )),
-        ..file_job("sewer", &format!("zigzag{rows}.json"), &shape.to_string())
+        ..file_job("sewer", &format!("zigzag{rows}.json"), &shape)
     }
 }
 

@@ -5,55 +5,20 @@
 //! time and ETA, `resume` showing what it will do and asking first (`--yes` for scripts),
 //! and a SIGTERM that holds the machine and leaves the job interrupted at its exact line.
 
+use crate::common::cli::{
+    at_socket as cli, job_record as job_json, stderr as err, stdout as out, wait_job_record,
+};
 use crate::proc;
 
 use machlink::core::scheduler::Event;
-use machlink::core::store::{JobRecord, JobState};
+use machlink::core::store::JobState;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 use proc::*;
-use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 use std::time::{Duration, Instant};
-
-fn cli(socket: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .args(args)
-        .arg("--socket")
-        .arg(socket)
-        .stdin(Stdio::null())
-        .output()
-        .expect("machlink runs")
-}
-
-fn out(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn err(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn ok(o: &Output) {
     assert!(o.status.success(), "{}{}", out(o), err(o));
-}
-
-fn job_json(socket: &Path, id: i64) -> JobRecord {
-    let o = cli(socket, &["jobs", "--json"]);
-    ok(&o);
-    let jobs: Vec<JobRecord> = serde_json::from_slice(&o.stdout).unwrap();
-    jobs.into_iter().find(|j| j.id == id).expect("the job")
-}
-
-fn wait_job(socket: &Path, id: i64, f: impl Fn(&JobRecord) -> bool) -> JobRecord {
-    let until = Instant::now() + Duration::from_secs(120);
-    loop {
-        let j = job_json(socket, id);
-        if f(&j) {
-            return j;
-        }
-        assert!(Instant::now() < until, "job {id} stuck: {j:?}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 /// The program lines the controller received (a resume's own lines left out).
@@ -169,7 +134,7 @@ async fn the_operator_commands_from_a_shell_and_a_graceful_sigterm() {
         &["submit", nc.to_str().unwrap(), "--machine", "mill"],
     );
     let id2: i64 = out(&o).trim().parse().unwrap();
-    wait_job(&sock, id2, |j| j.acked_units > 50);
+    wait_job_record(&sock, id2, "past unit 50", |j| j.acked_units > 50);
     let o = cli(&sock, &["override", &id2.to_string(), "--feed", "120%"]);
     ok(&o);
     assert!(err(&o).contains("feed 120 %"), "{}", err(&o));
@@ -204,7 +169,7 @@ async fn the_operator_commands_from_a_shell_and_a_graceful_sigterm() {
         &["submit", nc.to_str().unwrap(), "--machine", "mill"],
     );
     let id3: i64 = out(&o).trim().parse().unwrap();
-    wait_job(&sock, id3, |j| j.acked_units > 60);
+    wait_job_record(&sock, id3, "past unit 60", |j| j.acked_units > 60);
     let status = daemon.terminate();
     assert!(status.success(), "{status:?}\n{}", daemon.log());
     let held = sim.trace().len();
@@ -228,7 +193,7 @@ async fn the_operator_commands_from_a_shell_and_a_graceful_sigterm() {
         "{}",
         err(&o)
     );
-    let done = wait_job(&sock, id3, |j| j.state.is_final());
+    let done = wait_job_record(&sock, id3, "finished", |j| j.state.is_final());
     assert_eq!(
         done.state,
         JobState::Completed,

@@ -13,9 +13,9 @@
 
 use crate::common;
 use common::cli::{ok, run as machlink};
+use common::pyembroidery::pyembroidery_read;
 
 use std::path::Path;
-use std::process::Command;
 
 /// The part: a 40 × 30 plate, corner at the origin.
 const W: f64 = 40.0;
@@ -323,28 +323,6 @@ fn every_gcode_post_and_the_modbus_post_cut_profiles_at_the_radius_on_their_side
             check_profile(&what, &cuts, side, 3.0, 3.0, 1.0);
         }
     }
-}
-
-/// What pyembroidery reads from `path`: (x, y, command) per record, 0.1 mm, y down. Fails
-/// (never skips) when python3 or pyembroidery is missing.
-fn pyembroidery_read(path: &Path) -> Vec<(f64, f64, u32)> {
-    let script = "import sys, json, pyembroidery\n\
-        p = pyembroidery.read(sys.argv[1])\n\
-        print(json.dumps([[x, y, int(c) & 0xFF] for x, y, c in p.stitches]))";
-    let out = Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(path)
-        .output()
-        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
-    assert!(
-        out.status.success(),
-        "python3 with pyembroidery is needed for this test (run .ci/run, or `python3 -m pip \
-         install -r .ci/requirements.txt`); reading {} failed: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON")
 }
 
 #[test]

@@ -12,11 +12,11 @@
 use crate::common;
 use crate::proc;
 
-use common::cli::{ok, run as machlink, stderr};
-use machlink::core::store::{JobRecord, JobState};
+use common::cli::{at_socket as cli, ok, run as machlink, stderr, stdout as out, wait_job_record};
+use machlink::core::store::JobState;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 fn example(name: &str) -> PathBuf {
@@ -530,39 +530,6 @@ take = { layers = ["TEXT*"] }
     );
 }
 
-fn cli(socket: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .args(args)
-        .arg("--socket")
-        .arg(socket)
-        .stdin(Stdio::null())
-        .output()
-        .expect("machlink runs")
-}
-
-fn out(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn job(socket: &Path, id: i64) -> JobRecord {
-    let o = cli(socket, &["jobs", "--json"]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let jobs: Vec<JobRecord> = serde_json::from_slice(&o.stdout).unwrap();
-    jobs.into_iter().find(|j| j.id == id).expect("the job")
-}
-
-fn wait(socket: &Path, id: i64, what: &str, f: impl Fn(&JobRecord) -> bool) -> JobRecord {
-    let until = Instant::now() + Duration::from_secs(120);
-    loop {
-        let j = job(socket, id);
-        if f(&j) {
-            return j;
-        }
-        assert!(Instant::now() < until, "job {id} never {what}: {j:?}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 /// The program lines the controller received, in order.
 fn received(sim: &machlink_sim::grbl::GrblSimHandle) -> Vec<String> {
     sim.events()
@@ -642,7 +609,7 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
     let id: i64 = out(&o).trim().parse().unwrap();
     let tools = ["load T1 (3 mm drill)", "load T2 (6 mm flat end mill)"];
     for tool in tools {
-        let j = wait(&sock, id, "paused for a tool", |j| {
+        let j = wait_job_record(&sock, id, "paused for a tool", |j| {
             j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
         });
         assert_eq!(
@@ -670,7 +637,7 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
         let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
         assert!(o.status.success(), "{}", stderr(&o));
     }
-    wait(&sock, id, "completed", |j| j.state == JobState::Completed);
+    wait_job_record(&sock, id, "completed", |j| j.state == JobState::Completed);
     // every line of the program `plan` writes reached the controller once, in order
     let got = received(&sim);
     let want: Vec<String> = planned

@@ -3,6 +3,10 @@
 //! add the file beside this one and its `mod` line below. Tests that need a process of their
 //! own stay apart (docs/testing.md, "One binary per crate").
 
+/// Test helpers shared with other crates' tests (testkit/README.md).
+#[path = "../../../testkit/pyembroidery.rs"]
+mod pyembroidery;
+
 mod canopen_decoders;
 mod canopen_socketcan;
 mod fuzz_devices;

@@ -6,6 +6,8 @@ use machlink_protocols::sewing::{dst, jef, records, RecordLimits, StitchKind, St
 use offset_core::geom::{Point, Polyline, Shape};
 use offset_core::stitch::{stitch, StitchParams};
 
+use crate::pyembroidery::pyembroidery_read;
+
 fn walk(steps: impl Iterator<Item = (i32, i32, StitchKind)>) -> Vec<StitchRecord> {
     let (mut x, mut y) = (0, 0);
     steps
@@ -228,30 +230,6 @@ fn broken_files_are_one_sentence_naming_the_file() {
     assert!(e.starts_with("stitch 0 to (12.2, 0.0) mm"), "{e}");
 }
 
-/// What pyembroidery reads from `path`: (x, y, command) per record, in its units (0.1 mm,
-/// y down). Fails (never skips) when python3 or pyembroidery is missing.
-fn pyembroidery_read(path: &std::path::Path) -> Vec<(i32, i32, u32)> {
-    let script = "import sys, json, pyembroidery\n\
-        p = pyembroidery.read(sys.argv[1])\n\
-        print(json.dumps([[int(round(x)), int(round(y)), int(c) & 0xFF] for x, y, c in p.stitches]))";
-    let out = std::process::Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(path)
-        .output()
-        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
-    assert!(
-        out.status.success(),
-        "python3 with pyembroidery is needed for this test (run .ci/run, or `python3 -m pip \
-         install -r .ci/requirements.txt`); it failed on {}: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let v: Vec<(i32, i32, u32)> =
-        serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON");
-    v
-}
-
 /// pyembroidery's command numbers (EmbConstant).
 const PY_STITCH: u32 = 0;
 const PY_TRIM: u32 = 2;
@@ -283,7 +261,11 @@ fn pyembroidery_reads_our_dst_and_jef_as_the_same_stitches_trims_and_colour_chan
             };
             let path = dir.path().join(format!("{what}.{name}"));
             std::fs::write(&path, &bytes).unwrap();
-            let theirs = pyembroidery_read(&path);
+            // pyembroidery's units are ours (0.1 mm): whole numbers, rounded as it stores them
+            let theirs: Vec<(i32, i32, u32)> = pyembroidery_read(&path)
+                .into_iter()
+                .map(|(x, y, c)| (x.round() as i32, y.round() as i32, c))
+                .collect();
             // every needle drop in order, at our coordinates (pyembroidery's y points down)
             let ours: Vec<(i32, i32)> = recs
                 .iter()

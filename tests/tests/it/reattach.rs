@@ -17,24 +17,16 @@ use offset_core::stitch::StitchParams;
 use std::time::Duration;
 
 fn zigzag_stitches() -> JobSpec {
-    let mut vertices = Vec::new();
-    for row in 0..10 {
-        let y = -50.0 + row as f64 * 8.0;
-        let (a, b) = if row % 2 == 0 {
-            (-100.0, 100.0)
-        } else {
-            (100.0, -100.0)
-        };
-        vertices.push([a, y, 0.0]);
-        vertices.push([b, y, 0.0]);
-    }
-    let shape = serde_json::json!({ "units": "mm", "paths": [ { "closed": false, "vertices": vertices } ] });
     JobSpec {
         operation: Some(Operation::Stitch(StitchParams {
             stitch_length: 2.5,
             ..Default::default()
         })),
-        ..job("sewer", "zigzag.json", &shape.to_string())
+        ..job(
+            "sewer",
+            "zigzag.json",
+            &sewing::zigzag_seam(10, -50.0, 8.0, 100.0),
+        )
     }
 }
 

@@ -2,3 +2,7 @@
 #![allow(dead_code)]
 pub mod cli;
 pub mod nats;
+#[path = "../../../../testkit/pyembroidery.rs"]
+pub mod pyembroidery;
+#[path = "../../../../testkit/sewing.rs"]
+pub mod sewing;

@@ -2,6 +2,9 @@
 //! programs, and what the simulator should execute from them.
 #![allow(dead_code)]
 
+#[path = "../../../../testkit/sewing.rs"]
+pub mod sewing;
+
 use machlink::config::Config;
 use machlink::core::intake::{Input, JobSpec};
 use machlink::core::store::{JobId, JobRecord, JobState};
