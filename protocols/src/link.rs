@@ -29,6 +29,9 @@ pub enum OperatorReason {
     LoadTool { number: u32, name: String },
     /// The program stopped itself (M0, M1) or the machine's own hold button was pressed.
     ProgramStop,
+    /// A sewing machine stopped at a colour change of its pattern: load the thread of
+    /// colour `colour` (1 is the pattern's first thread), then resume.
+    ChangeThread { colour: u32 },
     /// Anything else the device names.
     Other { text: String },
 }
@@ -44,6 +47,9 @@ impl std::fmt::Display for OperatorReason {
             }
             OperatorReason::LoadTool { number, name } => write!(f, "load T{number} ({name})"),
             OperatorReason::ProgramStop => f.write_str("program stop"),
+            OperatorReason::ChangeThread { colour } => {
+                write!(f, "change the thread to colour {colour}")
+            }
             OperatorReason::Other { text } => f.write_str(text),
         }
     }

@@ -13,10 +13,10 @@ use crate::common;
 use crate::proc;
 
 use common::cli::{at_socket as cli, ok, run as machlink, stderr, stdout as out, wait_job_record};
+use common::pyembroidery::pyembroidery_read;
 use machlink::core::store::JobState;
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 fn example(name: &str) -> PathBuf {
@@ -657,22 +657,7 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
 /// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
 /// TRIM 2, STOP 3, END 4, COLOR_CHANGE 5). Fails (never skips) without pyembroidery.
 fn pyembroidery_commands(path: &Path) -> Vec<u32> {
-    let script = "import sys, json, pyembroidery\n\
-        p = pyembroidery.read(sys.argv[1])\n\
-        print(json.dumps([int(c) & 0xFF for x, y, c in p.stitches]))";
-    let out = Command::new("python3")
-        .arg("-c")
-        .arg(script)
-        .arg(path)
-        .output()
-        .unwrap_or_else(|e| panic!("python3 is needed for this test and does not run: {e}"));
-    assert!(
-        out.status.success(),
-        "python3 with pyembroidery is needed for this test (run .ci/run); reading {} failed: {}",
-        path.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("pyembroidery's records as JSON")
+    pyembroidery_read(path).into_iter().map(|r| r.2).collect()
 }
 
 /// Two seams on two DXF layers, open polylines 40 mm long.
@@ -730,4 +715,108 @@ fn a_two_thread_seam_job_changes_colour_once_in_dst_and_jef() {
             "{post}: {before} stitches, then {after}"
         );
     }
+}
+
+/// The two-thread seam job on a sewing machine through the daemon: the machine stops at the
+/// colour change (docs/sewing-link.md rule 9a), `machines` and the job say which thread to
+/// load, nothing is sewn until `resume`, and every record is sewn once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_sewing_machine_stops_at_the_colour_change_until_the_operator_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = machlink_sim::sewing::spawn_on_pty(machlink_sim::sewing::SewingSimConfig {
+        time_scale: 4.0,
+        spm: 3000,
+        ..Default::default()
+    })
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"sewer\"\nlink = \"sewing\"\nport = \"{}\"\n",
+            sim.path
+        ),
+    );
+    let dxf = dir.path().join("seams.dxf");
+    std::fs::write(&dxf, seams_dxf()).unwrap();
+    let recipe = dir.path().join("seams.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
+         [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let o = cli(
+        &sock,
+        &[
+            "submit",
+            dxf.to_str().unwrap(),
+            "--machine",
+            "sewer",
+            "--recipe",
+            recipe.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let id: i64 = out(&o).trim().parse().unwrap();
+    let j = wait_job_record(&sock, id, "paused at the colour change", |j| {
+        j.state == JobState::Paused
+    });
+    assert_eq!(
+        j.note.as_deref(),
+        Some(
+            format!("needs operator: change the thread to colour 2, then `machlink resume {id}`")
+                .as_str()
+        ),
+        "{j:?}"
+    );
+    let o = cli(&sock, &["machines"]);
+    assert!(
+        out(&o).contains("needs operator: change the thread to colour 2"),
+        "{}",
+        out(&o)
+    );
+    // nothing is sewn while the thread is changed
+    let sewn = |sim: &machlink_sim::sewing::SewingSim| sim.trace.lock().unwrap().drops.len();
+    let before = sewn(&sim);
+    assert!(
+        before >= 10,
+        "the first seam is sewn before the change: {before} stitches"
+    );
+    std::thread::sleep(Duration::from_millis(800));
+    assert_eq!(sewn(&sim), before, "it sewed during the thread change");
+    let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    wait_job_record(&sock, id, "completed", |j| j.state == JobState::Completed);
+    // every record of the pattern executed once, in order, the colour change among them
+    let trace = sim.trace.lock().unwrap();
+    let done: Vec<u32> = trace
+        .lines
+        .iter()
+        .filter_map(|l| match l {
+            machlink_sim::sewing::TraceLine::Record { index, .. } => Some(*index),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        done,
+        (0..done.len() as u32).collect::<Vec<_>>(),
+        "records out of order or twice"
+    );
+    assert!(
+        trace.drops.len() >= 2 * before.min(10),
+        "{} stitches in all",
+        trace.drops.len()
+    );
+    assert_eq!(
+        trace
+            .events
+            .iter()
+            .filter(|e| e.starts_with("operator stop"))
+            .count(),
+        1,
+        "{:?}",
+        trace.events
+    );
 }

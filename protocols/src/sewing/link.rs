@@ -10,7 +10,7 @@
 //! read with STATUS.
 
 use super::wire::{self, refusal, req, Decoded, Decoder, Frame, Info, SewingState, Status};
-use super::{pattern_crc, StitchRecord};
+use super::{pattern_crc, StitchKind, StitchRecord};
 use crate::link::{
     Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, OperatorReason,
     Reattach, SendJournal, StreamEnd,
@@ -496,7 +496,15 @@ impl SewingLink {
                         let _ = events.send(LinkEvent::Acked { unit: done - 1 });
                     }
                     if last_state != Some(st.state) {
-                        let _ = events.send(LinkEvent::Status(st.to_status()));
+                        let mut status = st.to_status();
+                        if st.state == SewingState::Held && st.operator_stop {
+                            let stop = operator_stop(records, counter);
+                            status.state = DeviceState::NeedsOperator { reason: stop.clone() };
+                            let _ = events.send(LinkEvent::Message(format!(
+                                "{stop} at stitch {counter}, then resume the job"
+                            )));
+                        }
+                        let _ = events.send(LinkEvent::Status(status));
                         if st.state == SewingState::ThreadBreak {
                             let _ = events.send(LinkEvent::Message(format!(
                                 "thread break at stitch {counter}: rethread the needle, then resume the job"
@@ -675,6 +683,11 @@ impl Status {
                     DeviceState::Idle
                 }
                 SewingState::Sewing => DeviceState::Running,
+                // held at a colour-change or stop record: the operator's turn (the link,
+                // which knows the records, names the colour)
+                SewingState::Held if self.operator_stop => DeviceState::NeedsOperator {
+                    reason: OperatorReason::ProgramStop,
+                },
                 SewingState::Held => DeviceState::Held,
                 SewingState::ThreadBreak => DeviceState::NeedsOperator {
                     reason: OperatorReason::ThreadBreak,
@@ -684,5 +697,20 @@ impl Status {
             position: [self.x as f64 / 10.0, self.y as f64 / 10.0, 0.0],
             feed: 0.0,
         }
+    }
+}
+
+/// Why a machine held at an operator stop (rule 9a) waits: the record before `counter` is
+/// a colour change (the thread of the next colour, counted from 1) or a stop.
+fn operator_stop(records: &[StitchRecord], counter: usize) -> OperatorReason {
+    let done = &records[..counter.min(records.len())];
+    match done.last().map(|r| r.kind) {
+        Some(StitchKind::ColorChange) => OperatorReason::ChangeThread {
+            colour: 1 + done
+                .iter()
+                .filter(|r| r.kind == StitchKind::ColorChange)
+                .count() as u32,
+        },
+        _ => OperatorReason::ProgramStop,
     }
 }

@@ -237,6 +237,9 @@ pub struct Status {
     pub y: i32,
     pub thread_break: bool,
     pub needle_down: bool,
+    /// Held at a colour-change or stop record of the pattern: the machine waits for the
+    /// operator (a thread to change) and RESUME sews on (flag bit 2).
+    pub operator_stop: bool,
     /// Length and CRC-32 of the loaded (or last) pattern; 0 when none was ever loaded.
     pub pattern_len: u32,
     pub pattern_crc: u32,
@@ -249,7 +252,11 @@ impl Status {
         b.extend_from_slice(&self.counter.to_le_bytes());
         b.extend_from_slice(&self.x.to_le_bytes());
         b.extend_from_slice(&self.y.to_le_bytes());
-        b.push(self.thread_break as u8 | (self.needle_down as u8) << 1);
+        b.push(
+            self.thread_break as u8
+                | (self.needle_down as u8) << 1
+                | (self.operator_stop as u8) << 2,
+        );
         b.extend_from_slice(&self.pattern_len.to_le_bytes());
         b.extend_from_slice(&self.pattern_crc.to_le_bytes());
         b
@@ -266,6 +273,7 @@ impl Status {
             y: u32at(9) as i32,
             thread_break: b[13] & 1 != 0,
             needle_down: b[13] & 2 != 0,
+            operator_stop: b[13] & 4 != 0,
             pattern_len: u32at(14),
             pattern_crc: u32at(18),
         })

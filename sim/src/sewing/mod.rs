@@ -174,6 +174,8 @@ struct Machine {
     y: i32,
     needle_down: bool,
     thread_break: bool,
+    /// held at a colour-change or stop record (rule 9a), until RESUME or START
+    operator_stop: bool,
     /// the last request applied and the answer it got: (seq, type, reply frame bytes)
     last: Option<(u8, u8, Vec<u8>)>,
     breaks: BTreeSet<u32>,
@@ -197,6 +199,7 @@ impl Machine {
             y: 0,
             needle_down: false,
             thread_break: false,
+            operator_stop: false,
             last: None,
             breaks,
             power_losses,
@@ -224,6 +227,7 @@ impl Machine {
             y: self.y,
             thread_break: self.thread_break,
             needle_down: self.needle_down,
+            operator_stop: self.operator_stop,
             pattern_len: self.pattern_len,
             pattern_crc: self.pattern_crc,
         }
@@ -292,6 +296,7 @@ impl Machine {
                 });
                 self.event(format!("upload begun ({} records)", u32at(0)?));
                 self.pattern.clear();
+                self.operator_stop = false;
                 self.state = SewingState::NoPattern;
                 Ok(vec![])
             }
@@ -405,6 +410,7 @@ impl Machine {
                     (self.x, self.y) = (0, 0);
                 }
                 self.thread_break = false;
+                self.operator_stop = false;
                 self.state = SewingState::Sewing;
                 self.event(format!("start at {at}"));
                 Ok(vec![])
@@ -420,7 +426,11 @@ impl Machine {
                     if self.thread_break {
                         self.event(format!("rethreaded, resume at {}", self.counter));
                     }
+                    if self.operator_stop {
+                        self.event(format!("thread changed, resume at {}", self.counter));
+                    }
                     self.thread_break = false;
+                    self.operator_stop = false;
                     self.state = SewingState::Sewing;
                 }
                 Ok(vec![])
@@ -431,6 +441,7 @@ impl Machine {
                     SewingState::Sewing | SewingState::Held | SewingState::ThreadBreak
                 ) {
                     self.state = SewingState::Ready;
+                    self.operator_stop = false;
                 }
                 Ok(vec![])
             }
@@ -518,12 +529,19 @@ impl Machine {
                 }
             }
             StitchKind::Jump => (self.x, self.y) = (r.x, r.y),
-            StitchKind::Trim | StitchKind::ColorChange | StitchKind::Stop => {}
+            StitchKind::Trim => {}
+            StitchKind::ColorChange | StitchKind::Stop => {}
         }
         self.counter = i + 1;
         if self.counter as usize == self.pattern.len() {
             self.state = SewingState::Done;
             self.event("done".into());
+        } else if matches!(r.kind, StitchKind::ColorChange | StitchKind::Stop) {
+            // rule 9a: the operator changes the thread (or does what the stop asks), then
+            // RESUME sews on with the next record
+            self.event(format!("operator stop at {}", self.counter));
+            self.operator_stop = true;
+            self.state = SewingState::Held;
         }
     }
 }
