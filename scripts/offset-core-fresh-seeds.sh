@@ -2,8 +2,8 @@
 # The property tests of offset-core on N fresh seeds in a row (default 20), in release, at
 # the plain case count (PROPTEST_CASES=256). Stops at the first failing seed and prints it
 # (replay: PROPTEST_RNG_SEED=<seed> cargo test --release -p offset-core); proptest writes the
-# failing draw to the test's .proptest-regressions file, which is then committed with the
-# fix. Local only, not in CI: on two shared cores each seed takes minutes.
+# failing draw to offset-core/tests/proptest-regressions/<module>.txt, which is then
+# committed with the fix. Local only, not in CI: on two shared cores each seed takes minutes.
 #
 #   nice -n 19 scripts/offset-core-fresh-seeds.sh [N]
 set -eu

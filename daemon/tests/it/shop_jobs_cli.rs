@@ -820,3 +820,175 @@ async fn the_sewing_machine_stops_at_the_colour_change_until_the_operator_resume
         trace.events
     );
 }
+
+/// Two holes of 3 mm and one of 5 mm on layer HOLES, 1 mm deep drilling for a small gantry.
+fn holes_dxf() -> String {
+    let mut s = String::from("0\nSECTION\n2\nENTITIES\n");
+    for (k, (x, y, d)) in [(5.0, 5.0, 3.0), (15.0, 5.0, 3.0), (10.0, 12.0, 5.0)]
+        .iter()
+        .enumerate()
+    {
+        s.push_str(&format!(
+            "0\nCIRCLE\n5\n{}\n8\nHOLES\n10\n{x}\n20\n{y}\n30\n0.0\n40\n{}\n",
+            300 + k,
+            d / 2.0
+        ));
+    }
+    s.push_str("0\nENDSEC\n0\nEOF\n");
+    s
+}
+
+/// A CANopen gantry (simulated CiA 402 drives behind an SLCAN adapter, outside the daemon)
+/// runs a job of two tools: the master brings the path to rest at each tool change,
+/// `machines` and the job name the tool to load, no drive moves until `resume`, and the job
+/// then ends with every hole drilled.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let bus = machlink_protocols::canopen::MemoryBus::new();
+    let drives = machlink_sim::canopen::SimDrives::spawn(&bus, &[1, 2, 3], 1.0);
+    let adapter = machlink_sim::canopen::spawn_adapter(&bus).unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"gantry\"\nlink = \"canopen\"\nbus = \"slcan:{}\"\n\
+             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\n\
+             tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n\
+             axes = [\n  {{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
+             {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \
+             {{ axis = \"z\", node = 3, counts_per_mm = 1000, max_velocity = 15, max_acceleration = 400, max_jerk = 20000 }},\n]\n",
+            adapter.path,
+        ),
+    );
+    let dxf = dir.path().join("holes.dxf");
+    std::fs::write(&dxf, holes_dxf()).unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = 1\ntake = { diameter = [2.9, 3.1] }\ndepth = 1.0\nfeed = 300\n\n\
+         [[operations]]\nop = \"drill\"\ntool = 2\ntake = { diameter = [4.9, 5.1] }\ndepth = 1.0\nfeed = 300\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let o = cli(
+        &sock,
+        &[
+            "submit",
+            dxf.to_str().unwrap(),
+            "--machine",
+            "gantry",
+            "--recipe",
+            recipe.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let id: i64 = out(&o).trim().parse().unwrap();
+    // how far the drives have moved: set-points that changed a drive's actual position
+    let moved = |drives: &machlink_sim::canopen::SimDrives| -> usize {
+        drives
+            .nodes()
+            .iter()
+            .map(|&n| {
+                drives
+                    .trace(n)
+                    .windows(2)
+                    .filter(|w| (w[1].actual - w[0].actual).abs() > 0.5)
+                    .count()
+            })
+            .sum()
+    };
+    for tool in ["load T1 (3 mm drill)", "load T2 (5 mm drill)"] {
+        let j = wait_job_record(&sock, id, "paused for a tool", |j| {
+            j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
+        });
+        assert_eq!(
+            j.note.as_deref(),
+            Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
+        );
+        let until = Instant::now() + Duration::from_secs(20);
+        loop {
+            let o = cli(&sock, &["machines"]);
+            if out(&o).contains(&format!("needs operator: {tool}")) {
+                break;
+            }
+            assert!(Instant::now() < until, "{}", out(&o));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let before = moved(&drives);
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!(
+            moved(&drives),
+            before,
+            "a drive moved during the change to {tool}"
+        );
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // every hole was drilled: the Z drive went down to −1 mm three times
+    let z: Vec<f64> = drives.trace(3).iter().map(|r| r.actual / 1000.0).collect();
+    let dips = z
+        .windows(2)
+        .filter(|w| w[0] > -0.999 && w[1] <= -0.999)
+        .count();
+    assert_eq!(dips, 3, "the Z drive reached the hole depth {dips} times");
+}
+
+/// A Modbus device has no block to stop for a tool change: a program that changes tools
+/// after it has moved is refused naming the move and the tool (it would cut on with the
+/// wrong tool), while a job of one tool plans.
+#[test]
+fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
+    let dir = tempfile::tempdir().unwrap();
+    let out_file = dir.path().join("sign.mb");
+    let o = machlink(&[
+        "plan".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        example("sign.toml").as_os_str(),
+        "--post".as_ref(),
+        "modbus".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("a change to tool T2 (6 mm flat end mill) after the program has moved")
+            && e.contains("submit one job per tool"),
+        "{e}"
+    );
+    assert!(!out_file.exists(), "a refused program was written");
+    // the same plate with T2 only: the pocket and the cut-out
+    let recipe = dir.path().join("t2.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"pocket\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"POCKET\"] }\n\
+         cut = { depth = 3.0, stepdown = 1.5, feed = 1000, plunge_feed = 300 }\n\n\
+         [[operations]]\nop = \"profile\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"OUTLINE\"] }\n\
+         side = \"outside\"\ncut = { depth = 6.0, stepdown = 2.0, feed = 1000, plunge_feed = 300 }\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "--post".as_ref(),
+        "modbus".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan of one tool for the modbus post");
+    let blocks = std::fs::read_to_string(&out_file).unwrap();
+    assert!(
+        blocks
+            .lines()
+            .filter(|l| l.starts_with("linear") || l.starts_with("arc"))
+            .count()
+            > 50
+    );
+    assert_eq!(blocks.lines().last(), Some("end"));
+}

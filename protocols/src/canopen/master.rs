@@ -980,6 +980,10 @@ impl CanopenLink {
         let mut last = planner.position();
         let mut planned_last = last;
         let mut held_reported = false;
+        // at an operator stop (a tool change, a program stop): whether it was reported, and
+        // whether the operator's hold has come since (the run after it releases the stop)
+        let mut operator_reported = false;
+        let mut operator_held = false;
         let mut settling = 0u32;
         let mut cancelling = false;
         let mut last_status = Instant::now();
@@ -1131,9 +1135,35 @@ impl CanopenLink {
                 }
                 _ => {}
             }
+            // an operator stop: the path stands at rest and says why; the daemon pauses the
+            // job, and only the operator's resume after that (a hold, then run) goes on
+            let waiting = planner.operator_stop().cloned();
+            if let Some(reason) = waiting.filter(|_| !cancelling) {
+                let standing_now = this.is_none_or(|c| c.speed == 0.0);
+                if !operator_reported && standing_now {
+                    operator_reported = true;
+                    operator_held = false;
+                    self.status(
+                        DeviceState::NeedsOperator {
+                            reason: reason.clone(),
+                        },
+                        format!("{reason} at unit {}", from + acked),
+                        0.0,
+                    );
+                }
+                if ctl == Control::Hold {
+                    operator_held = true;
+                } else if ctl == Control::Run && operator_held && operator_reported {
+                    planner.release();
+                    operator_reported = false;
+                    operator_held = false;
+                    self.status(DeviceState::Running, "resumed".into(), 0.0);
+                }
+            }
             let standing = |c: &Option<super::trajectory::Cycle>| c.is_none_or(|c| c.speed == 0.0);
             if planner.is_at_rest()
                 && (ctl == Control::Hold || cancelling)
+                && (cancelling || planner.operator_stop().is_none())
                 && !held_reported
                 && standing(&this)
                 && standing(&next)
@@ -1173,11 +1203,16 @@ impl CanopenLink {
             }
             if last_status.elapsed() > Duration::from_millis(100) {
                 last_status = Instant::now();
-                let state = if held_reported {
-                    DeviceState::Held
-                } else {
-                    DeviceState::Running
-                };
+                let state =
+                    if let Some(reason) = planner.operator_stop().filter(|_| operator_reported) {
+                        DeviceState::NeedsOperator {
+                            reason: reason.clone(),
+                        }
+                    } else if held_reported {
+                        DeviceState::Held
+                    } else {
+                        DeviceState::Running
+                    };
                 let feed = this.map(|c| c.speed * 60.0).unwrap_or(0.0);
                 self.status(state, format!("SYNC {cycle}"), feed);
             }

@@ -20,6 +20,7 @@
 //! and for the turn at a corner, so the second difference of every axis's set-points over
 //! the period never exceeds its acceleration limit.
 
+use crate::link::OperatorReason;
 use offset_core::{Move, P3};
 use std::f64::consts::PI;
 
@@ -163,11 +164,14 @@ struct Segment {
     cap: f64,
 }
 
-/// A point where the path must come to rest: a dwell (for `cycles` cycles) or the end.
+/// A point where the path must come to rest: a dwell (for `cycles` cycles), an operator
+/// stop (a tool change or a program stop: at rest until [`Planner::release`]; `operator`
+/// indexes [`Path::operator_stops`]) or the end.
 #[derive(Clone, Copy, Debug)]
 struct Stop {
     s: f64,
     cycles: u64,
+    operator: Option<usize>,
 }
 
 /// The path of a program, with its speed caps.
@@ -177,6 +181,8 @@ pub struct Path {
     /// The cap at the start of segment i (the corner before it); one more for the end.
     corner: Vec<f64>,
     stops: Vec<Stop>,
+    /// Why the path waits at each operator stop, in path order.
+    operator_stops: Vec<OperatorReason>,
     /// For each unit, the path position at which it is passed.
     unit_ends: Vec<f64>,
     start: P3,
@@ -225,6 +231,7 @@ impl Path {
             .fold(f64::INFINITY, f64::min);
         let mut segs: Vec<Segment> = Vec::new();
         let mut stops = Vec::new();
+        let mut operator_stops = Vec::new();
         let mut unit_ends = Vec::with_capacity(moves.len());
         let mut pos = start;
         let mut s = 0.0;
@@ -322,7 +329,34 @@ impl Path {
                     } else {
                         0
                     };
-                    stops.push(Stop { s, cycles });
+                    stops.push(Stop {
+                        s,
+                        cycles,
+                        operator: None,
+                    });
+                    None
+                }
+                // the master comes to rest and waits for the operator: a tool to load, or
+                // whatever the program's stop asks
+                Move::ToolChange { tool, name, .. } => {
+                    stops.push(Stop {
+                        s,
+                        cycles: 0,
+                        operator: Some(operator_stops.len()),
+                    });
+                    operator_stops.push(OperatorReason::LoadTool {
+                        number: *tool,
+                        name: name.clone(),
+                    });
+                    None
+                }
+                Move::Stop => {
+                    stops.push(Stop {
+                        s,
+                        cycles: 0,
+                        operator: Some(operator_stops.len()),
+                    });
+                    operator_stops.push(OperatorReason::ProgramStop);
                     None
                 }
                 Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
@@ -331,11 +365,7 @@ impl Path {
                         what: describe(m),
                     })
                 }
-                Move::Stop
-                | Move::Spindle { .. }
-                | Move::ToolChange { .. }
-                | Move::Drill { .. }
-                | Move::Comment { .. } => None,
+                Move::Spindle { .. } | Move::Drill { .. } | Move::Comment { .. } => None,
             };
             if let Some((geom, feed, to)) = seg {
                 let len = match geom {
@@ -382,7 +412,11 @@ impl Path {
             }
             unit_ends.push(s);
         }
-        stops.push(Stop { s, cycles: 0 });
+        stops.push(Stop {
+            s,
+            cycles: 0,
+            operator: None,
+        });
         // corners: the change of direction each axis can take within one cycle
         let mut corner = vec![0.0; segs.len() + 1];
         for i in 1..segs.len() {
@@ -405,6 +439,7 @@ impl Path {
             segs,
             corner,
             stops,
+            operator_stops,
             unit_ends,
             start,
             end: pos,
@@ -474,6 +509,8 @@ pub struct Planner {
     seg: usize,
     stop: usize,
     dwell_left: u64,
+    /// At an operator stop (its index in the path's `operator_stops`) until released.
+    waiting: Option<usize>,
     hold: bool,
     done: bool,
     creep: u32,
@@ -510,6 +547,7 @@ impl Planner {
             seg: 0,
             stop: 0,
             dwell_left: 0,
+            waiting: None,
             hold: false,
             done: false,
             creep: 0,
@@ -525,6 +563,17 @@ impl Planner {
     /// Hold (true): brake along the path to a stop and stay; false: go on from there.
     pub fn set_hold(&mut self, hold: bool) {
         self.hold = hold;
+    }
+
+    /// Why the path stands at an operator stop and waits (a tool to load, a program stop),
+    /// or None while it runs.
+    pub fn operator_stop(&self) -> Option<&OperatorReason> {
+        self.waiting.map(|i| &self.path.operator_stops[i])
+    }
+
+    /// The operator has done what the stop asked: the path goes on (unless held).
+    pub fn release(&mut self) {
+        self.waiting = None;
     }
 
     /// At rest (speed and acceleration zero).
@@ -557,7 +606,7 @@ impl Planner {
     fn passed(&self) -> usize {
         let s = self.m.s;
         // a unit ending at a dwell is passed once the dwell is over
-        let dwelling = self.dwell_left > 0;
+        let dwelling = self.dwell_left > 0 || self.waiting.is_some();
         self.path
             .unit_ends
             .iter()
@@ -751,6 +800,11 @@ impl Planner {
                     return;
                 }
                 self.dwell_left += st.cycles;
+                if st.operator.is_some() {
+                    self.waiting = st.operator;
+                    self.stop += 1;
+                    return;
+                }
                 self.stop += 1;
             } else {
                 return;
@@ -764,7 +818,9 @@ impl Planner {
         if self.done {
             return None;
         }
-        if self.dwell_left > 0 {
+        if self.waiting.is_some() {
+            // at rest where the operator is asked for; nothing moves until released
+        } else if self.dwell_left > 0 {
             self.dwell_left -= 1;
         } else if self.hold {
             let j = self.brake_jerk(self.m).unwrap_or(-self.jerk);
@@ -775,7 +831,7 @@ impl Planner {
         while self.seg + 1 < self.path.segs.len() && self.path.segs[self.seg + 1].s0 <= self.m.s {
             self.seg += 1;
         }
-        if !self.hold {
+        if !self.hold && self.waiting.is_none() {
             self.arrive_at_stops();
         }
         let passed = if self.done {

@@ -22,6 +22,17 @@ pub enum ModbusPostError {
         "move {index}: a motion-block device has no {what}; plan this job for a sewing machine"
     )]
     Unsupported { index: usize, what: &'static str },
+    #[error(
+        "move {index}: a change to tool T{tool}{name} after the program has moved; a Modbus \
+         motion-block device cannot stop for the operator to change tools (docs/modbus.md has \
+         no such block): submit one job per tool"
+    )]
+    ToolChange {
+        index: usize,
+        tool: u32,
+        /// " (6 mm flat end mill)", or empty.
+        name: String,
+    },
 }
 
 fn um(index: usize, axis: &'static str, mm: f64) -> Result<i32, ModbusPostError> {
@@ -54,8 +65,9 @@ fn target(index: usize, p: P3) -> Result<[i32; 3], ModbusPostError> {
     ])
 }
 
-/// Turns a tool path into motion blocks. Spindle, tool-change and comment moves have no block
-/// (a drive or PLC handles them itself) and are left out; sewing moves and program stops are
+/// Turns a tool path into motion blocks. Spindle and comment moves have no block (a drive or
+/// PLC handles them itself) and are left out, and so is the tool the program starts with;
+/// a change to another tool after the program has moved, sewing moves and program stops are
 /// refused. The last block is always `End`.
 pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
     // drilling cycles go as the rapids, lines and dwells they make
@@ -64,8 +76,26 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
     let mut out = Vec::with_capacity(tp.moves.len() + 1);
     let mut pos = P3::default();
     let mut last = [0i32; 3];
+    // the tool the program starts with is the operator's to load before the start; a change
+    // after that would cut with the wrong tool, so it is refused
+    let mut tool: Option<u32> = None;
     for (index, m) in tp.moves.iter().enumerate() {
         let block = match m {
+            Move::ToolChange { tool: t, name, .. } => {
+                if !out.is_empty() && tool.is_some_and(|now| now != *t) {
+                    return Err(ModbusPostError::ToolChange {
+                        index,
+                        tool: *t,
+                        name: if name.is_empty() {
+                            String::new()
+                        } else {
+                            format!(" ({name})")
+                        },
+                    });
+                }
+                tool = Some(*t);
+                continue;
+            }
             Move::Rapid { to } => MotionBlock {
                 kind: BlockKind::Rapid,
                 target: target(index, *to)?,
@@ -111,10 +141,7 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
                     center: [0, 0],
                 }
             }
-            Move::Spindle { .. }
-            | Move::ToolChange { .. }
-            | Move::Comment { .. }
-            | Move::Drill { .. } => continue,
+            Move::Spindle { .. } | Move::Comment { .. } | Move::Drill { .. } => continue,
             Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
                 return Err(ModbusPostError::Unsupported {
                     index,
