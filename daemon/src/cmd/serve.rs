@@ -11,7 +11,8 @@ pub struct ServeArgs {
     /// The configuration file (see docs/config.md). Default: ./machlink.toml.
     #[arg(long, default_value = "machlink.toml")]
     pub config: PathBuf,
-    /// Listen on this Unix socket instead of the one the config names.
+    /// Listen on this Unix socket instead of the one the config names (the config's
+    /// default: $XDG_RUNTIME_DIR/machlink.sock, else /tmp/machlink-$USER/machlink.sock).
     #[arg(long)]
     pub socket: Option<PathBuf>,
     /// Also listen on TCP at ADDR (e.g. 0.0.0.0:7878): with TLS (--tls-cert, --tls-key) or,
