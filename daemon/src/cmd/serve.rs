@@ -57,7 +57,23 @@ pub enum LogFormat {
 }
 
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
-    init_logging(a.log.log_format);
+    let format = a.log.log_format;
+    init_logging(format);
+    let result = serve(a);
+    if let (Err(e), LogFormat::Json) = (&result, format) {
+        // the reason the daemon stops is one more JSON object on the log, not a plain line
+        let msg = e
+            .chain()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(": ");
+        tracing::error!(error = %msg, "machlink serve stopped: {msg}");
+        std::process::exit(1);
+    }
+    result
+}
+
+fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let config = Config::load(&a.config)?;
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {

@@ -1,12 +1,14 @@
 //! Screens that must tell the truth (issue 22), through the `machlink` binary:
 //! `check-config` reports every mistake of a file in one run in an operator's words, clients
 //! find the daemon the way README starts it, a socket the user may not open says so, a
-//! reader that goes away ends a command quietly.
+//! reader that goes away ends a command quietly, progress in a pipe is a line per step with
+//! an ETA every kind has, and the small sentences (a stitch job on a router, an inside
+//! profile of an open contour, JSON logs, metrics of G-code files) say what is so.
 
 use crate::common;
 use common::cli::{machlink, stderr, Serve};
 
-use std::io::Read;
+use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
 use std::path::Path;
@@ -219,4 +221,342 @@ fn every_command_ends_quietly_when_its_reader_goes_away() {
             args.join(" ")
         );
     }
+}
+
+/// A cell of every simulated kind, served from `dir` (socket `ml.sock`), its log in
+/// `dir/serve.log`; `extra` goes to the `[[machine]]` of the sewing machine.
+fn serve_every_kind(dir: &Path, log_args: &[&str], sewing_extra: &str) -> Serve {
+    std::fs::write(
+        dir.join("cell.toml"),
+        format!(
+            "[daemon]\nstore = \"jobs.db\"\nsocket = \"ml.sock\"\n\n\
+             [[machine]]\nname = \"router\"\nlink = \"sim-grbl\"\ntime_scale = 20.0\n\n\
+             [[machine]]\nname = \"ring\"\nlink = \"sim-modbus\"\ntime_scale = 20.0\n\n\
+             [[machine]]\nname = \"sewer\"\nlink = \"sim-sewing\"\ntime_scale = 20.0\n{sewing_extra}\n\n\
+             [[machine]]\nname = \"drive\"\nlink = \"sim-canopen\"\ntime_scale = 20.0\n\
+             axes = [{{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 100, max_acceleration = 1000, max_jerk = 10000 }}, \
+                     {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 100, max_acceleration = 1000, max_jerk = 10000 }}]\n"
+        ),
+    )
+    .unwrap();
+    let mut c = machlink();
+    c.current_dir(dir)
+        .args(["serve", "--config", "cell.toml"])
+        .args(log_args)
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("serve.log")).unwrap());
+    Serve::spawn(c, &dir.join("ml.sock"), Duration::from_secs(60))
+}
+
+/// A G-code square of `n` laps, 40 lines each, at `feed`.
+fn gcode_square(dir: &Path, laps: usize, feed: u32) -> std::path::PathBuf {
+    let mut g = String::from("G21 G90\nG0 X10 Y10\n");
+    for _ in 0..laps * 10 {
+        g.push_str(&format!(
+            "G1 X20 Y10 F{feed}\nG1 X20 Y20\nG1 X10 Y20\nG1 X10 Y10\n"
+        ));
+    }
+    let f = dir.join("square.nc");
+    std::fs::write(&f, g).unwrap();
+    f
+}
+
+fn sample_shape() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/plate-with-islands.json")
+}
+
+/// The ETA a progress line shows (`job 1 12/40 (30 %) ETA 4s`).
+fn eta_of(line: &str) -> Option<&str> {
+    line.split(" ETA ").nth(1).map(str::trim)
+}
+
+#[test]
+fn submit_watch_in_a_pipe_prints_a_line_per_step_with_an_eta_never_0_while_cutting() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve_every_kind(dir.path(), &[], "");
+    let f = gcode_square(dir.path(), 4, 1200);
+    // stdout is a pipe here, as in `machlink submit … --watch | cat`
+    let o = machlink()
+        .env("MACHLINK_SOCKET", &s.socket)
+        .arg("submit")
+        .arg(&f)
+        .args(["--machine", "router", "--watch"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout).into_owned();
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(lines[0], "1", "the job's id first: {out}");
+    assert!(
+        lines.iter().any(|l| l.starts_with("job 1 running at")),
+        "the state change to running: {out}"
+    );
+    assert!(
+        lines.last().is_some_and(|l| l.starts_with("job 1 completed at 162/162")),
+        "the last state change: {out}"
+    );
+    let progress: Vec<&str> = lines.iter().copied().filter(|l| l.contains(" %) ETA ")).collect();
+    assert!(progress.len() >= 10, "a line per step of progress: {out}");
+    for l in &progress {
+        let eta = eta_of(l).unwrap();
+        assert!(eta != "-", "a G-code file has an ETA: {l}");
+        assert!(eta != "0s", "an ETA of 0 while the machine still cuts: {l}");
+    }
+    // no progress bar, no terminal escapes in a pipe
+    assert!(!out.contains('\u{1b}') && !out.contains('\r'), "{out:?}");
+}
+
+#[test]
+fn every_kind_has_an_eta() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve_every_kind(dir.path(), &[], "");
+    let f = gcode_square(dir.path(), 1, 600);
+    let submit = |args: &[&str]| {
+        let o = machlink()
+            .env("MACHLINK_SOCKET", &s.socket)
+            .arg("submit")
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "submit {args:?}: {}", stderr(&o));
+    };
+    let gc = f.to_str().unwrap();
+    let shape = sample_shape();
+    let shape = shape.to_str().unwrap();
+    submit(&[gc, "--machine", "router"]);
+    submit(&[gc, "--machine", "ring"]);
+    submit(&[gc, "--machine", "drive"]);
+    submit(&[shape, "--op", "stitch", "--machine", "sewer"]);
+    // each job's kind estimated its machine time (a G-code file's when it starts)
+    let until = std::time::Instant::now() + Duration::from_secs(60);
+    loop {
+        let o = machlink()
+            .env("MACHLINK_SOCKET", &s.socket)
+            .args(["jobs", "--json"])
+            .output()
+            .unwrap();
+        let jobs: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let jobs = jobs.as_array().unwrap().clone();
+        let missing: Vec<String> = jobs
+            .iter()
+            .filter(|j| !j["estimate_ms"].as_i64().is_some_and(|e| e > 0))
+            .map(|j| format!("job {} on {} ({})", j["id"], j["machine"], j["state"]))
+            .collect();
+        if missing.is_empty() && jobs.len() == 4 {
+            break;
+        }
+        assert!(
+            std::time::Instant::now() < until,
+            "no machine time estimated for {missing:?}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn a_thread_break_is_a_line_in_a_pipe() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve_every_kind(dir.path(), &[], "thread_break_at = [40]");
+    let shape = sample_shape();
+    let mut child = machlink()
+        .env("MACHLINK_SOCKET", &s.socket)
+        .arg("submit")
+        .arg(&shape)
+        .args(["--op", "stitch", "--machine", "sewer", "--watch"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let out = BufReader::new(child.stdout.take().unwrap());
+    let mut seen = Vec::new();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in out.lines().map_while(Result::ok) {
+            let _ = tx.send(l);
+        }
+    });
+    let until = std::time::Instant::now() + Duration::from_secs(60);
+    let found = loop {
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(l) => {
+                let stop = l.contains("thread break");
+                seen.push(l);
+                if stop {
+                    break true;
+                }
+            }
+            Err(_) if std::time::Instant::now() > until => break false,
+            Err(_) => {}
+        }
+    };
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(found, "no line says the thread broke: {seen:#?}");
+    assert!(
+        seen.iter().any(|l| l.starts_with("job 1 paused at")),
+        "the job's pause is a line: {seen:#?}"
+    );
+}
+
+#[test]
+fn the_demo_in_a_pipe_prints_its_progress_as_lines() {
+    let o = machlink()
+        .args(["demo", "--time-scale", "50"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let progress = out.lines().filter(|l| l.contains(" %) ETA ")).count();
+    assert!(progress >= 10, "a line per step of progress: {out}");
+    assert!(out.lines().any(|l| l.contains("completed at")), "{out}");
+}
+
+#[test]
+fn a_stitch_job_sent_to_a_router_says_it_is_not_a_sewing_machine() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve_every_kind(dir.path(), &[], "");
+    let o = machlink()
+        .env("MACHLINK_SOCKET", &s.socket)
+        .arg("submit")
+        .arg(sample_shape())
+        .args(["--op", "stitch", "--machine", "router"])
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("`router` is not a sewing machine"), "{err}");
+}
+
+#[test]
+fn gcode_files_on_grbl_count_as_submitted_jobs_and_json_logs_hold_only_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = serve_every_kind(dir.path(), &["--log-format", "json"], "");
+    let f = gcode_square(dir.path(), 1, 1200);
+    for _ in 0..2 {
+        let o = machlink()
+            .env("MACHLINK_SOCKET", &s.socket)
+            .arg("submit")
+            .arg(&f)
+            .args(["--machine", "router"])
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let mut c = std::os::unix::net::UnixStream::connect(&s.socket).unwrap();
+    c.write_all(b"GET /metrics HTTP/1.0\r\nHost: x\r\n\r\n").unwrap();
+    let mut metrics = String::new();
+    c.read_to_string(&mut metrics).unwrap();
+    let line = metrics
+        .lines()
+        .find(|l| {
+            l.starts_with("machlink_jobs_submitted_total{") && l.contains("machine=\"router\"")
+        })
+        .unwrap_or_else(|| panic!("no submitted count for router: {metrics}"));
+    let n: f64 = line.rsplit(' ').next().unwrap().parse().unwrap();
+    assert_eq!(n, 2.0, "{line}");
+    drop(s);
+    let log = std::fs::read_to_string(dir.path().join("serve.log")).unwrap();
+    for l in log.lines() {
+        assert!(
+            serde_json::from_str::<serde_json::Value>(l).is_ok(),
+            "not a JSON line: {l}"
+        );
+    }
+    // a daemon that cannot start says why in JSON too
+    std::fs::write(dir.path().join("bad.toml"), "[daemon]\njournal_every = 0\n").unwrap();
+    let o = machlink()
+        .current_dir(dir.path())
+        .args(["serve", "--config", "bad.toml", "--log-format", "json"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = stderr(&o);
+    assert!(!err.is_empty());
+    for l in err.lines() {
+        let v: serde_json::Value = serde_json::from_str(l)
+            .unwrap_or_else(|e| panic!("not a JSON line ({e}): {l}"));
+        assert!(
+            v["level"] == "ERROR" && v["error"].as_str().unwrap().contains("journal_every"),
+            "{l}"
+        );
+    }
+}
+
+/// An open path (a seam) and, with `closed`, a closed square beside it.
+fn open_contour(dir: &Path, closed: bool) -> std::path::PathBuf {
+    let mut paths = vec![
+        r#"{ "closed": false, "vertices": [[0,0,0], [40,0,0], [40,30,0]] }"#.to_string(),
+    ];
+    if closed {
+        paths.push(
+            r#"{ "closed": true, "vertices": [[60,0,0], [90,0,0], [90,30,0], [60,30,0]] }"#
+                .to_string(),
+        );
+    }
+    let f = dir.join(if closed { "mixed.json" } else { "seam.json" });
+    std::fs::write(
+        &f,
+        format!(r#"{{ "units": "mm", "paths": [{}] }}"#, paths.join(", ")),
+    )
+    .unwrap();
+    f
+}
+
+#[test]
+fn an_inside_profile_of_an_open_contour_is_refused_or_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let plan = |file: &Path, side: &str| {
+        machlink()
+            .arg("plan")
+            .arg(file)
+            .args(["--op", "profile", "--side", side, "--post", "grbl", "-o"])
+            .arg(dir.path().join("out.nc"))
+            .output()
+            .unwrap()
+    };
+    // only an open contour: nothing has an inside
+    let o = plan(&open_contour(dir.path(), false), "inside");
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("an inside profile needs a closed contour")
+            && err.contains("from (0.000, 0.000) to (40.000, 30.000)")
+            && err.contains("--side on"),
+        "{err}"
+    );
+    // beside a closed one: planned, and the open one is named as cut on its line
+    let o = plan(&open_contour(dir.path(), true), "inside");
+    let err = stderr(&o);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("1 open contour (from (0.000, 0.000) to (40.000, 30.000)) has no inside")
+            && err.contains("cut along its line"),
+        "{err}"
+    );
+    // on the line: as asked, no warning
+    let o = plan(&open_contour(dir.path(), false), "on");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("open contour"), "{}", stderr(&o));
+}
+
+#[test]
+fn a_profile_that_leaves_no_path_says_inside_in_words() {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("small.json");
+    std::fs::write(
+        &f,
+        r#"{ "units": "mm", "paths": [{ "closed": true, "vertices": [[0,0,0], [4,0,0], [4,4,0], [0,4,0]] }] }"#,
+    )
+    .unwrap();
+    let o = machlink()
+        .arg("plan")
+        .arg(&f)
+        .args(["--op", "profile", "--side", "inside", "--tool-diameter", "6", "--post", "grbl", "-o"])
+        .arg(dir.path().join("out.nc"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("an inside profile with a 6 mm tool"), "{err}");
+    assert!(!err.contains("Inside"), "{err}");
 }
