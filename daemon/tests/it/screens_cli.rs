@@ -12,7 +12,7 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::os::unix::fs::PermissionsExt;
 use std::os::unix::process::CommandExt;
 use std::path::Path;
-use std::process::Stdio;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 /// A config with five mistakes that do not depend on each other, and the line and key each
@@ -559,4 +559,146 @@ fn a_profile_that_leaves_no_path_says_inside_in_words() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("an inside profile with a 6 mm tool"), "{err}");
     assert!(!err.contains("Inside"), "{err}");
+}
+
+/// The fenced `sh` blocks of a page, their lines without comments.
+fn shell_lines(page: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut inside = false;
+    for l in page.lines() {
+        if l.starts_with("```") {
+            inside = !inside && l.trim() == "```sh";
+            continue;
+        }
+        if inside {
+            let cmd = l.split(" #").next().unwrap_or("").trim();
+            if !cmd.is_empty() && !cmd.starts_with('#') {
+                out.push(cmd.to_string());
+            }
+        }
+    }
+    out
+}
+
+fn repo() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+#[test]
+fn the_unit_as_install_md_installs_it_passes_systemd_analyze_verify() {
+    let page = std::fs::read_to_string(repo().join("docs/install.md")).unwrap();
+    let steps = shell_lines(&page);
+    // the page's own line that puts the unit in place, done into a folder standing in for /
+    let install = steps
+        .iter()
+        .find(|l| l.starts_with("install ") && l.contains("contrib/machlink.service"))
+        .expect("install.md installs contrib/machlink.service");
+    let dest = install.split_whitespace().last().unwrap();
+    assert!(dest.starts_with("/etc/systemd/system/"), "{install}");
+    let unit = std::fs::read_to_string(repo().join("contrib/machlink.service")).unwrap();
+    // the documentation the unit names is installed by the page
+    let doc = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("Documentation=file:"))
+        .expect("the unit names its documentation");
+    let doc_step = steps
+        .iter()
+        .find(|l| l.starts_with("install ") && l.ends_with(doc))
+        .unwrap_or_else(|| panic!("install.md installs {doc}, which the unit names"));
+    let src = doc_step.split_whitespace().rev().nth(1).unwrap();
+    assert!(repo().join(src).is_file(), "{doc_step}: {src} is in the repository");
+    // the unit and the page say SIGTERM interrupts, not cancels
+    assert!(unit.contains("KillSignal=SIGTERM") && unit.contains("interrupted (not cancelled)"));
+    assert!(page.contains("a stop **interrupts** (does not cancel)"));
+    if Command::new("systemd-analyze").arg("--version").output().is_err() {
+        eprintln!("skipped systemd-analyze verify: systemd-analyze is not installed here");
+        return;
+    }
+    let root = tempfile::tempdir().unwrap();
+    let installed = root.path().join(dest.trim_start_matches('/'));
+    std::fs::create_dir_all(installed.parent().unwrap()).unwrap();
+    // the page installs the release binary as /usr/bin/machlink; the one just built stands in
+    let exec = unit
+        .lines()
+        .find_map(|l| l.strip_prefix("ExecStart="))
+        .and_then(|l| l.split_whitespace().next())
+        .unwrap()
+        .to_string();
+    assert!(
+        steps.iter().any(|l| l.starts_with("install ") && l.ends_with(&exec)),
+        "install.md installs {exec}, the unit's ExecStart"
+    );
+    std::fs::write(&installed, unit.replace(&exec, env!("CARGO_BIN_EXE_machlink"))).unwrap();
+    let o = Command::new("systemd-analyze")
+        .arg("verify")
+        .arg(&installed)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success() && o.stderr.is_empty(),
+        "systemd-analyze verify {}: {}{}",
+        installed.display(),
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// The group of uid NOBODY, which stands in for `machlink` where that group does not exist.
+const NOGROUP: u32 = 65534;
+
+#[test]
+fn a_member_of_the_shipped_socket_group_connects_as_an_operator() {
+    if !nix::unistd::Uid::effective().is_root() {
+        eprintln!(
+            "skipped: a user other than the daemon's is needed, and only root can run a client as one"
+        );
+        return;
+    }
+    let shipped = std::fs::read_to_string(repo().join("contrib/machlink.toml")).unwrap();
+    let group = nix::unistd::Group::from_gid(nix::unistd::Gid::from_raw(NOGROUP))
+        .ok()
+        .flatten()
+        .map(|g| g.name)
+        .expect("a group 65534 (nogroup)");
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+    // the shipped config as it is, but for the group (the one nobody is in), the paths (in a
+    // folder of the test's) and the machine (simulated)
+    let store = dir.path().join("state/machlink.db");
+    let socket = dir.path().join("run/machlink.sock");
+    std::fs::create_dir(dir.path().join("state")).unwrap();
+    let machine_at = shipped.find("[[machine]]").unwrap();
+    let end = shipped[machine_at..]
+        .find("\n\n")
+        .map_or(shipped.len(), |n| machine_at + n);
+    let cfg = format!(
+        "{}[[machine]]\nname = \"router\"\nlink = \"sim-grbl\"\n{}",
+        &shipped[..machine_at],
+        &shipped[end..]
+    )
+    .replace("/var/lib/machlink/machlink.db", store.to_str().unwrap())
+    .replace("/run/machlink/machlink.sock", socket.to_str().unwrap())
+    .replace("\"machlink\"", &format!("\"{group}\""));
+    assert!(cfg.contains("socket_group") && cfg.contains("[[access.group]]"), "{cfg}");
+    let file = dir.path().join("machlink.toml");
+    std::fs::write(&file, &cfg).unwrap();
+    let mut c = machlink();
+    c.arg("serve")
+        .arg("--config")
+        .arg(&file)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let _s = Serve::spawn(c, &socket, Duration::from_secs(30));
+    let o = machlink()
+        .arg("whoami")
+        .arg("--socket")
+        .arg(&socket)
+        .current_dir("/")
+        .uid(NOBODY)
+        .gid(NOGROUP)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "a member of {group}: {}", stderr(&o));
+    let who: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(who["role"], "operator", "{who}");
 }
