@@ -702,3 +702,53 @@ fn a_member_of_the_shipped_socket_group_connects_as_an_operator() {
     let who: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(who["role"], "operator", "{who}");
 }
+
+#[test]
+fn a_long_alarm_text_keeps_the_machines_columns_in_place() {
+    let dir = tempfile::tempdir().unwrap();
+    // a homing machine starts locked, its alarm's text longer than the STATUS column
+    std::fs::write(
+        dir.path().join("cell.toml"),
+        "[daemon]\nstore = \"jobs.db\"\nsocket = \"ml.sock\"\n\n\
+         [[machine]]\nname = \"router\"\nlink = \"sim-grbl\"\nhoming = true\n\n\
+         [[machine]]\nname = \"mill\"\nlink = \"sim-grbl\"\n",
+    )
+    .unwrap();
+    let mut c = machlink();
+    c.current_dir(dir.path())
+        .args(["serve", "--config", "cell.toml"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let _s = Serve::spawn(c, &dir.path().join("ml.sock"), Duration::from_secs(30));
+    let until = std::time::Instant::now() + Duration::from_secs(30);
+    let table = loop {
+        let o = machlink()
+            .current_dir(dir.path())
+            .arg("machines")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr(&o));
+        let t = String::from_utf8_lossy(&o.stdout).into_owned();
+        if t.contains("alarm") && t.lines().all(|l| !l.contains("never")) {
+            break t;
+        }
+        assert!(std::time::Instant::now() < until, "no alarm shown: {t}");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let lines: Vec<&str> = table.lines().collect();
+    let col = |l: &str, word: &str| l.find(word).map(|b| l[..b].chars().count());
+    let reported = col(lines[0], "REPORTED").unwrap();
+    let position = col(lines[0], "POSITION").unwrap();
+    for l in &lines[1..] {
+        // the age ("1s ago") ends where the REPORTED heading ends, the position starts under
+        // POSITION, whatever the status before them
+        let ago = col(l, " ago").unwrap_or_else(|| panic!("{table}"));
+        assert_eq!(ago + 4, reported + "REPORTED".len(), "{table}");
+        assert_eq!(
+            l.chars().skip(position).take(1).collect::<String>(),
+            "X",
+            "{table}"
+        );
+    }
+    assert!(table.contains('…'), "the long alarm text is cut: {table}");
+}
