@@ -3,7 +3,7 @@
 //! ```toml
 //! [daemon]
 //! store = "machlink.db"       # default: machlink.db next to this file
-//! socket = "/run/machlink.sock" # default: $XDG_RUNTIME_DIR/machlink.sock, else /tmp/machlink-$USER.sock
+//! socket = "/run/machlink.sock" # default: $XDG_RUNTIME_DIR/machlink.sock, else /tmp/machlink-$USER/machlink.sock
 //!
 //! [[machine]]
 //! name = "router"
@@ -179,6 +179,11 @@ impl Config {
                 })
                 .unwrap_or("");
             let mut message = in_operators_words(e.message().trim(), line);
+            if let Some(table) = e.span().and_then(|s| table_at(text, s.start)) {
+                if !table.starts_with("[[machine") && !message.starts_with('[') {
+                    message = format!("{table}: {message}");
+                }
+            }
             if let Some(name) = e.span().and_then(|s| machine_at(text, s.start)) {
                 message = message.replace(UNNAMED, &format!("machine `{name}`"));
             }
@@ -270,6 +275,20 @@ fn machine_at(text: &str, offset: usize) -> Option<String> {
         .and_then(|m| m.get_ref().get("name")?.as_str().map(String::from))
 }
 
+/// The header of the table that holds byte `offset` (`[daemon]`, `[[webhook]]`, …), as
+/// written; None before the first header.
+fn table_at(text: &str, offset: usize) -> Option<String> {
+    let offset = offset.min(text.len());
+    let end = text[offset..].find('\n').map_or(text.len(), |n| offset + n);
+    text[..end]
+        .lines()
+        .filter_map(|l| {
+            let t = l.trim();
+            (t.starts_with('[') && t.ends_with(']')).then(|| t.to_string())
+        })
+        .last()
+}
+
 /// Within a table's `span`, the line of the key a message names ("key `url`: …"), so the
 /// error points at it; else the table.
 fn key_span(text: &str, span: std::ops::Range<usize>, message: &str) -> std::ops::Range<usize> {
@@ -341,6 +360,44 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
                 other => other.to_string(),
             };
             out = format!("{}must be {wanted}, not {got}{tail}", &out[..at]);
+        }
+    }
+    // "unknown field `colour`, expected one of `store`, `socket`"
+    if let Some(at) = out.find("unknown field `") {
+        let rest = &out[at + "unknown field `".len()..];
+        if let Some((got, known)) = rest.split_once('`') {
+            let known: Vec<&str> = known
+                .split('`')
+                .skip(1)
+                .step_by(2)
+                .filter(|k| !k.is_empty())
+                .collect();
+            let takes = if known.is_empty() {
+                " (this table takes no keys)".to_string()
+            } else {
+                format!(" (this table takes {})", known.join(", "))
+            };
+            out = format!("{}unknown key `{got}`{takes}", &out[..at]);
+        }
+    }
+    // "missing field `name`"
+    if let Some(at) = out.find("missing field `") {
+        let rest = &out[at + "missing field `".len()..];
+        if let Some((key, tail)) = rest.split_once('`') {
+            out = format!("{}key `{key}` is missing; add `{key} = …`{tail}", &out[..at]);
+        }
+    }
+    // "unknown variant `fast`, expected one of `a`, `b`"
+    if let Some(at) = out.find("unknown variant `") {
+        let rest = &out[at + "unknown variant `".len()..];
+        if let Some((got, known)) = rest.split_once('`') {
+            let known: Vec<&str> = known.split('`').skip(1).step_by(2).collect();
+            let k = if key.is_empty() { "the value".to_string() } else { format!("`{key}`") };
+            out = format!(
+                "{}{k} must be one of {}, not \"{got}\"",
+                &out[..at],
+                known.join(", ")
+            );
         }
     }
     if let Some(at) = out.find("invalid length ") {

@@ -239,8 +239,9 @@ impl Daemon {
                     let warning = format!(
                         "the API listens on TCP {addr} in PLAINTEXT (--insecure-plaintext): tokens and jobs cross the network readable by anyone on it"
                     );
+                    // through the log only: with --log-format json a plain line would break
+                    // the stream of JSON objects
                     tracing::warn!("{warning}");
-                    eprintln!("machlink: warning: {warning}");
                     access
                         .audit
                         .daemon(&format!("listen plaintext {addr}"), "done: insecure");

@@ -110,7 +110,10 @@ fn main() {
         let unreachable = e.chain().any(|c| {
             matches!(
                 c.downcast_ref::<machlink::faces::client::ClientError>(),
-                Some(machlink::faces::client::ClientError::Unreachable(_))
+                Some(
+                    machlink::faces::client::ClientError::Unreachable(_)
+                        | machlink::faces::client::ClientError::PermissionDenied(_)
+                )
             )
         });
         // one sentence: the chain of causes joined, no backtrace, nothing a device sent that
@@ -137,7 +140,10 @@ fn is_closed_stdout(payload: &(dyn std::any::Any + Send)) -> bool {
         .map(String::as_str)
         .or_else(|| payload.downcast_ref::<&str>().copied())
         .unwrap_or("");
-    text.starts_with("failed printing to stdout") && text.contains("Broken pipe")
+    // std's println! ("failed printing to stdout: Broken pipe") and a library's
+    // `expect` on a write (clap_complete's "failed to write …: Os { kind: BrokenPipe }")
+    (text.starts_with("failed printing to stdout") && text.contains("Broken pipe"))
+        || text.contains("kind: BrokenPipe")
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {

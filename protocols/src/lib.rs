@@ -8,6 +8,7 @@
 //! settings, posts and link together in one module; [`standard_kinds`] registers them all.
 
 pub mod canopen;
+pub mod estimate;
 pub mod gcode;
 pub mod gcode_read;
 pub mod grbl;

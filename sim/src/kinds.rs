@@ -169,6 +169,10 @@ impl MachineKind for SimSewingKind {
     fn posts(&self) -> Vec<PostFor<StitchRecord>> {
         stitch_posts()
     }
+    fn estimate(&self, s: &SimSewingSettings, stitches: &[StitchRecord]) -> Option<f64> {
+        let t = machlink_protocols::estimate::stitches_seconds(stitches.len(), s.spm as f64);
+        Some(t / s.time_scale)
+    }
     fn check(&self, s: &SimSewingSettings) -> Result<(), String> {
         positive(s.time_scale, "time_scale")?;
         if s.spm == 0 {
@@ -237,6 +241,10 @@ impl MachineKind for SimModbusKind {
     }
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
+    }
+    fn estimate(&self, s: &SimModbusSettings, blocks: &[MotionBlock]) -> Option<f64> {
+        let t = machlink_protocols::estimate::blocks_seconds(blocks, machlink_protocols::estimate::RAPID);
+        Some(t / s.time_scale)
     }
     fn check(&self, s: &SimModbusSettings) -> Result<(), String> {
         positive(s.time_scale, "time_scale")?;

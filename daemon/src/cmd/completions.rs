@@ -20,8 +20,15 @@ pub struct ManArgs {
 
 /// Prints the completion script for `shell` on stdout.
 pub fn completions(a: CompletionsArgs, mut cmd: clap::Command) -> anyhow::Result<()> {
-    clap_complete::generate(a.shell, &mut cmd, "machlink", &mut std::io::stdout());
-    Ok(())
+    // made in memory, then written: clap_complete panics on a write error, and a reader
+    // that goes away (`| head -3`) is a quiet end, not a panic
+    let mut script = Vec::new();
+    clap_complete::generate(a.shell, &mut cmd, "machlink", &mut script);
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    out.write_all(&script)
+        .and_then(|()| out.flush())
+        .context("cannot write the completion script")
 }
 
 /// Prints or writes the man pages.

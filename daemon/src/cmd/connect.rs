@@ -14,7 +14,8 @@ pub struct ClientArgs {
     #[arg(long, value_name = "PATH")]
     pub socket: Option<PathBuf>,
     /// The daemon's config, to find its socket. Default: $MACHLINK_CONFIG, else
-    /// ./machlink.toml, else /etc/machlink/machlink.toml, whichever exists.
+    /// ./machlink.toml, else ./cell.toml, else /etc/machlink/machlink.toml, whichever
+    /// exists.
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Reach the daemon on TCP at ADDR instead: over TLS with --ca, or in plaintext with

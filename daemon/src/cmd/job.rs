@@ -82,7 +82,8 @@ pub struct JobArgs {
     /// The most each depth pass goes down, mm [1].
     #[arg(long)]
     pub stepdown: Option<f64>,
-    /// Profile: which side of the outline the tool runs on [outside].
+    /// Profile: which side of the outline the tool runs on [outside]. Outside and inside
+    /// need closed contours (open ones are refused alone, warned about beside closed ones).
     #[arg(long, value_enum)]
     pub side: Option<SideArg>,
     /// Cutting feed, mm/min [800].

@@ -121,6 +121,20 @@ pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The STATUS column's width in `machines`: a longer status (an alarm's text) is cut with
+/// `…` so the columns after it stay in place; `--json` has it whole.
+const STATUS_WIDTH: usize = 28;
+
+/// `text` in at most `width` characters, cut with `…` when longer.
+fn fit(text: &str, width: usize) -> String {
+    if text.chars().count() <= width {
+        return text.to_string();
+    }
+    let mut out: String = text.chars().take(width - 1).collect();
+    out.push('…');
+    out
+}
+
 pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
     let ms = runtime()?.block_on(a.client.client().machines())?;
     if a.json {
@@ -149,7 +163,7 @@ pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
             m.link,
             m.job.map(|j| j.to_string()).unwrap_or_else(|| "-".into()),
             m.queued,
-            m.status.state.to_string(),
+            fit(&m.status.state.to_string(), STATUS_WIDTH),
             age,
             position
         )
@@ -184,10 +198,26 @@ pub enum Show {
     Quiet,
 }
 
-/// Follows a job with a progress bar on stderr (lines acknowledged / total, machine state,
-/// feed, ETA; drawn only on a terminal) until it ends; an error unless it completed.
+/// Follows a job until it ends, as `submit --watch` and `demo` do: a progress bar on a
+/// terminal (units acknowledged / total, ETA, machine state, feed), one line per step and
+/// state change when stdout is not a terminal (a pipe, a log), nothing when `quiet`; an
+/// error unless it completed.
 pub async fn watch_job(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<JobRecord> {
-    watch_with(client, id, if quiet { Show::Quiet } else { Show::Bar }).await
+    let show = if quiet {
+        Show::Quiet
+    } else if std::io::stdout().is_terminal() {
+        Show::Bar
+    } else {
+        Show::Lines
+    };
+    watch_with(client, id, show).await
+}
+
+/// The ETA as the operator reads it: `1m05s`, or `-` when the job's kind cannot tell.
+fn eta_text(estimate_ms: Option<i64>, acked: usize, total: usize, state: JobState) -> String {
+    machlink::core::store::eta_ms(estimate_ms, acked, total, state)
+        .map(span)
+        .unwrap_or_else(|| "-".into())
 }
 
 /// Follows a job the way `show` says until it ends; an error unless it completed.
@@ -200,8 +230,13 @@ pub async fn watch_with(client: &Client, id: JobId, show: Show) -> anyhow::Resul
     let mut out = std::io::stdout().lock();
     let mut last_pct: Option<u64> = None;
     let mut last_state = String::new();
-    let total = first.total_units.max(1) as u64;
+    let mut estimate = first.estimate_ms;
+    let mut job_state = first.state;
     while let Some(ev) = events.next().await? {
+        if estimate.is_none() && matches!(ev, Event::State { .. }) {
+            // a G-code file's machine time is estimated when it starts
+            estimate = client.job(id).await.ok().and_then(|j| j.estimate_ms);
+        }
         if show == Show::Json {
             writeln!(out, "{}", serde_json::to_string(&ev)?)?;
             out.flush()?;
@@ -214,17 +249,23 @@ pub async fn watch_with(client: &Client, id: JobId, show: Show) -> anyhow::Resul
                 total,
                 error,
                 ..
-            } => Some(format!(
-                "job {id} {state} at {acked}/{total}{}",
-                error.as_ref().map(|e| format!(": {e}")).unwrap_or_default()
-            )),
+            } => {
+                job_state = *state;
+                Some(format!(
+                    "job {id} {state} at {acked}/{total}{}",
+                    error.as_ref().map(|e| format!(": {e}")).unwrap_or_default()
+                ))
+            }
             Event::Progress {
                 acked, total: t, ..
             } => {
                 let pct = *acked as u64 * 100 / (*t).max(1) as u64;
                 (last_pct != Some(pct)).then(|| {
                     last_pct = Some(pct);
-                    format!("job {id} {acked}/{t} ({pct} %)")
+                    format!(
+                        "job {id} {acked}/{t} ({pct} %) ETA {}",
+                        eta_text(estimate, *acked, *t, job_state)
+                    )
                 })
             }
             Event::Status { status, .. } => {
@@ -245,7 +286,6 @@ pub async fn watch_with(client: &Client, id: JobId, show: Show) -> anyhow::Resul
             out.flush()?;
         }
     }
-    let _ = total;
     let j = client.job(id).await?;
     end_of(id, j, show == Show::Json)
 }
@@ -280,26 +320,36 @@ async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<Jo
     } else {
         ProgressBar::new(first.total_units as u64)
     };
-    // fits 80 columns: "job 12 [====>     ] 1234/2000 lines  Run F800 X118.5 Y31.3 Z-1.0  ETA 1m"
+    // fits 80 columns: "job 12 [====>       ] 1234/2000  ETA 1m05s  Run F800 X118.5 Y31.3 Z-1.0",
+    // the machine's status last and cut to the terminal's width; the ETA from the job's
+    // estimated machine time (indicatif's own {eta} guesses from the rate of acks, which
+    // GRBL's planner makes run ahead of the motion)
     bar.set_style(
-        ProgressStyle::with_template(
-            "job {prefix} [{bar:20.cyan/blue}] {pos}/{len} lines  {msg}  ETA {eta}",
-        )
+        ProgressStyle::with_template("job {prefix} [{bar:16.cyan/blue}] {pos}/{len}  {wide_msg}")
         .unwrap_or_else(|_| ProgressStyle::default_bar())
         .progress_chars("=> "),
     );
     bar.set_prefix(id.to_string());
     bar.set_position(first.acked_units as u64);
-    bar.set_message(first.state.to_string());
     bar.enable_steady_tick(Duration::from_millis(200));
     let mut state = first.state;
     let mut status = String::new();
-    let show = |state: JobState, status: &str| match (state, status.is_empty()) {
-        (JobState::Running, false) => status.to_string(),
-        (_, true) => state.to_string(),
-        (_, false) => format!("{state} {status}"),
+    let mut estimate = first.estimate_ms;
+    let (mut acked_now, mut total_now) = (first.acked_units, first.total_units);
+    let show = |estimate: Option<i64>, state: JobState, status: &str, acked: usize, total: usize| {
+        let eta = eta_text(estimate, acked, total, state);
+        match (state, status.is_empty()) {
+            (JobState::Running, false) => format!("ETA {eta}  {status}"),
+            (_, true) => format!("ETA {eta}  {state}"),
+            (_, false) => format!("ETA {eta}  {state} {status}"),
+        }
     };
+    bar.set_message(show(estimate, first.state, "", acked_now, total_now));
     while let Some(ev) = events.next().await? {
+        if estimate.is_none() && matches!(ev, Event::State { .. }) {
+            // a G-code file's machine time is estimated when it starts
+            estimate = client.job(id).await.ok().and_then(|j| j.estimate_ms);
+        }
         match ev {
             Event::State {
                 state: s,
@@ -309,12 +359,15 @@ async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<Jo
             } => {
                 bar.set_length(total as u64);
                 bar.set_position(acked as u64);
+                (acked_now, total_now) = (acked, total);
                 state = s;
-                bar.set_message(show(state, &status));
+                bar.set_message(show(estimate, state, &status, acked_now, total_now));
             }
             Event::Progress { acked, total, .. } => {
                 bar.set_length(total as u64);
                 bar.set_position(acked as u64);
+                (acked_now, total_now) = (acked, total);
+                bar.set_message(show(estimate, state, &status, acked_now, total_now));
             }
             Event::Status { status: st, .. } => {
                 let p = st.position;
@@ -322,7 +375,7 @@ async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<Jo
                     "{} F{:.0} X{:.1} Y{:.1} Z{:.1}",
                     st.state, st.feed, p[0], p[1], p[2]
                 );
-                bar.set_message(show(state, &status));
+                bar.set_message(show(estimate, state, &status, acked_now, total_now));
             }
             Event::Message { text, .. } => bar.println(format!("machine: {text}")),
         }

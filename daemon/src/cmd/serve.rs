@@ -11,7 +11,8 @@ pub struct ServeArgs {
     /// The configuration file (see docs/config.md). Default: ./machlink.toml.
     #[arg(long, default_value = "machlink.toml")]
     pub config: PathBuf,
-    /// Listen on this Unix socket instead of the one the config names.
+    /// Listen on this Unix socket instead of the one the config names (the config's
+    /// default: $XDG_RUNTIME_DIR/machlink.sock, else /tmp/machlink-$USER/machlink.sock).
     #[arg(long)]
     pub socket: Option<PathBuf>,
     /// Also listen on TCP at ADDR (e.g. 0.0.0.0:7878): with TLS (--tls-cert, --tls-key) or,
@@ -56,7 +57,23 @@ pub enum LogFormat {
 }
 
 pub fn run(a: ServeArgs) -> anyhow::Result<()> {
-    init_logging(a.log.log_format);
+    let format = a.log.log_format;
+    init_logging(format);
+    let result = serve(a);
+    if let (Err(e), LogFormat::Json) = (&result, format) {
+        // the reason the daemon stops is one more JSON object on the log, not a plain line
+        let msg = e
+            .chain()
+            .map(|c| c.to_string())
+            .collect::<Vec<_>>()
+            .join(": ");
+        tracing::error!(error = %msg, "machlink serve stopped: {msg}");
+        std::process::exit(1);
+    }
+    result
+}
+
+fn serve(a: ServeArgs) -> anyhow::Result<()> {
     let config = Config::load(&a.config)?;
     let rt = tokio::runtime::Runtime::new().context("cannot start the async runtime")?;
     rt.block_on(async move {

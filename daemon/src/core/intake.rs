@@ -266,9 +266,27 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
     if let Target::Machine(m) = target {
         check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
     }
-    let program = post
-        .program(&toolpath)
-        .map_err(|e| IntakeError::Refused(format!("cannot write the {} program: {e}", e.post)))?;
+    let program = post.program(&toolpath).map_err(|e| {
+        let sews = toolpath
+            .moves
+            .iter()
+            .any(|m| matches!(m, offset_core::Move::Stitch { .. } | offset_core::Move::Jump { .. }));
+        match target {
+            // stitches the machine's posts cannot write: the job was sent to the wrong machine
+            Target::Machine(m) if sews => IntakeError::Refused(format!(
+                "machine `{}` is not a sewing machine (link = \"{}\", it runs {}): send stitch jobs to a sewing machine",
+                m.name,
+                m.link,
+                m.kind
+                    .posts()
+                    .iter()
+                    .map(|p| p.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )),
+            _ => IntakeError::Refused(format!("cannot write the {} program: {e}", e.post)),
+        }
+    })?;
     Ok(Planned {
         program,
         shape,

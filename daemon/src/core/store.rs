@@ -499,12 +499,7 @@ impl Store {
             if let Some((_, s)) = slots.iter().find(|(_, s)| s.job == j.id) {
                 j.acked_units = j.acked_units.max(s.acked as usize);
                 j.sent_units = s.sent as usize;
-                if let (Some(e), true) = (j.estimate_ms, j.total_units > 0) {
-                    let left = j.total_units.saturating_sub(j.acked_units) as f64;
-                    j.eta_ms = j
-                        .eta_ms
-                        .map(|_| (e as f64 * left / j.total_units as f64).round() as i64);
-                }
+                j.eta_ms = eta_ms(j.estimate_ms, j.acked_units, j.total_units, j.state);
             }
         }
     }
@@ -877,6 +872,25 @@ fn text_or_blob(v: rusqlite::types::ValueRef<'_>) -> rusqlite::Result<String> {
 const JOB_COLUMNS: &str = "id, machine, state, op, file_name, params, created_ms, started_ms,
     finished_ms, error, total_units, acked_units, sent_units, note, estimate_ms";
 
+/// The machining time left of a job whose kind estimated `estimate_ms` for all `total`
+/// units, `acked` of them acknowledged: the estimate's share of the units not yet
+/// acknowledged. A running job's machine still works off what it acknowledged last (GRBL
+/// acknowledges a line when it enters the planner, ahead of the motion), so while it runs
+/// the time left is never below one second; None for a job that ended or has no estimate.
+pub fn eta_ms(estimate_ms: Option<i64>, acked: usize, total: usize, state: JobState) -> Option<i64> {
+    let e = estimate_ms?;
+    if total == 0 {
+        return None;
+    }
+    let left = total.saturating_sub(acked) as f64 / total as f64;
+    let t = (e as f64 * left).round() as i64;
+    match state {
+        JobState::Running => Some(t.max(1000)),
+        JobState::Queued | JobState::Paused | JobState::Interrupted => Some(t),
+        _ => None,
+    }
+}
+
 /// Adds the columns a store written by an older daemon lacks.
 fn migrate(conn: &Connection) -> rusqlite::Result<()> {
     let mut st = conn.prepare("PRAGMA table_info(jobs)")?;
@@ -920,13 +934,7 @@ fn row_to_job(r: &rusqlite::Row) -> rusqlite::Result<Result<JobRecord, StoreErro
     let acked_units = r.get::<_, i64>(11)? as usize;
     let estimate_ms: Option<i64> = r.get(14)?;
     let elapsed_ms = started_ms.map(|s| (finished_ms.unwrap_or_else(now_ms) - s).max(0));
-    let eta_ms = match (estimate_ms, state) {
-        (Some(e), JobState::Queued | JobState::Running | JobState::Paused) if total_units > 0 => {
-            let left = total_units.saturating_sub(acked_units) as f64 / total_units as f64;
-            Some((e as f64 * left).round() as i64)
-        }
-        _ => None,
-    };
+    let eta_ms = eta_ms(estimate_ms, acked_units, total_units, state);
     Ok(Ok(JobRecord {
         id,
         machine: r.get(1)?,

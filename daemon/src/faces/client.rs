@@ -49,6 +49,10 @@ impl std::fmt::Display for Endpoint {
 pub enum ClientError {
     #[error("cannot reach the daemon at {0}: is `machlink serve` running?")]
     Unreachable(String),
+    /// The socket is there but this user may not open it (its mode, its folder's, a group
+    /// the user is not in).
+    #[error("permission denied: you may not open the daemon's socket {0} (ask for a role, docs/security.md)")]
+    PermissionDenied(String),
     /// The daemon's own sentence.
     #[error("{0}")]
     Refused(String),
@@ -112,9 +116,13 @@ impl Client {
         }
         let mut sender = match &self.endpoint {
             Endpoint::Unix(p) | Endpoint::UnixToken { path: p, .. } => {
-                let io = tokio::net::UnixStream::connect(p)
-                    .await
-                    .map_err(|_| unreachable())?;
+                let io = tokio::net::UnixStream::connect(p).await.map_err(|e| {
+                    if e.kind() == std::io::ErrorKind::PermissionDenied {
+                        ClientError::PermissionDenied(p.display().to_string())
+                    } else {
+                        unreachable()
+                    }
+                })?;
                 handshake(io).await?
             }
             Endpoint::Tcp { addr, .. } => {

@@ -1,12 +1,18 @@
 //! Where a client command finds the daemon's socket: `--socket`, then `MACHLINK_SOCKET`,
 //! then the `socket` of the daemon's config (`--config FILE`, else `MACHLINK_CONFIG`, else
-//! `./machlink.toml`, else `/etc/machlink/machlink.toml`, whichever exists first), then the
+//! `./machlink.toml`, else `./cell.toml` (the name README's examples give it), else
+//! `/etc/machlink/machlink.toml`, whichever exists first), then the
 //! default (`$XDG_RUNTIME_DIR/machlink.sock`, else `/tmp/machlink-$USER/machlink.sock`).
 
 use std::path::{Path, PathBuf};
 
 /// The config file a service install puts in place (docs/install.md).
 pub const SYSTEM_CONFIG: &str = "/etc/machlink/machlink.toml";
+
+/// The config files a client looks for when none is named, in this order: the one `serve`
+/// reads by default, the one README's examples start (`serve --config cell.toml`) in the
+/// current folder, and the service's.
+pub const CONFIG_SEARCH: [&str; 3] = ["machlink.toml", "cell.toml", SYSTEM_CONFIG];
 
 /// Why the socket could not be found.
 #[derive(Debug, thiserror::Error)]
@@ -40,8 +46,9 @@ pub fn socket(
             .filter(|s| !s.is_empty())
             .map(PathBuf::from)
             .or_else(|| {
-                [PathBuf::from("machlink.toml"), PathBuf::from(SYSTEM_CONFIG)]
-                    .into_iter()
+                CONFIG_SEARCH
+                    .iter()
+                    .map(PathBuf::from)
                     .find(|p| p.is_file())
             }),
     };

@@ -22,6 +22,7 @@ mod offset_cmd;
 mod operator_cli;
 mod plan_preview_cli;
 mod posts_cli;
+mod screens_cli;
 mod service;
 mod shop_jobs_cli;
 mod simulate_cli;

@@ -21,6 +21,27 @@ pub enum Side {
     On,
 }
 
+impl Side {
+    /// The side as `--side` spells it: `outside`, `inside`, `on`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Outside => "outside",
+            Side::Inside => "inside",
+            Side::On => "on",
+        }
+    }
+
+    /// The profile in words: "an outside profile", "an inside profile", "a profile on the
+    /// line".
+    pub fn profile_words(self) -> &'static str {
+        match self {
+            Side::Outside => "an outside profile",
+            Side::Inside => "an inside profile",
+            Side::On => "a profile on the line",
+        }
+    }
+}
+
 /// Everything a profile needs besides the shape (keys left out of JSON take the defaults).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -127,18 +148,53 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
             }
         }
     }
-    for open in shape.open_paths() {
-        loops.push((open.clone(), false));
+    // an open contour has no inside or outside: the tool can only follow its line
+    let open: Vec<&Polyline> = shape.open_paths().collect();
+    let mut open_warning = None;
+    if p.side != Side::On && !open.is_empty() {
+        let ends = |pl: &Polyline| match (pl.vertices.first(), pl.vertices.last()) {
+            (Some(a), Some(b)) => {
+                let (a, b) = (a.pos(), b.pos());
+                format!("from ({:.3}, {:.3}) to ({:.3}, {:.3})", a.x, a.y, b.x, b.y)
+            }
+            _ => "empty".to_string(),
+        };
+        let what = format!(
+            "{} open contour{} ({}{}) {} no {}: only a closed contour does",
+            open.len(),
+            if open.len() == 1 { "" } else { "s" },
+            ends(open[0]),
+            if open.len() > 1 { ", …" } else { "" },
+            if open.len() == 1 { "has" } else { "have" },
+            p.side.name()
+        );
+        if loops.is_empty() {
+            return Err(OpError::BadParam(format!(
+                "{} needs a closed contour: {what}; close it, or cut along it with --side on",
+                p.side.profile_words()
+            )));
+        }
+        open_warning = Some(format!(
+            "{what}; {} cut along {} line (as --side on), not {}",
+            if open.len() == 1 { "it is" } else { "they are" },
+            if open.len() == 1 { "its" } else { "their" },
+            p.side.name()
+        ));
+    }
+    for pl in open {
+        loops.push((pl.clone(), false));
     }
     if loops.is_empty() {
         return Err(OpError::Empty(format!(
-            "a {:?} profile with a {} mm tool leaves no path",
-            p.side, p.cut.tool.diameter
+            "{} with a {} mm tool leaves no path",
+            p.side.profile_words(),
+            p.cut.tool.diameter
         )));
     }
 
-    let mut tp = Toolpath::new(format!("profile {:?}", p.side).to_lowercase());
+    let mut tp = Toolpath::new(format!("profile {}", p.side.name()));
     tp.tool = Some(p.cut.tool);
+    tp.warnings.extend(open_warning);
     tp.push(Move::Rapid {
         to: P3::new(0.0, 0.0, p.cut.safe_z),
     });

@@ -343,6 +343,9 @@ impl MachineKind for CanopenKind {
     fn keys(&self) -> Vec<&'static str> {
         CanopenSettings::keys()
     }
+    fn estimate(&self, _s: &CanopenSettings, moves: &[Move]) -> Option<f64> {
+        Some(crate::estimate::moves_seconds(moves, crate::estimate::RAPID))
+    }
     fn posts(&self) -> Vec<PostFor<Move>> {
         moves_posts()
     }

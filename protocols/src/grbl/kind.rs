@@ -70,39 +70,12 @@ pub fn grbl_resume_plan(lines: &[String], from: usize, dwell: f64) -> Result<Res
 /// take a little longer than this says.
 pub fn gcode_time(lines: &[String], rapid: f64) -> Option<f64> {
     let tp = crate::gcode_read::read(&lines.join("\n")).ok()?;
-    let mut t = 0.0;
-    let mut pos = offset_core::P3::default();
-    for m in &tp.moves {
-        match m {
-            offset_core::Move::Rapid { to } => {
-                t += pos.dist(*to) / rapid * 60.0;
-                pos = *to;
-            }
-            offset_core::Move::Linear { to, feed } => {
-                t += pos.dist(*to) / feed.max(1e-3) * 60.0;
-                pos = *to;
-            }
-            offset_core::Move::Arc {
-                to,
-                center,
-                ccw,
-                feed,
-            } => {
-                let xy =
-                    offset_core::toolpath::arc_segment(pos.xy(), to.xy(), *center, *ccw).length();
-                t += xy.hypot(to.z - pos.z) / feed.max(1e-3) * 60.0;
-                pos = *to;
-            }
-            offset_core::Move::Dwell { seconds } => t += seconds.max(0.0),
-            _ => {}
-        }
-    }
-    Some(t)
+    Some(crate::estimate::moves_seconds(&tp.moves, rapid))
 }
 
 /// The rapid rate assumed for estimates, mm/min (GRBL's default `$110` is 500; routers run
 /// 3000 to 10000).
-pub const ESTIMATE_RAPID: f64 = 3000.0;
+pub const ESTIMATE_RAPID: f64 = crate::estimate::RAPID;
 
 /// The G-code posts a GRBL controller runs.
 pub fn grbl_posts() -> Vec<PostFor<String>> {

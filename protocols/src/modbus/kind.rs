@@ -230,6 +230,9 @@ impl<T: RingTransport> MachineKind for ModbusKind<T> {
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
     }
+    fn estimate(&self, _s: &Self::Settings, blocks: &[MotionBlock]) -> Option<f64> {
+        Some(crate::estimate::blocks_seconds(blocks, crate::estimate::RAPID))
+    }
     fn check(&self, s: &Self::Settings) -> Result<(), String> {
         s.own.check()?;
         s.own

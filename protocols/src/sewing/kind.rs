@@ -104,6 +104,12 @@ impl MachineKind for SewingKind {
     fn check(&self, s: &SewingSettings) -> Result<(), String> {
         check_port(&s.port, s.baud)
     }
+    fn estimate(&self, _s: &SewingSettings, stitches: &[StitchRecord]) -> Option<f64> {
+        Some(crate::estimate::stitches_seconds(
+            stitches.len(),
+            crate::estimate::SPM,
+        ))
+    }
     fn start(&self, machine: &str, s: &SewingSettings) -> BoxFuture<'static, std::io::Result<()>> {
         warn_missing_port(machine, &s.port);
         started(())

@@ -215,6 +215,13 @@ impl Job<'_> {
             Ok(p) => p,
             Err(e) => return Outcome::Final(JobState::Failed, Some(e.to_string())),
         };
+        // a program stored as it streamed in (a G-code file) has its machining time
+        // estimated here, where its units are at hand anyway, so its ETA exists too
+        if job.estimate_ms.is_none() {
+            if let Some(t) = m.config.kind.estimate(&m.config.settings, &program) {
+                let _ = inner.store.set_estimate(id, t);
+            }
+        }
         if mode == Mode::Run {
             inner.set_state(id, JobState::Running, None);
         }

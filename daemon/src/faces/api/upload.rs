@@ -55,6 +55,7 @@ pub async fn gcode(
     if !machine.kind.gcode_lines_are_units() {
         return whole_file(st, name, file, req).await;
     }
+    let checking = std::time::Instant::now();
     let mut check = GcodeCheck::new(&file, &machine);
     let mut json: Vec<u8> =
         Vec::with_capacity(declared.unwrap_or(0).min(MAX_GCODE_BODY) as usize + 64);
@@ -154,6 +155,9 @@ pub async fn gcode(
     st.sched.store().release_memory();
     crate::services::memory::give_back();
     let rec = rec?;
+    if let Some(m) = st.sched.metrics() {
+        m.job_submitted(&rec.machine, checking.elapsed());
+    }
     let mut resp = (StatusCode::CREATED, Json(&rec)).into_response();
     resp.extensions_mut().insert(Acted {
         machine: Some(rec.machine.clone()),
