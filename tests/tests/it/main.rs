@@ -10,6 +10,7 @@ mod api;
 mod at_machine;
 mod canopen_e2e;
 mod dashboard_browser;
+mod doc_examples;
 mod gcode_checks;
 mod hardening;
 mod modbus_e2e;

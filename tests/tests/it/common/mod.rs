@@ -2,6 +2,11 @@
 //! programs, and what the simulator should execute from them.
 #![allow(dead_code)]
 
+pub mod bin;
+/// The daemon tests' nats-server on loopback (one helper for both crates).
+#[path = "../../../../daemon/tests/it/common/nats.rs"]
+pub mod nats;
+
 use machlink::config::Config;
 use machlink::core::intake::{Input, JobSpec};
 use machlink::core::store::{JobId, JobRecord, JobState};
