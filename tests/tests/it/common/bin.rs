@@ -21,12 +21,23 @@ pub fn bin_dir() -> PathBuf {
         let target = profile.parent().expect("a target folder").to_path_buf();
         let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
         let status = std::process::Command::new(cargo)
-            .args(["build", "--quiet", "-p", "machlink", "-p", "machlink-sim", "--bins"])
+            .args([
+                "build",
+                "--quiet",
+                "-p",
+                "machlink",
+                "-p",
+                "machlink-sim",
+                "--bins",
+            ])
             .arg("--target-dir")
             .arg(&target)
             .status()
             .expect("cargo runs");
-        assert!(status.success(), "cargo build of machlink and machlink-sim failed");
+        assert!(
+            status.success(),
+            "cargo build of machlink and machlink-sim failed"
+        );
         assert!(
             profile.join("machlink").is_file(),
             "no machlink binary in {}",
