@@ -343,30 +343,69 @@ fn marks_of(t: &Toolpath, size: f64) -> Marks {
             rose_from = None;
         }
     });
-    let total: f64 = cuts.iter().map(|c| c.length()).sum();
-    if total > 1e-9 {
-        let spacing = (total / MAX_ARROWS as f64).max(size / 30.0);
-        let mut next = spacing * 0.5;
-        let mut at = 0.0;
-        for c in &cuts {
-            let len = c.length();
-            while next <= at + len && m.arrows.len() < MAX_ARROWS {
-                let k = ((next - at) / len).clamp(0.0, 1.0);
-                let (p0, p1) = (
-                    c.point_at((k - 1e-3).max(0.0)),
-                    c.point_at((k + 1e-3).min(1.0)),
-                );
-                let d = p1 - p0;
-                let l = d.x.hypot(d.y);
-                if l > 1e-12 {
-                    m.arrows.push((c.point_at(k), Point::new(d.x / l, d.y / l)));
-                }
-                next += spacing;
-            }
-            at += len;
-        }
-    }
+    m.arrows = arrows_along(&cuts, size);
     m
+}
+
+/// Arrows of direction along a run of cuts in a drawing `size` across: at most
+/// [`MAX_ARROWS`], evenly spaced by length, each a point and a unit direction.
+pub(crate) fn arrows_along(cuts: &[Segment], size: f64) -> Vec<(Point, Point)> {
+    let mut arrows = Vec::new();
+    let total: f64 = cuts.iter().map(|c| c.length()).sum();
+    if total <= 1e-9 {
+        return arrows;
+    }
+    let spacing = (total / MAX_ARROWS as f64).max(size / 30.0);
+    let mut next = spacing * 0.5;
+    let mut at = 0.0;
+    for c in cuts {
+        let len = c.length();
+        while next <= at + len && arrows.len() < MAX_ARROWS {
+            let k = ((next - at) / len).clamp(0.0, 1.0);
+            let (p0, p1) = (
+                c.point_at((k - 1e-3).max(0.0)),
+                c.point_at((k + 1e-3).min(1.0)),
+            );
+            let d = p1 - p0;
+            let l = d.x.hypot(d.y);
+            if l > 1e-12 {
+                arrows.push((c.point_at(k), Point::new(d.x / l, d.y / l)));
+            }
+            next += spacing;
+        }
+        at += len;
+    }
+    arrows
+}
+
+/// A filled arrowhead of half-width `s` at `p` pointing along the unit `d`, as SVG path data.
+pub(crate) fn arrow_d(p: Point, d: Point, s: f64) -> String {
+    let n = Point::new(-d.y, d.x);
+    let tip = p + Point::new(d.x * s, d.y * s);
+    let back = p - Point::new(d.x * s * 0.8, d.y * s * 0.8);
+    let (l, r) = (
+        back + Point::new(n.x * s, n.y * s),
+        back - Point::new(n.x * s, n.y * s),
+    );
+    format!(
+        "M{} {}L{} {}L{} {}Z",
+        f(tip.x),
+        f(tip.y),
+        f(l.x),
+        f(l.y),
+        f(r.x),
+        f(r.y)
+    )
+}
+
+/// A round length near `l` for a scale bar (1, 2 or 5 times a power of ten).
+pub(crate) fn scale_length(l: f64) -> f64 {
+    round_length(l)
+}
+
+/// A length for a label, in few digits.
+pub(crate) fn label_number(v: f64) -> String {
+    num(v)
 }
 
 /// Draws the tabs, the start ring and the arrows (in the flipped, y-up group).
@@ -384,22 +423,10 @@ fn draw_marks(out: &mut String, m: &Marks, sw: f64) {
     }
     let s = sw * 5.0;
     for (p, d) in &m.arrows {
-        let n = Point::new(-d.y, d.x);
-        let tip = *p + Point::new(d.x * s, d.y * s);
-        let back = *p - Point::new(d.x * s * 0.8, d.y * s * 0.8);
-        let (l, r) = (
-            back + Point::new(n.x * s, n.y * s),
-            back - Point::new(n.x * s, n.y * s),
-        );
         let _ = writeln!(
             out,
-            r#"<path d="M{} {}L{} {}L{} {}Z" fill="{DIRECTION_COLOUR}" stroke="none"/>"#,
-            f(tip.x),
-            f(tip.y),
-            f(l.x),
-            f(l.y),
-            f(r.x),
-            f(r.y)
+            r#"<path d="{}" fill="{DIRECTION_COLOUR}" stroke="none"/>"#,
+            arrow_d(*p, *d, s)
         );
     }
     if let Some(p) = m.start {

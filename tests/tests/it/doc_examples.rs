@@ -699,7 +699,7 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
             continue;
         }
         if cell.as_ref().is_none_or(|(page, _)| *page != ex.file) {
-            cell = None; // the last page's daemon stops before the next starts
+            drop(cell.take()); // the last page's daemon stops before the next starts
             cell = Some((ex.file.clone(), Cell::new()));
         }
         let cell = &mut cell.as_mut().unwrap().1;

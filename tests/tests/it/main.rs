@@ -17,6 +17,7 @@ mod modbus_e2e;
 mod modbus_pymodbus;
 mod module_graph;
 mod operate;
+mod preview_png;
 mod reattach;
 mod resume_from_line;
 mod sewing_e2e;
