@@ -1,4 +1,4 @@
-//! Preview drawings: shapes and tool paths as SVG, +Y up, moves coloured by type (rapids dashed), stitch points as dots, the tool's swept width, a scale bar and a legend.
+//! Preview drawings: shapes and tool paths as SVG, +Y up, moves coloured by type (rapids dashed), stitch points as dots, the tool's swept width, the start point, arrows of the cut direction, tabs, a scale bar and a legend; every move on the canvas.
 
 use crate::geom::{Bounds, Point, Polyline, Segment, Shape};
 use crate::toolpath::{arc_segment, Move, Toolpath, P3};
@@ -17,6 +17,12 @@ pub const JUMP_COLOUR: &str = "#ff7f0e";
 pub const SWEPT_COLOUR: &str = "#9ecae1";
 /// The scale bar and the legend's text.
 pub const TEXT_COLOUR: &str = "#222222";
+/// The ring at the point where the first cut starts.
+pub const START_COLOUR: &str = "#ffd400";
+/// The arrows along the cuts that show which way the tool goes.
+pub const DIRECTION_COLOUR: &str = "#222222";
+/// Where the tool rides over a tab (a profile's holding bridge).
+pub const TAB_COLOUR: &str = "#e377c2";
 
 /// What a preview shows besides the shape and the moves.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -68,9 +74,11 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     let tool = tp.and_then(|t| t.tool).map_or(0.0, |t| t.diameter);
     let swept = o.swept && tool > 0.0;
     if let Some(t) = tp {
+        // every move drawn is on the canvas, rapids above the stock included
         t.walk(P3::default(), |from, m, to| {
-            if !matches!(m, Move::Rapid { .. }) || from.z < 0.0 || to.z < 0.0 {
+            if from.xy().dist(to.xy()) > 1e-9 || !matches!(m, Move::Rapid { .. }) {
                 let mut mb = Bounds::EMPTY;
+                mb.add_point(from.xy());
                 mb.add_point(to.xy());
                 if let Move::Arc { center, ccw, .. } = m {
                     mb = mb.union(&arc_segment(from.xy(), to.xy(), *center, *ccw).bounds());
@@ -91,6 +99,7 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     let margin = size * 0.04;
     let sw = size / 500.0;
     let kinds = tp.map(kinds_drawn).unwrap_or_default();
+    let marks = tp.map(|t| marks_of(t, size)).unwrap_or_default();
     // the band below the drawing: a line for the scale bar, then the legend, three to a line
     let line = size / 28.0;
     let mut legend: Vec<(&str, String)> = Vec::new();
@@ -102,6 +111,9 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
             legend.push(("swept", format!("tool width ({} mm)", num(tool))));
         }
         for (on, key, text) in [
+            (marks.start.is_some(), "start", "start"),
+            (!marks.arrows.is_empty(), "direction", "cut direction"),
+            (!marks.tabs.is_empty(), "tab", "tab"),
             (kinds.linear, "linear", "cut"),
             (kinds.arc, "arc", "arc cut"),
             (kinds.plunge, "plunge", "straight down"),
@@ -159,6 +171,7 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     if let Some(t) = tp {
         draw_toolpath(&mut out, t, sw);
     }
+    draw_marks(&mut out, &marks, sw);
     out.push_str("</g>\n");
     // the band, in the drawing's unflipped frame (y down): world (x, y) is at (x, -y)
     let font = line * 0.6;
@@ -201,6 +214,7 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
                 f(font * 0.8)
             ),
             "linear" => format!(r#"stroke="{LINEAR_COLOUR}" stroke-width="{}""#, f(sw * 2.0)),
+            "tab" => format!(r#"stroke="{TAB_COLOUR}" stroke-width="{}""#, f(sw * 6.0)),
             "arc" => format!(r#"stroke="{ARC_COLOUR}" stroke-width="{}""#, f(sw * 2.0)),
             "rapid" => format!(
                 r#"stroke="{RAPID_COLOUR}" stroke-width="{}" stroke-dasharray="{dash}""#,
@@ -214,6 +228,29 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
         };
         let ym = y - font * 0.35;
         match *key {
+            "start" => {
+                let _ = writeln!(
+                    out,
+                    r#"<circle cx="{}" cy="{}" r="{}" fill="{START_COLOUR}" stroke="{TEXT_COLOUR}" stroke-width="{}"/>"#,
+                    f(x + sample / 2.0),
+                    f(ym),
+                    f(sw * 7.0),
+                    f(sw * 1.5)
+                );
+            }
+            "direction" => {
+                // the legend's frame is y down: the arrow points right
+                let _ = writeln!(
+                    out,
+                    r#"<path d="M{} {}L{} {}L{} {}Z" fill="{DIRECTION_COLOUR}"/>"#,
+                    f(x + sample * 0.75),
+                    f(ym),
+                    f(x + sample * 0.25),
+                    f(ym - sw * 5.0),
+                    f(x + sample * 0.25),
+                    f(ym + sw * 5.0)
+                );
+            }
             "plunge" | "stitch" => {
                 let c = if *key == "plunge" {
                     PLUNGE_COLOUR
@@ -248,6 +285,160 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     }
     out.push_str("</svg>\n");
     out
+}
+
+/// What a tool path shows beyond its moves: where the first cut starts, arrows along the cuts
+/// (a point and a unit direction each), and the pieces where the tool rides over a tab.
+#[derive(Clone, Debug, Default)]
+struct Marks {
+    start: Option<Point>,
+    arrows: Vec<(Point, Point)>,
+    tabs: Vec<Segment>,
+}
+
+/// The most arrows of cut direction a drawing carries.
+const MAX_ARROWS: usize = 24;
+
+/// The marks of a tool path drawn `size` mm across. A tab is a cut that follows a straight
+/// rise at feed (the same XY, higher Z) below the stock top and stays above the depth the
+/// tool rose from, until the tool is back down there.
+fn marks_of(t: &Toolpath, size: f64) -> Marks {
+    let mut m = Marks::default();
+    let mut cuts: Vec<Segment> = Vec::new();
+    let mut rose_from: Option<f64> = None;
+    t.walk(P3::default(), |from, mv, to| {
+        let (a, b) = (from.xy(), to.xy());
+        let same_xy = a.dist(b) < 1e-9;
+        let piece = match mv {
+            Move::Linear { .. } | Move::Stitch { .. } if !same_xy => Some(Segment::Line { a, b }),
+            Move::Arc { center, ccw, .. } => Some(arc_segment(a, b, *center, *ccw)),
+            _ => None,
+        };
+        if m.start.is_none()
+            && matches!(
+                mv,
+                Move::Linear { .. } | Move::Arc { .. } | Move::Stitch { .. }
+            )
+        {
+            m.start = Some(a);
+        }
+        match mv {
+            Move::Rapid { .. } => rose_from = None,
+            Move::Linear { .. } if same_xy && to.z > from.z + 1e-9 && from.z < 0.0 => {
+                rose_from = Some(rose_from.map_or(from.z, |z: f64| z.min(from.z)));
+            }
+            _ => {}
+        }
+        if let Some(p) = piece {
+            if let Some(depth) = rose_from {
+                if from.z.max(to.z) > depth + 1e-9 {
+                    m.tabs.push(p);
+                }
+                if to.z <= depth + 1e-9 {
+                    rose_from = None;
+                }
+            }
+            cuts.push(p);
+        } else if rose_from.is_some_and(|d| same_xy && to.z <= d + 1e-9) {
+            rose_from = None;
+        }
+    });
+    m.arrows = arrows_along(&cuts, size);
+    m
+}
+
+/// Arrows of direction along a run of cuts in a drawing `size` across: at most
+/// [`MAX_ARROWS`], evenly spaced by length, each a point and a unit direction.
+pub(crate) fn arrows_along(cuts: &[Segment], size: f64) -> Vec<(Point, Point)> {
+    let mut arrows = Vec::new();
+    let total: f64 = cuts.iter().map(|c| c.length()).sum();
+    if total <= 1e-9 {
+        return arrows;
+    }
+    let spacing = (total / MAX_ARROWS as f64).max(size / 30.0);
+    let mut next = spacing * 0.5;
+    let mut at = 0.0;
+    for c in cuts {
+        let len = c.length();
+        while next <= at + len && arrows.len() < MAX_ARROWS {
+            let k = ((next - at) / len).clamp(0.0, 1.0);
+            let (p0, p1) = (
+                c.point_at((k - 1e-3).max(0.0)),
+                c.point_at((k + 1e-3).min(1.0)),
+            );
+            let d = p1 - p0;
+            let l = d.x.hypot(d.y);
+            if l > 1e-12 {
+                arrows.push((c.point_at(k), Point::new(d.x / l, d.y / l)));
+            }
+            next += spacing;
+        }
+        at += len;
+    }
+    arrows
+}
+
+/// A filled arrowhead of half-width `s` at `p` pointing along the unit `d`, as SVG path data.
+pub(crate) fn arrow_d(p: Point, d: Point, s: f64) -> String {
+    let n = Point::new(-d.y, d.x);
+    let tip = p + Point::new(d.x * s, d.y * s);
+    let back = p - Point::new(d.x * s * 0.8, d.y * s * 0.8);
+    let (l, r) = (
+        back + Point::new(n.x * s, n.y * s),
+        back - Point::new(n.x * s, n.y * s),
+    );
+    format!(
+        "M{} {}L{} {}L{} {}Z",
+        f(tip.x),
+        f(tip.y),
+        f(l.x),
+        f(l.y),
+        f(r.x),
+        f(r.y)
+    )
+}
+
+/// A round length near `l` for a scale bar (1, 2 or 5 times a power of ten).
+pub(crate) fn scale_length(l: f64) -> f64 {
+    round_length(l)
+}
+
+/// A length for a label, in few digits.
+pub(crate) fn label_number(v: f64) -> String {
+    num(v)
+}
+
+/// Draws the tabs, the start ring and the arrows (in the flipped, y-up group).
+fn draw_marks(out: &mut String, m: &Marks, sw: f64) {
+    for tab in &m.tabs {
+        let a = tab.start();
+        let _ = writeln!(
+            out,
+            r#"<path d="M{} {}{}" stroke="{TAB_COLOUR}" stroke-width="{}" stroke-linecap="butt"/>"#,
+            f(a.x),
+            f(a.y),
+            arc_d(tab),
+            f(sw * 6.0)
+        );
+    }
+    let s = sw * 5.0;
+    for (p, d) in &m.arrows {
+        let _ = writeln!(
+            out,
+            r#"<path d="{}" fill="{DIRECTION_COLOUR}" stroke="none"/>"#,
+            arrow_d(*p, *d, s)
+        );
+    }
+    if let Some(p) = m.start {
+        let _ = writeln!(
+            out,
+            r#"<circle cx="{}" cy="{}" r="{}" fill="{START_COLOUR}" stroke="{TEXT_COLOUR}" stroke-width="{}"/>"#,
+            f(p.x),
+            f(p.y),
+            f(sw * 7.0),
+            f(sw * 1.5)
+        );
+    }
 }
 
 /// Which kinds of move a tool path draws.
@@ -521,6 +712,90 @@ mod tests {
             },
         );
         assert!(!bare.contains("<text"));
+    }
+
+    /// The numbers of an SVG attribute `name="…"` of every element that has it.
+    fn attr(s: &str, name: &str) -> Vec<f64> {
+        s.split(&format!(" {name}=\""))
+            .skip(1)
+            .filter_map(|r| r.split('"').next()?.parse().ok())
+            .collect()
+    }
+
+    #[test]
+    fn a_profile_with_tabs_shows_its_start_its_direction_and_its_tabs_all_on_the_canvas() {
+        let square = Polyline::new(
+            [(0.0, 0.0), (60.0, 0.0), (60.0, 40.0), (0.0, 40.0)]
+                .iter()
+                .map(|&(x, y)| crate::geom::Vertex::new(x, y, 0.0))
+                .collect(),
+            true,
+        );
+        let shape = Shape::new(vec![square]);
+        let mut p = crate::ops::ProfileParams {
+            tabs: 4,
+            tab_width: 4.0,
+            tab_height: 1.0,
+            ..Default::default()
+        };
+        p.cut.depth = 3.0;
+        p.cut.stepdown = 1.5;
+        let tp = crate::ops::profile(&shape, &p).unwrap();
+        let marks = marks_of(&tp, 70.0);
+        // four tabs on the last pass, each piece above the pass's depth
+        assert!(marks.tabs.len() >= 4, "{} tab pieces", marks.tabs.len());
+        let tab_len: f64 = marks.tabs.iter().map(|t| t.length()).sum();
+        // each tab: its width plus the tool's (3 mm) at least, with the ramp back down after
+        // it; far less than the last pass's loop (about 209 mm)
+        assert!(
+            tab_len >= 4.0 * (4.0 + 3.0) - 1e-6 && tab_len < 0.6 * 209.0,
+            "{tab_len}"
+        );
+        // the start is where the first cut begins, and arrows follow the cuts' direction
+        let mut first = None;
+        tp.walk(P3::default(), |from, m, _| {
+            if first.is_none() && matches!(m, Move::Linear { .. } | Move::Arc { .. }) {
+                first = Some(from.xy());
+            }
+        });
+        assert_eq!(marks.start, first);
+        assert!(marks.arrows.len() >= 8 && marks.arrows.len() <= MAX_ARROWS);
+        // the loop goes one way round (only a ramp entry goes back and forth): the arrows'
+        // turn about the centre has one sign, but for the ramp's
+        let c = Point::new(30.0, 20.0);
+        let turns: Vec<f64> = marks
+            .arrows
+            .iter()
+            .map(|(q, d)| (q.x - c.x) * d.y - (q.y - c.y) * d.x)
+            .collect();
+        let one_way = turns.iter().filter(|t| **t < 0.0).count();
+        let most = one_way.max(turns.len() - one_way);
+        assert!(most * 4 >= turns.len() * 3, "{turns:?}");
+        let s = svg(Some(&shape), Some(&tp), 600.0);
+        assert!(s.contains(TAB_COLOUR) && s.contains(START_COLOUR));
+        assert!(
+            s.contains(">start</text>")
+                && s.contains(">cut direction</text>")
+                && s.contains(">tab</text>")
+        );
+        // every move's ends inside the viewBox (y is flipped: the box holds -y)
+        let vb: Vec<f64> = s
+            .split("viewBox=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .split(' ')
+            .map(|v| v.parse().unwrap())
+            .collect();
+        tp.walk(P3::default(), |from, _, to| {
+            for q in [from.xy(), to.xy()] {
+                assert!(q.x >= vb[0] && q.x <= vb[0] + vb[2], "{q:?} off {vb:?}");
+                assert!(-q.y >= vb[1] && -q.y <= vb[1] + vb[3], "{q:?} off {vb:?}");
+            }
+        });
+        assert!(!attr(&s, "cx").is_empty());
     }
 
     #[test]

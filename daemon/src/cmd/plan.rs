@@ -8,7 +8,10 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct PlanCmdArgs {
-    /// The shape file: .json geometry, .dxf or .svg.
+    /// The part to plan: a shape (.json geometry JSON, docs/geometry.md; .dxf; .svg) for 2D
+    /// operations, or a mesh (.stl) or a CSV point grid (.csv, x,y,z) for rough3d, finish3d
+    /// and waterline. G-code (.nc, .gcode, .ngc, .tap, .gc, .cnc) is a program already:
+    /// preview, simulate or submit it as it is.
     pub file: PathBuf,
     #[command(flatten)]
     pub job: JobArgs,

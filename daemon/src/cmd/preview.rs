@@ -19,13 +19,13 @@ pub struct PreviewArgs {
     /// Width of the drawing in pixels.
     #[arg(long, default_value_t = 1000)]
     pub width: u32,
-    /// Leave out the scale bar.
+    /// Leave out the scale bar (and, in 3D views, the axes).
     #[arg(long)]
     pub no_scale_bar: bool,
     /// Leave out the legend.
     #[arg(long)]
     pub no_legend: bool,
-    /// Leave out the band the tool sweeps under its cuts.
+    /// Leave out the band the tool sweeps under its cuts (plan views).
     #[arg(long)]
     pub no_swept: bool,
     /// Draw a G-code program in an isometric view (the default for programs that cut while
@@ -54,7 +54,7 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             Some(_) => Some(intake::toolpath_3d(&spec, &mesh)?),
             None => None,
         };
-        offset_core::preview3d::svg(Some(&mesh), tp.as_ref(), a.width as f64)
+        offset_core::preview3d::svg_with(Some(&mesh), tp.as_ref(), &opts)
     } else if let Some(format) = stitch_format(&input.file_name) {
         // an embroidery file: its stitches and jumps
         let bytes = input.bytes()?;
@@ -70,7 +70,7 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
         let tp = machlink_protocols::gcode_read::read(&text)
             .with_context(|| format!("{} is not G-code we can draw", a.file.display()))?;
         if is_3d(&tp) || a.iso {
-            offset_core::preview3d::svg(None, Some(&tp), a.width as f64)
+            offset_core::preview3d::svg_with(None, Some(&tp), &opts)
         } else {
             preview::svg_with(None, Some(&tp), &opts)
         }

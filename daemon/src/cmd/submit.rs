@@ -7,8 +7,9 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct SubmitArgs {
-    /// The shape file (.json, .dxf, .svg), planned with --op; or a G-code file (.nc,
-    /// .gcode, .ngc, .tap, .gc, .cnc) that runs as it is once checked against the machine.
+    /// The shape file (.json geometry JSON, .dxf, .svg) or the mesh (.stl) or point grid
+    /// (.csv) planned with --op or --recipe; or a G-code file (.nc, .gcode, .ngc, .tap, .gc,
+    /// .cnc) that runs as it is once checked against the machine.
     pub file: PathBuf,
     /// The machine to queue the job on (see `machlink machines`).
     #[arg(long)]

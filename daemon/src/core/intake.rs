@@ -495,7 +495,7 @@ fn plan_gcode(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError
     let file = &spec.input.file_name;
     let Target::Machine(m) = target else {
         return Err(IntakeError::Input(format!(
-            "{file} is already a G-code program; `plan` takes a shape file (.json, .dxf, .svg)"
+            "{file} is already a G-code program; `plan` takes a shape (.json, .dxf, .svg), a mesh (.stl) or a point grid (.csv): preview, simulate or submit the program as it is"
         )));
     };
     if let Some(op) = &spec.operation {

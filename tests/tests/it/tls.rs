@@ -14,7 +14,7 @@ const MACHINE: &str = "[[machine]]\nname = \"bench\"\nlink = \"sim-grbl\"\ntime_
 
 /// A CA and a certificate it signed for localhost and 127.0.0.1, as PEM files in `dir`:
 /// (CA certificate, server certificate, server key).
-fn certificates(dir: &Path, prefix: &str) -> (PathBuf, PathBuf, PathBuf) {
+pub(crate) fn certificates(dir: &Path, prefix: &str) -> (PathBuf, PathBuf, PathBuf) {
     let ca_key = rcgen::KeyPair::generate().unwrap();
     let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
     ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);

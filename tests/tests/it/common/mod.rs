@@ -2,6 +2,10 @@
 //! programs, and what the simulator should execute from them.
 #![allow(dead_code)]
 
+pub mod bin;
+/// The daemon tests' nats-server on loopback (one helper for both crates).
+#[path = "../../../../daemon/tests/it/common/nats.rs"]
+pub mod nats;
 #[path = "../../../../testkit/sewing.rs"]
 pub mod sewing;
 

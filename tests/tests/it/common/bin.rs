@@ -1,0 +1,54 @@
+//! The built `machlink` and `machlink-sim` binaries, for tests of this crate that run them as
+//! an operator does. `env!("CARGO_BIN_EXE_…")` exists only inside the crate that owns the
+//! binary, so this builds them (a no-op when they are fresh) into the target folder this test
+//! binary runs from, with the cargo that runs the tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+use std::sync::OnceLock;
+
+/// The folder holding `machlink` and `machlink-sim`, built once per test run.
+pub fn bin_dir() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        // target/<profile>/deps/it-<hash> -> target/<profile>
+        let exe = std::env::current_exe().expect("the test binary's path");
+        let profile = exe
+            .parent()
+            .and_then(|deps| deps.parent())
+            .expect("the test binary lives in target/<profile>/deps")
+            .to_path_buf();
+        let target = profile.parent().expect("a target folder").to_path_buf();
+        let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+        let status = std::process::Command::new(cargo)
+            .args([
+                "build",
+                "--quiet",
+                "-p",
+                "machlink",
+                "-p",
+                "machlink-sim",
+                "--bins",
+            ])
+            .arg("--target-dir")
+            .arg(&target)
+            .status()
+            .expect("cargo runs");
+        assert!(
+            status.success(),
+            "cargo build of machlink and machlink-sim failed"
+        );
+        assert!(
+            profile.join("machlink").is_file(),
+            "no machlink binary in {}",
+            profile.display()
+        );
+        profile
+    })
+    .clone()
+}
+
+/// The `machlink` binary.
+pub fn machlink() -> PathBuf {
+    bin_dir().join("machlink")
+}
