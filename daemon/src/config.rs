@@ -222,6 +222,16 @@ impl Config {
                 .into_inner()
                 .resolve(registry, span.clone())
                 .map_err(|(span, message)| at(Some(key_span(text, span, &message)), message))?;
+            let mut m = m;
+            if let Some(r) = m.recipe.take() {
+                // the machine's default recipe: read now, so a broken one is a config error
+                let r = resolve(r);
+                crate::core::intake::recipe::Recipe::from_path(&r).map_err(|e| {
+                    let message = format!("machine `{}`: key `recipe`: {e}", m.name);
+                    at(Some(key_span(text, span.clone(), &message)), message)
+                })?;
+                m.recipe = Some(r);
+            }
             if cfg.machines.iter().any(|o| o.name == m.name) {
                 return Err(at(
                     Some(span),
@@ -384,7 +394,10 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
     if let Some(at) = out.find("missing field `") {
         let rest = &out[at + "missing field `".len()..];
         if let Some((key, tail)) = rest.split_once('`') {
-            out = format!("{}key `{key}` is missing; add `{key} = …`{tail}", &out[..at]);
+            out = format!(
+                "{}key `{key}` is missing; add `{key} = …`{tail}",
+                &out[..at]
+            );
         }
     }
     // "unknown variant `fast`, expected one of `a`, `b`"
@@ -392,7 +405,11 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
         let rest = &out[at + "unknown variant `".len()..];
         if let Some((got, known)) = rest.split_once('`') {
             let known: Vec<&str> = known.split('`').skip(1).step_by(2).collect();
-            let k = if key.is_empty() { "the value".to_string() } else { format!("`{key}`") };
+            let k = if key.is_empty() {
+                "the value".to_string()
+            } else {
+                format!("`{key}`")
+            };
             out = format!(
                 "{}{k} must be one of {}, not \"{got}\"",
                 &out[..at],

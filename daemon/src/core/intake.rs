@@ -239,6 +239,29 @@ pub struct Planned {
 /// Turns a job into a checked program for `target`. Nothing is sent anywhere: a refused
 /// job leaves no trace.
 pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> {
+    // a drawing for a machine with a default recipe, and no operation of its own, takes the
+    // recipe's operations (read at each plan, so an edited recipe counts from the next job)
+    let with_recipe;
+    let spec = match target {
+        Target::Machine(m)
+            if spec.operation.is_none()
+                && spec.operations.is_empty()
+                && spec.input.kind() == InputKind::Shape =>
+        {
+            match &m.recipe {
+                Some(path) => {
+                    with_recipe = JobSpec {
+                        operations: crate::core::intake::recipe::Recipe::from_path(path)?
+                            .operations,
+                        ..spec.clone()
+                    };
+                    &with_recipe
+                }
+                None => spec,
+            }
+        }
+        _ => spec,
+    };
     if let Some(t) = spec.tolerance {
         check_tolerance(t)?;
     }

@@ -27,6 +27,9 @@ pub struct MachineConfig {
     pub allowed_m_codes: Vec<u32>,
     /// The tools in the machine's rack.
     pub tools: Vec<ToolConfig>,
+    /// The recipe a job for this machine gets when it names no operation (`recipe =
+    /// "sign.toml"`, relative to the config file; read and checked when the config is).
+    pub recipe: Option<std::path::PathBuf>,
 }
 
 /// M-codes a G-code job may hold unless a machine says otherwise: program stop and end,
@@ -43,6 +46,7 @@ impl std::fmt::Debug for MachineConfig {
             .field("max_feed", &self.max_feed)
             .field("allowed_m_codes", &self.allowed_m_codes)
             .field("tools", &self.tools)
+            .field("recipe", &self.recipe)
             .finish()
     }
 }
@@ -56,6 +60,7 @@ impl PartialEq for MachineConfig {
             && self.max_feed == o.max_feed
             && self.allowed_m_codes == o.allowed_m_codes
             && self.tools == o.tools
+            && self.recipe == o.recipe
     }
 }
 
@@ -82,6 +87,7 @@ impl MachineConfig {
             max_feed: None,
             allowed_m_codes: DEFAULT_M_CODES.to_vec(),
             tools: Vec::new(),
+            recipe: None,
         })
     }
 }
@@ -152,13 +158,14 @@ impl MachineConfig {
 pub const UNNAMED: &str = "a [[machine]] table";
 
 /// The keys every machine table takes, whatever its link.
-const COMMON_KEYS: [&str; 6] = [
+const COMMON_KEYS: [&str; 7] = [
     "name",
     "link",
     "work_area",
     "max_feed",
     "allowed_m_codes",
     "tools",
+    "recipe",
 ];
 
 /// A `[[machine]]` table as written: the common keys typed, every other key kept with its
@@ -170,6 +177,7 @@ pub struct RawMachine {
     max_feed: Option<f64>,
     allowed_m_codes: Option<Vec<u32>>,
     tools: Vec<ToolConfig>,
+    recipe: Option<std::path::PathBuf>,
     others: Vec<(toml::Spanned<String>, toml::Spanned<toml::Value>)>,
 }
 
@@ -195,6 +203,7 @@ impl<'de> Visitor<'de> for MachineVisitor {
         let mut max_feed = None;
         let mut allowed_m_codes = None;
         let mut tools = Vec::new();
+        let mut recipe = None;
         let mut others = Vec::new();
         let who = |name: &Option<String>| match name {
             Some(n) => format!("machine `{n}`"),
@@ -217,6 +226,9 @@ impl<'de> Visitor<'de> for MachineVisitor {
                         Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
                 }
                 "tools" => tools = map.next_value_seed(Named(ctx, std::marker::PhantomData))?,
+                "recipe" => {
+                    recipe = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
+                }
                 _ => {
                     let v: toml::Spanned<toml::Value> =
                         map.next_value_seed(Named(ctx, std::marker::PhantomData))?;
@@ -237,6 +249,7 @@ impl<'de> Visitor<'de> for MachineVisitor {
             max_feed,
             allowed_m_codes,
             tools,
+            recipe,
             others,
         })
     }
@@ -343,6 +356,7 @@ impl RawMachine {
                 .allowed_m_codes
                 .unwrap_or_else(|| DEFAULT_M_CODES.to_vec()),
             tools: self.tools,
+            recipe: self.recipe,
         };
         m.check()
             .map_err(|e| (table, format!("machine `{}`: {e}", m.name)))?;

@@ -992,3 +992,80 @@ fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
     );
     assert_eq!(blocks.lines().last(), Some("end"));
 }
+
+/// A machine's default recipe (`recipe = "sign.toml"` in its table): a drawing submitted
+/// with no operation takes the recipe's operations, and the machine gets the very program
+/// `plan --recipe` writes; a recipe that does not read is a config error naming the machine,
+/// the key and its line.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_machine_default_recipe_plans_a_drawing_submitted_without_an_operation() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(example("sign.toml"), dir.path().join("sign.toml")).unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    let table = format!(
+        "[[machine]]\nname = \"router\"\nlink = \"grbl\"\nport = \"{}\"\nrecipe = \"sign.toml\"\n\
+         tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 6.0 }} ]\n",
+        port.display()
+    );
+    proc::write_config(dir.path(), &table);
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let (planned, _) = plan("grbl", dir.path());
+    let o = cli(
+        &sock,
+        &[
+            "submit",
+            example("sign.dxf").to_str().unwrap(),
+            "--machine",
+            "router",
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let id: i64 = out(&o).trim().parse().unwrap();
+    // the recipe's first tool is asked for, and the program is the recipe's, line for line
+    let j = wait_job_record(&sock, id, "paused for T1", |j| {
+        j.state == JobState::Paused
+            && j.note
+                .as_deref()
+                .is_some_and(|n| n.contains("load T1 (3 mm drill)"))
+    });
+    assert_eq!(j.total_units as usize, planned.lines().count(), "{j:?}");
+    let o = cli(&sock, &["cancel", &id.to_string()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let got: Vec<String> = received(&sim)
+        .iter()
+        .map(|l| l.replace(' ', "").to_uppercase())
+        .collect();
+    let want: Vec<String> = planned
+        .lines()
+        .take(got.len())
+        .map(|l| l.replace(' ', "").to_uppercase())
+        .collect();
+    assert!(!got.is_empty() && got == want, "{got:?} against {want:?}");
+    drop(daemon);
+
+    // a recipe that does not read is refused when the config is read, naming where
+    std::fs::write(
+        dir.path().join("sign.toml"),
+        "[[operations]]\nop = \"plunge\"\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "check-config".as_ref(),
+        dir.path().join("machlink.toml").as_os_str(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("machine `router`") && e.contains("`recipe`") && e.contains("line 9"),
+        "{e}"
+    );
+}

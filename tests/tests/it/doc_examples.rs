@@ -742,14 +742,18 @@ fn the_geometry_json_page_shows_the_example_file_it_plans() {
         .and_then(|rest| rest.split("```").next())
         .expect("docs/geometry.md has a ```json block");
     let shown: serde_json::Value = serde_json::from_str(block).expect("the page's JSON parses");
-    let file: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(root.join("docs/examples/bracket.json")).unwrap(),
-    )
-    .unwrap();
-    assert_eq!(shown, file, "docs/geometry.md shows another shape than docs/examples/bracket.json");
+    let file: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(root.join("docs/examples/bracket.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        shown, file,
+        "docs/geometry.md shows another shape than docs/examples/bracket.json"
+    );
     let ex = examples_of("docs/geometry.md", &page);
     assert!(
-        ex.iter().any(|e| e.command.starts_with("machlink plan docs/examples/bracket.json")),
+        ex.iter().any(|e| e
+            .command
+            .starts_with("machlink plan docs/examples/bracket.json")),
         "docs/geometry.md plans its example (run by every_example_command_…)"
     );
 }
