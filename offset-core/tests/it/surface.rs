@@ -223,10 +223,6 @@ fn a_fitted_surface_closes_into_a_solid() {
 fn lines_of_separators_only_are_blank_lines() {
     let e = read_point_grid(b",", "probe.csv").unwrap_err().to_string();
     assert_eq!(e, "probe.csv, line 1: holds no points");
-    let grid = read_point_grid(
-        b"0,0,0\n1,0,0\n, ,\n0,1,0\n1,1,0\n",
-        "probe.csv",
-    )
-    .unwrap();
+    let grid = read_point_grid(b"0,0,0\n1,0,0\n, ,\n0,1,0\n1,1,0\n", "probe.csv").unwrap();
     assert_eq!((grid.rows, grid.cols), (2, 2));
 }
