@@ -1,8 +1,9 @@
-//! DXF import (ASCII, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE and ELLIPSE from the ENTITIES section and the blocks it inserts, chained into contours, in mm.
+//! DXF import (ASCII and binary, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE, ELLIPSE and HATCH boundaries from the ENTITIES section and the blocks it inserts, chained into contours, in mm.
 //!
 //! Our own group-code reader rather than a full DXF library: it only needs the entity
 //! geometry, it must never panic on a broken file, and it stops at `0 EOF` (what follows
-//! is ignored). INSERT places a block (its base point on the insertion point, X and Y
+//! is ignored); a binary file ([`binary`]) becomes the same groups. A HATCH's boundary
+//! paths ([`hatch`]) become closed loops, chosen by the hatch's style. INSERT places a block (its base point on the insertion point, X and Y
 //! scales, rotation, MINSERT arrays of columns and rows, extrusion mirrored or not), and
 //! blocks may insert blocks: they are read from a work list, never by recursion, to a
 //! depth of [`MAX_NESTING`] and at most [`MAX_PLACEMENTS`] instances. Entities on layer 0
