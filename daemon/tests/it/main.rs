@@ -14,6 +14,7 @@ mod crash;
 mod dashboard_cli;
 mod fleet;
 mod fuzz_inputs;
+mod hatch_cli;
 mod intake;
 mod kind_recipe;
 mod metrics;

@@ -1,8 +1,9 @@
-//! DXF import (ASCII, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE and ELLIPSE from the ENTITIES section and the blocks it inserts, chained into contours, in mm.
+//! DXF import (ASCII and binary, R12 to 2018): LINE, ARC, CIRCLE, LWPOLYLINE, POLYLINE/VERTEX, SPLINE, ELLIPSE and HATCH boundaries from the ENTITIES section and the blocks it inserts, chained into contours, in mm.
 //!
 //! Our own group-code reader rather than a full DXF library: it only needs the entity
 //! geometry, it must never panic on a broken file, and it stops at `0 EOF` (what follows
-//! is ignored). INSERT places a block (its base point on the insertion point, X and Y
+//! is ignored); a binary file ([`binary`]) becomes the same groups. A HATCH's boundary
+//! paths ([`hatch`]) become closed loops, chosen by the hatch's style. INSERT places a block (its base point on the insertion point, X and Y
 //! scales, rotation, MINSERT arrays of columns and rows, extrusion mirrored or not), and
 //! blocks may insert blocks: they are read from a work list, never by recursion, to a
 //! depth of [`MAX_NESTING`] and at most [`MAX_PLACEMENTS`] instances. Entities on layer 0
@@ -14,6 +15,9 @@
 //! skipped entities, undefined blocks) are warnings with their location; problems that make
 //! an entity meaningless (a CIRCLE or ARC with radius ≤ 0, a coordinate that is not a
 //! number) are errors naming the entity by handle and line.
+
+mod binary;
+mod hatch;
 
 use super::chain::{chain, self_intersections};
 use super::ImportError;
@@ -72,11 +76,8 @@ struct Group {
 }
 
 fn groups(bytes: &[u8], file: &str) -> Result<Vec<Group>, ImportError> {
-    if bytes.starts_with(b"AutoCAD Binary DXF") {
-        return Err(ImportError::invalid(
-            file,
-            "binary DXF is not supported; save the drawing as ASCII DXF",
-        ));
+    if bytes.starts_with(binary::SENTINEL) {
+        return binary::groups(bytes, file);
     }
     let text = String::from_utf8_lossy(bytes);
     let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
@@ -448,7 +449,8 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     };
     let mut pieces: Vec<Polyline> = Vec::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
-    let mut curve_points = 0; // points flattened from ELLIPSEs and SPLINEs so far
+    let mut curve_points = 0; // points flattened from ELLIPSEs, SPLINEs and HATCHes so far
+    let mut hatch_loops: Vec<Polyline> = Vec::new(); // closed, placed, chosen by style
     let mut placed = 0usize; // block instances placed so far
                              // the drawing, then every block instance it inserts: a work list, not recursion, so
                              // deep nesting costs memory in proportion, never the stack
@@ -692,6 +694,25 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                         e.handle()
                     )),
                 },
+                "HATCH" => {
+                    let h = hatch::read(e, &layer, file, ltol, tol, &mut warnings)?;
+                    let mut loops = Vec::with_capacity(h.loops.len());
+                    for l in h.loops {
+                        spend(&mut curve_points, l.polyline.len(), e, file, tol)?;
+                        let fit_tol = if l.flattened { tol / 2.0 } else { tol };
+                        loops.push(
+                            place(l.polyline, &xf, fit_tol, opts.fit)
+                                .map_err(|m| e.placed_error(file, m))?,
+                        );
+                    }
+                    let keep = hatch::keep_by_style(&loops, h.style);
+                    hatch_loops.extend(
+                        loops
+                            .into_iter()
+                            .zip(keep)
+                            .filter_map(|(l, k)| k.then_some(l)),
+                    );
+                }
                 "SEQEND" | "VERTEX" | "ATTRIB" | "ATTDEF" => {}
                 other => *skipped.entry(other.to_string()).or_default() += 1,
             }
@@ -703,7 +724,14 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             if n == 1 { "y" } else { "ies" }
         ));
     }
-    let paths = chain(pieces, tol, &mut warnings);
+    let mut paths = chain(pieces, tol, &mut warnings);
+    // a hatch drawn over its own boundary (an associative hatch keeps the polyline or
+    // circles it was made from): the loop that repeats a contour adds nothing
+    for l in hatch_loops {
+        if !paths.iter().any(|p| p.closed && same_loop(p, &l, tol)) {
+            paths.push(l);
+        }
+    }
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
             for x in self_intersections(p, 3) {
@@ -725,6 +753,16 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
         scale,
         warnings,
     })
+}
+
+/// Whether closed paths `a` and `b` trace the same loop within `tol` (bounds, area and
+/// length): a hatch's boundary and the entity it was made from.
+fn same_loop(a: &Polyline, b: &Polyline, tol: f64) -> bool {
+    let (ba, bb) = (a.bounds(), b.bounds());
+    ba.min.dist(bb.min) <= 2.0 * tol
+        && ba.max.dist(bb.max) <= 2.0 * tol
+        && (a.length() - b.length()).abs() <= 4.0 * tol
+        && (a.area().abs() - b.area().abs()).abs() <= 2.0 * tol * a.length().max(b.length())
 }
 
 /// Blocks nested deeper than this are refused (a block that inserts itself, directly or

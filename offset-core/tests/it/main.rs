@@ -16,6 +16,7 @@ mod feed_control;
 mod finish3d;
 mod flatten;
 mod import_dxf;
+mod import_hatch;
 mod mesh_input;
 mod mesh_offset;
 mod offset_closed;
