@@ -24,5 +24,6 @@ mod plan_preview_cli;
 mod posts_cli;
 mod service;
 mod shop_jobs_cli;
+mod silent_devices;
 mod simulate_cli;
 mod toolpaths_cli;

@@ -12,51 +12,7 @@ use machlink::core::store::{JobId, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
 use proc::*;
-use std::path::Path;
-use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-/// `machlink ARGS --socket DIR/ml.sock`, stdin from /dev/null (no terminal), to the end.
-fn cli(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_machlink"))
-        .env("RUST_LOG", "warn")
-        .env_remove("MACHLINK_SOCKET")
-        .env_remove("MACHLINK_CONFIG")
-        .env_remove("MACHLINK_TOKEN")
-        .args(args)
-        .arg("--socket")
-        .arg(dir.join("ml.sock"))
-        .stdin(Stdio::null())
-        .output()
-        .expect("machlink runs")
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Waits (bounded) until job `id` satisfies `ok`; the job then.
-async fn wait_job(
-    d: &Daemon,
-    id: JobId,
-    what: &str,
-    ok: impl Fn(&machlink::core::store::JobRecord) -> bool,
-) -> machlink::core::store::JobRecord {
-    let until = Instant::now() + Duration::from_secs(90);
-    loop {
-        if let Ok(j) = d.client().job(id).await {
-            if ok(&j) {
-                return j;
-            }
-            assert!(
-                Instant::now() < until,
-                "job {id} never became {what}: {j:?}\n{}",
-                d.log()
-            );
-        }
-        tokio::time::sleep(Duration::from_millis(25)).await;
-    }
-}
 
 /// The G-code lines a GRBL controller received (its `$` lines left out) and the moves it
 /// ran, from event `from` on.
