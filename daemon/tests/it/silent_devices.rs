@@ -215,9 +215,15 @@ async fn a_modbus_device_that_stops_replying_pauses_its_job_at_its_consumed_bloc
         "no more than the device consumed: {paused:?}"
     );
 
-    // the device answers again, holding at block 30: the job waits for the operator
+    // the device answers again, holding at block 30; the daemon watches it and waits for
+    // the operator (its note says so)
+    wait_machine(&daemon, "press", "answering again, held", |s| {
+        *s == DeviceState::Held
+    })
+    .await;
     let back = wait_job(&daemon, j.id, "waiting after the device came back", |j| {
-        j.state == JobState::Paused && j.note.as_deref().unwrap_or("").contains("is back")
+        let note = j.note.as_deref().unwrap_or("");
+        !note.contains("reconnecting") && note.contains("resume")
     })
     .await;
     assert_eq!(
