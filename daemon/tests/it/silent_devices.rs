@@ -12,6 +12,7 @@ use machlink::core::store::JobState;
 use machlink_protocols::DeviceState;
 use machlink_sim::grbl::{GrblFault, GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{Faults, ModbusSim, SimConfig, TraceEvent as ModbusEvent};
+use machlink_sim::sewing::{spawn_on_pty, SewingSimConfig, TraceLine};
 use proc::*;
 use std::time::{Duration, Instant};
 
@@ -261,5 +262,95 @@ async fn a_modbus_device_that_stops_replying_pauses_its_job_at_its_consumed_bloc
         executed,
         (1..=done.total_units as u32).collect::<Vec<_>>(),
         "every block executed once, in order"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_sewing_machine_that_stops_answering_status_pauses_its_job_and_resume_sews_every_record_once(
+) {
+    const SILENT_AFTER: u32 = 100;
+    let dir = tempfile::tempdir().unwrap();
+    let sewer = spawn_on_pty(SewingSimConfig {
+        time_scale: 3.0,
+        spm: 3000,
+        silent_after: Some((SILENT_AFTER, Duration::from_secs(6))),
+        ..Default::default()
+    })
+    .unwrap();
+    write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"sewer\"\nlink = \"sewing\"\nport = \"{}\"\n",
+            sewer.path
+        ),
+    );
+    let daemon = Daemon::start(dir.path()).await;
+    let j = daemon
+        .client()
+        .submit(&crate::crash::sewing_job(0))
+        .await
+        .unwrap();
+
+    wait_machine(&daemon, "sewer", "not answering", |s| {
+        matches!(s, DeviceState::NotAnswering { .. })
+    })
+    .await;
+    let o = cli(dir.path(), &["machines"]);
+    let listing = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        listing.contains("not answering for"),
+        "`machines` says the machine is not answering:\n{listing}"
+    );
+    let paused = wait_job(&daemon, j.id, "paused by the silence", |j| {
+        j.state == JobState::Paused
+    })
+    .await;
+    assert!(
+        paused.acked_units <= SILENT_AFTER as usize,
+        "no more than the machine sewed: {paused:?}"
+    );
+
+    wait_machine(&daemon, "sewer", "answering again, held", |s| {
+        *s == DeviceState::Held
+    })
+    .await;
+    let back = wait_job(&daemon, j.id, "waiting after the machine came back", |j| {
+        let note = j.note.as_deref().unwrap_or("");
+        !note.contains("reconnecting") && note.contains("resume")
+    })
+    .await;
+    assert_eq!(
+        back.acked_units, SILENT_AFTER as usize,
+        "the job stands at the machine's stitch counter: {back:?}"
+    );
+    let records = |t: &[TraceLine]| -> Vec<u32> {
+        t.iter()
+            .filter_map(|l| match l {
+                TraceLine::Record { index, .. } => Some(*index),
+                _ => None,
+            })
+            .collect()
+    };
+    let sewn_back = records(&sewer.trace.lock().unwrap().lines);
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    assert_eq!(
+        records(&sewer.trace.lock().unwrap().lines),
+        sewn_back,
+        "the machine sewed before the operator's resume"
+    );
+
+    let o = cli(dir.path(), &["resume", &j.id.to_string(), "--yes"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done = wait_job(&daemon, j.id, "completed", |j| j.state.is_final()).await;
+    assert_eq!(
+        done.state,
+        JobState::Completed,
+        "{done:?}\n{}",
+        daemon.log()
+    );
+    assert_eq!(
+        records(&sewer.trace.lock().unwrap().lines),
+        (0..done.total_units as u32).collect::<Vec<_>>(),
+        "every record sewn once, in order"
     );
 }

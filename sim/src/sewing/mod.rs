@@ -39,6 +39,11 @@ pub struct SewingSimConfig {
     pub thread_break_at: Vec<u32>,
     /// The power fails when the machine is about to sew these records (once each).
     pub power_loss_at: Vec<u32>,
+    /// `(n, silence)`: once `n` records are sewn the machine holds (as on HOLD) and its
+    /// controller hangs for `silence`: every byte that arrives meanwhile is lost and
+    /// nothing is answered, STATUS included. Afterwards it answers again, still held at
+    /// stitch `n`, until RESUME.
+    pub silent_after: Option<(u32, Duration)>,
     /// The sewing area, 0.1 mm: min x, min y, max x, max y.
     pub area: [i32; 4],
     /// The longest step of one record, 0.1 mm.
@@ -62,6 +67,7 @@ impl Default for SewingSimConfig {
             seed: 1,
             thread_break_at: vec![],
             power_loss_at: vec![],
+            silent_after: None,
             area: [-1500, -1000, 1500, 1000],
             max_stitch: 127,
             baud: None,
@@ -178,6 +184,8 @@ struct Machine {
     last: Option<(u8, u8, Vec<u8>)>,
     breaks: BTreeSet<u32>,
     power_losses: BTreeSet<u32>,
+    /// Hung (`SewingSimConfig::silent_after`) until then.
+    silent_until: Option<Instant>,
 }
 
 impl Machine {
@@ -200,6 +208,7 @@ impl Machine {
             last: None,
             breaks,
             power_losses,
+            silent_until: None,
         }
     }
 
@@ -524,6 +533,13 @@ impl Machine {
         if self.counter as usize == self.pattern.len() {
             self.state = SewingState::Done;
             self.event("done".into());
+        } else if let Some((n, silence)) = self.cfg.silent_after {
+            if n == self.counter {
+                self.cfg.silent_after = None;
+                self.state = SewingState::Held;
+                self.event(format!("hung after {n} records"));
+                self.silent_until = Some(Instant::now() + silence);
+            }
         }
     }
 }
@@ -555,6 +571,10 @@ pub async fn run(
                     return Ok(());
                 }
                 last_rx = Instant::now();
+                if m.silent_until.is_some_and(|t| last_rx < t) {
+                    // hung: the bytes are lost
+                    continue;
+                }
                 dec.push(&rx_noise.apply(&buf[..n]));
                 while let Some(d) = dec.next_frame() {
                     let was_sewing = m.state == SewingState::Sewing;
