@@ -124,7 +124,7 @@ impl ModbusArgs {
                 silent_after_block: self.go_silent_at.map(|n| {
                     (
                         n,
-                        Duration::from_secs_f64(self.silent_for.max(0.0).min(1e9)),
+                        Duration::try_from_secs_f64(self.silent_for).unwrap_or_default(),
                     )
                 }),
             },
@@ -140,6 +140,12 @@ pub async fn run(args: ModbusArgs) -> anyhow::Result<()> {
     }
     if cfg.time_scale.is_nan() || cfg.time_scale < 0.0 {
         anyhow::bail!("--time-scale must be a number >= 0 (or inf)");
+    }
+    if !(args.silent_for.is_finite() && args.silent_for >= 0.0) {
+        anyhow::bail!(
+            "--silent-for must be a number of seconds, 0 or more, got {}",
+            args.silent_for
+        );
     }
     let sim = match (&args.tcp, &args.pty) {
         (Some(addr), _) => {
