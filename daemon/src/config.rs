@@ -502,6 +502,7 @@ time_scale = 20
                 check_first: false,
                 auto_unlock: false,
                 spindle_dwell_s: 2.0,
+                silent_timeout_s: 20.0,
             })
         );
         assert_eq!(c.machines[0].max_feed, Some(3000.0));
@@ -512,7 +513,8 @@ time_scale = 20
             Some(&SimGrblSettings {
                 time_scale: 20.0,
                 homing: false,
-                spindle_dwell_s: 2.0
+                spindle_dwell_s: 2.0,
+                silent_timeout_s: 20.0,
             })
         );
     }

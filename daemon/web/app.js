@@ -68,6 +68,10 @@ function deviceState(st) {
       const why = st.reason === "other" ? st.text : (st.reason || "").replace(/_/g, " ");
       return { key: "needs_operator", text: "needs operator" + (why ? ": " + why : "") };
     }
+    case "not_answering":
+      // the link is up, the device says nothing (the daemon pauses the job after the
+      // machine's silent_timeout_s)
+      return { key: s, text: "not answering for " + (st.silent_s != null ? st.silent_s : "?") + " s" };
     case "unknown":
       // some kinds (CANopen) report only while a job runs
       return { key: s, text: "no report yet" };

@@ -78,6 +78,12 @@ pub enum DeviceState {
         #[serde(flatten)]
         reason: OperatorReason,
     },
+    /// The link is up but the device has answered nothing (no reply, no status report) for
+    /// `silent_s` seconds: it may still be moving. After the kind's silence limit the link
+    /// gives up (`LinkError::Timeout`) and the daemon reconnects.
+    NotAnswering {
+        silent_s: u64,
+    },
     /// The link is down.
     Offline,
 }
@@ -95,7 +101,27 @@ impl std::fmt::Display for DeviceState {
             } => write!(f, "alarm {c}: {text}"),
             DeviceState::Alarm { code: None, text } => write!(f, "alarm: {text}"),
             DeviceState::NeedsOperator { reason } => write!(f, "needs operator: {reason}"),
+            DeviceState::NotAnswering { silent_s } => write!(f, "not answering for {silent_s} s"),
             DeviceState::Offline => f.write_str("offline"),
+        }
+    }
+}
+
+impl MachineStatus {
+    /// The status of a device silent since `since` (its last answer), standing where it was
+    /// last seen.
+    pub fn not_answering(last: &MachineStatus, silent: std::time::Duration) -> MachineStatus {
+        MachineStatus {
+            state: DeviceState::NotAnswering {
+                silent_s: silent.as_secs(),
+            },
+            detail: format!(
+                "no answer for {:.1} s (last: {})",
+                silent.as_secs_f64(),
+                last.state
+            ),
+            position: last.position,
+            feed: 0.0,
         }
     }
 }
@@ -190,6 +216,16 @@ impl LinkError {
                 | LinkError::Open { .. }
                 | LinkError::PortBusy { .. }
         )
+    }
+
+    /// Whether the device went silent (it stopped answering on a link that is still
+    /// there), rather than its port going away.
+    pub fn is_silence(&self) -> bool {
+        match self {
+            LinkError::Timeout(_) => true,
+            LinkError::Io(e) => e.kind() == std::io::ErrorKind::TimedOut,
+            _ => false,
+        }
     }
 
     /// The refusal of an operation a kind does not have.

@@ -8,8 +8,8 @@ use crate::modbus::{ModbusSim, SimConfig};
 use crate::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
 use futures::future::BoxFuture;
 use machlink_protocols::grbl::kind::{
-    check_dwell, default_spindle_dwell, gcode_file_units, gcode_time, grbl_posts, grbl_resume_plan,
-    open_machine, ESTIMATE_RAPID,
+    check_dwell, check_silent_timeout, default_silent_timeout, default_spindle_dwell,
+    gcode_file_units, gcode_time, grbl_posts, grbl_resume_plan, open_machine, ESTIMATE_RAPID,
 };
 use machlink_protocols::grbl::resume::ResumeOptions;
 use machlink_protocols::grbl::GrblOptions;
@@ -60,6 +60,9 @@ pub struct SimGrblSettings {
     /// How long a resume waits for the spindle to reach speed, s.
     #[serde(default = "default_spindle_dwell")]
     pub spindle_dwell_s: f64,
+    /// How long the controller may answer nothing before the job pauses, s (as for `grbl`).
+    #[serde(default = "default_silent_timeout")]
+    pub silent_timeout_s: f64,
 }
 
 impl MachineKind for SimGrblKind {
@@ -78,7 +81,8 @@ impl MachineKind for SimGrblKind {
     }
     fn check(&self, s: &SimGrblSettings) -> Result<(), String> {
         positive(s.time_scale, "time_scale")?;
-        check_dwell(s.spindle_dwell_s)
+        check_dwell(s.spindle_dwell_s)?;
+        check_silent_timeout(s.silent_timeout_s)
     }
     fn gcode_units(
         &self,
@@ -108,6 +112,7 @@ impl MachineKind for SimGrblKind {
             resume: ResumeOptions {
                 spindle_dwell_s: s.spindle_dwell_s,
             },
+            ack_timeout: std::time::Duration::from_secs_f64(s.silent_timeout_s),
             ..Default::default()
         };
         // a simulator's alarm needs nobody to look at it first

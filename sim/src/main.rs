@@ -45,6 +45,18 @@ struct GrblArgs {
     /// Raise ALARM:CODE on the LINE-th G-code line received (1-based), e.g. 300:1.
     #[arg(long, value_name = "LINE:CODE", value_parser = parse_fault)]
     alarm_at: Vec<(u64, u8)>,
+    /// Hang after answering the N-th G-code line (1-based): no `ok`, no answer to `?`, and
+    /// every byte received is lost, for --silent-for seconds; then answer again.
+    #[arg(long, value_name = "N")]
+    go_silent_at: Option<u64>,
+    /// How long a --go-silent-at hang lasts, in seconds.
+    #[arg(
+        long,
+        value_name = "SECS",
+        default_value_t = 30.0,
+        requires = "go_silent_at"
+    )]
+    silent_for: f64,
     /// Receive buffer size in bytes.
     #[arg(long, default_value_t = 128)]
     rx_buffer: usize,
@@ -115,6 +127,12 @@ fn run_grbl(a: GrblArgs) -> anyhow::Result<()> {
             .iter()
             .map(|&(line, code)| GrblFault::AlarmAtLine { line, code }),
     );
+    if let Some(line) = a.go_silent_at {
+        faults.push(GrblFault::SilentAfterLine {
+            line,
+            seconds: a.silent_for,
+        });
+    }
     let mut work_offsets = [[0.0; 3]; 6];
     for (k, o) in &a.offset {
         work_offsets[*k] = *o;

@@ -22,7 +22,7 @@ const KILLS: usize = 21;
 const JOBS: usize = 4;
 
 /// A sewing job: an open zigzag of rows across the frame, shifted by `k` so each differs.
-fn sewing_job(k: usize) -> JobSpec {
+pub(crate) fn sewing_job(k: usize) -> JobSpec {
     let mut vertices = Vec::new();
     for row in 0..16 {
         let y = -60.0 + row as f64 * 7.0 + k as f64 * 0.5;

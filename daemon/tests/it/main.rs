@@ -26,5 +26,6 @@ mod posts_cli;
 mod screens_cli;
 mod service;
 mod shop_jobs_cli;
+mod silent_devices;
 mod simulate_cli;
 mod toolpaths_cli;

@@ -6,44 +6,13 @@
 //! `unlock` like every kind's alarm. Each through the `machlink` binary against simulators
 //! that live in this test's process (so they outlive the daemon), checked on their traces.
 
-use crate::common::cli::{at_socket, stderr};
 use crate::proc;
 
 use machlink::core::store::{JobId, JobState};
 use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent as GrblEvent};
 use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
 use proc::*;
-use std::path::Path;
-use std::process::Output;
 use std::time::{Duration, Instant};
-
-/// `machlink ARGS --socket DIR/ml.sock`, stdin from /dev/null (no terminal), to the end.
-fn cli(dir: &Path, args: &[&str]) -> Output {
-    at_socket(&dir.join("ml.sock"), args)
-}
-
-/// Waits (bounded) until job `id` satisfies `ok`; the job then.
-async fn wait_job(
-    d: &Daemon,
-    id: JobId,
-    what: &str,
-    ok: impl Fn(&machlink::core::store::JobRecord) -> bool,
-) -> machlink::core::store::JobRecord {
-    let until = Instant::now() + Duration::from_secs(90);
-    loop {
-        if let Ok(j) = d.client().job(id).await {
-            if ok(&j) {
-                return j;
-            }
-            assert!(
-                Instant::now() < until,
-                "job {id} never became {what}: {j:?}\n{}",
-                d.log()
-            );
-        }
-        tokio::time::sleep(Duration::from_millis(25)).await;
-    }
-}
 
 /// The G-code lines a GRBL controller received (its `$` lines left out) and the moves it
 /// ran, from event `from` on.

@@ -38,6 +38,28 @@ pub struct GrblSettings {
     /// How long a resume waits for the spindle to reach speed before the tool goes down, s.
     #[serde(default = "default_spindle_dwell")]
     pub spindle_dwell_s: f64,
+    /// How long the controller may answer nothing (no `ok`, no status report) before the
+    /// job pauses with its last acknowledged line and the link reconnects, s.
+    #[serde(default = "default_silent_timeout")]
+    pub silent_timeout_s: f64,
+}
+
+/// Twenty seconds: GRBL answers `?` within milliseconds, so this is a hung controller or a
+/// dead cable, not a busy one; long enough that a slow `$` command is not cut short.
+pub fn default_silent_timeout() -> f64 {
+    20.0
+}
+
+/// Checks a silence limit: 2 s to an hour (below 2 s a controller busy writing its EEPROM
+/// would be taken for a hung one).
+pub fn check_silent_timeout(s: f64) -> Result<(), String> {
+    if s.is_finite() && (2.0..=3600.0).contains(&s) {
+        Ok(())
+    } else {
+        Err(format!(
+            "silent_timeout_s must be 2 to 3600 seconds, got {s}"
+        ))
+    }
 }
 
 /// Two seconds: what a small router spindle takes to reach speed.
@@ -103,7 +125,8 @@ impl MachineKind for GrblKind {
     }
     fn check(&self, s: &GrblSettings) -> Result<(), String> {
         check_port(&s.port, s.baud)?;
-        check_dwell(s.spindle_dwell_s)
+        check_dwell(s.spindle_dwell_s)?;
+        check_silent_timeout(s.silent_timeout_s)
     }
     fn gcode_units(
         &self,
@@ -126,6 +149,7 @@ impl MachineKind for GrblKind {
             resume: ResumeOptions {
                 spindle_dwell_s: s.spindle_dwell_s,
             },
+            ack_timeout: std::time::Duration::from_secs_f64(s.silent_timeout_s),
             ..Default::default()
         };
         open_machine(s.port.clone(), opts, s.auto_unlock)

@@ -58,6 +58,10 @@ pub mod realtime {
 
 /// The slowest status poll GRBL's docs recommend not to exceed: 5 Hz.
 pub const MIN_STATUS_INTERVAL: Duration = Duration::from_millis(200);
+/// How long a controller may leave status requests unanswered before the link reports it
+/// as not answering (five status polls: GRBL answers `?` within milliseconds, whatever it
+/// is doing). It gives up after `GrblOptions::ack_timeout`.
+pub const NOT_ANSWERING_AFTER: Duration = Duration::from_secs(1);
 /// The receive buffer assumed when `$I` does not report one (GRBL 1.1 on an ATmega328p).
 pub const DEFAULT_WINDOW: usize = 128;
 
@@ -574,6 +578,8 @@ impl GrblLink {
         // when the status poll in flight was sent
         let mut poll_out: Option<Instant> = None;
         let mut last_heard = Instant::now();
+        // what the controller last reported, for the status while it says nothing
+        let mut last_status = MachineStatus::default();
         // one early poll when the last line is answered; after that the 5 Hz tick
         let mut final_poll_sent = false;
 
@@ -714,6 +720,7 @@ impl GrblLink {
                             } else if status.state != DeviceState::Held {
                                 machine_paused = false;
                             }
+                            last_status = status.clone();
                             let _ = events.send(LinkEvent::Status(status));
                             if confirms && s.state == "Idle" {
                                 let planner_empty = match (s.buffer, self.planner_blocks) {
@@ -748,6 +755,13 @@ impl GrblLink {
                     if poll_out.is_none() || stale {
                         self.write(&[realtime::STATUS]).await?;
                         poll_out = Some(Instant::now());
+                    }
+                    let silent = last_heard.elapsed();
+                    if silent >= NOT_ANSWERING_AFTER && !check {
+                        let _ = events.send(LinkEvent::Status(MachineStatus::not_answering(
+                            &last_status,
+                            silent,
+                        )));
                     }
                 }
                 changed = control.changed(), if control_open => {

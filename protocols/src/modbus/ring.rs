@@ -7,7 +7,11 @@ use super::map::{
 };
 use super::session::{Backoff, Session};
 use super::settings::{ModbusError, ModbusSettings};
-use crate::link::{Control, LinkEvent, StreamEnd};
+use crate::link::{Control, LinkEvent, MachineStatus, StreamEnd};
+
+/// How long the device may leave requests unanswered before the link reports it as not
+/// answering (it gives up after `retries` failed attempts in a row).
+pub const NOT_ANSWERING_AFTER: Duration = Duration::from_secs(1);
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 
@@ -26,6 +30,9 @@ struct Progress {
     synced: bool,
     last_state: Option<u16>,
     last_status: Option<Instant>,
+    /// What the device last reported, and when it last answered at all.
+    seen: MachineStatus,
+    answered: Instant,
     /// A header read moments ago together with a write (FC23), for the next round.
     status: Option<Status>,
 }
@@ -381,7 +388,8 @@ impl Ring {
         if p.last_state != Some(s.state) || due {
             p.last_state = Some(s.state);
             p.last_status = Some(Instant::now());
-            let _ = events.send(LinkEvent::Status(s.to_status()));
+            p.seen = s.to_status();
+            let _ = events.send(LinkEvent::Status(p.seen.clone()));
         }
         if s.state == ModbusState::Fault as u16 {
             let block = s.consumed_seq + 1;
@@ -597,6 +605,8 @@ impl Ring {
             synced: false,
             last_state: None,
             last_status: None,
+            seen: MachineStatus::default(),
+            answered: Instant::now(),
             status: None,
         };
         let mut resync = false;
@@ -612,9 +622,16 @@ impl Ring {
                 Ok(None) => {
                     backoff.reset();
                     resync = false;
+                    p.answered = Instant::now();
                 }
                 Err(e) if e.is_retryable() => {
                     p.status = None;
+                    let silent = p.answered.elapsed();
+                    if matches!(e, ModbusError::Timeout { .. }) && silent >= NOT_ANSWERING_AFTER {
+                        let _ = events.send(LinkEvent::Status(MachineStatus::not_answering(
+                            &p.seen, silent,
+                        )));
+                    }
                     let Some(wait) = backoff.failed() else {
                         return Err(ModbusError::GaveUp {
                             target: self.target.clone(),

@@ -4,7 +4,7 @@
 use super::interp::{clean_line, Action, Interpreter, Motion};
 use super::{Executed, GrblFault, GrblSimConfig};
 use std::collections::{BTreeMap, VecDeque};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 const BANNER: &str = "\r\nGrbl 1.1h ['$' for help]\r\n";
 /// GRBL's LINE_BUFFER_SIZE: a line keeps at most 79 characters after cleaning.
@@ -99,6 +99,10 @@ pub struct Machine {
     settings: BTreeMap<u16, String>,
     overrides: [u32; 3],
     reports: u64,
+    /// Hung (`GrblFault::SilentAfterLine`) until then: nothing is read or answered.
+    silent_until: Option<Instant>,
+    /// Bytes lost while hung.
+    pub lost_while_silent: u64,
 }
 
 impl Machine {
@@ -168,6 +172,8 @@ impl Machine {
             settings,
             overrides: [100, 100, 100],
             reports: 0,
+            silent_until: None,
+            lost_while_silent: 0,
         };
         m.interp.offsets = m.cfg.work_offsets;
         if m.cfg.homing {
@@ -187,6 +193,26 @@ impl Machine {
     fn say(&mut self, s: &str) {
         self.out.extend_from_slice(s.as_bytes());
         self.out.extend_from_slice(b"\r\n");
+    }
+
+    /// Whether the controller hangs at `now` (`GrblFault::SilentAfterLine`).
+    fn silent(&mut self, now: Instant) -> bool {
+        match self.silent_until {
+            Some(t) if now < t => true,
+            Some(_) => {
+                self.silent_until = None;
+                false
+            }
+            None => false,
+        }
+    }
+
+    /// How long a hang starts when the next G-code line is taken, if one is due now.
+    fn hang_due(&self) -> Option<f64> {
+        self.cfg.faults.iter().find_map(|f| match *f {
+            GrblFault::SilentAfterLine { line, seconds } if line == self.received => Some(seconds),
+            _ => None,
+        })
     }
 
     fn moving(&self) -> bool {
@@ -388,6 +414,10 @@ impl Machine {
     /// One byte arrives on the wire: real-time commands act at once (as GRBL's serial
     /// interrupt does), other bytes go to the receive buffer or are dropped when it is full.
     pub fn receive(&mut self, b: u8, now: Instant) {
+        if self.silent(now) {
+            self.lost_while_silent += 1;
+            return;
+        }
         match b {
             b'?' => {
                 self.advance(now);
@@ -493,7 +523,7 @@ impl Machine {
     pub fn process(&mut self, now: Instant) {
         self.advance(now);
         loop {
-            if self.critical || self.homing {
+            if self.critical || self.homing || self.silent(now) {
                 return;
             }
             if !self.waiting.is_empty() {
@@ -544,6 +574,20 @@ impl Machine {
             let raw = String::from_utf8_lossy(&std::mem::take(&mut self.line)).into_owned();
             let received = String::from_utf8_lossy(&std::mem::take(&mut self.raw)).into_owned();
             self.in_comment = false;
+            if !raw.is_empty() && !raw.starts_with('$') {
+                if let Some(seconds) = self.hang_due() {
+                    // the main loop hangs on this line: it and what follows are lost
+                    self.silent_until = Some(now + Duration::from_secs_f64(seconds.max(0.0)));
+                    self.lost_while_silent += (received.len() + 1 + self.rx.len()) as u64;
+                    self.rx.clear();
+                    self.line_overflow = false;
+                    // once: awake again, the controller takes lines as before
+                    self.cfg
+                        .faults
+                        .retain(|f| !matches!(f, GrblFault::SilentAfterLine { .. }));
+                    return;
+                }
+            }
             if !raw.is_empty() {
                 let n = (!raw.starts_with('$')).then_some(self.received + 1);
                 self.events

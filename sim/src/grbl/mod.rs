@@ -34,6 +34,12 @@ pub enum GrblFault {
     /// Raise `ALARM:code` on the `line`-th G-code line received: motion stops, the
     /// planner empties, and everything but status and reset is ignored until a reset.
     AlarmAtLine { line: u64, code: u8 },
+    /// Answer the first `line` G-code lines, then hang for `seconds` (wall time), as a
+    /// controller whose main loop stopped: no `ok`, no answer to `?` or any real-time
+    /// byte, and every byte that arrives meanwhile is lost (the next line, the rest of the
+    /// receive buffer, status requests). Blocks already planned run to their end. After
+    /// `seconds` it answers again, standing where its last planned block ended.
+    SilentAfterLine { line: u64, seconds: f64 },
 }
 
 /// How the simulated controller behaves.
@@ -203,6 +209,15 @@ fn check_config(cfg: &GrblSimConfig) -> io::Result<()> {
     }
     if cfg.work_offsets.iter().flatten().any(|v| !v.is_finite()) {
         return bad("work offsets must be numbers".into());
+    }
+    for f in &cfg.faults {
+        if let GrblFault::SilentAfterLine { seconds, .. } = f {
+            if !(seconds.is_finite() && *seconds >= 0.0) {
+                return bad(format!(
+                    "a silence of {seconds} s must be a number of seconds, 0 or more"
+                ));
+            }
+        }
     }
     Ok(())
 }

@@ -64,6 +64,18 @@ pub struct ModbusArgs {
     /// Fault with CODE on reaching block SEQ (SEQ:CODE).
     #[arg(long, value_name = "SEQ:CODE", value_parser = parse_pair::<u32, u16>)]
     pub fault_at_block: Option<(u32, u16)>,
+    /// Once block N has executed, hold and lose every request (no reply, nothing carried
+    /// out) for --silent-for seconds; then answer again, still holding until resumed.
+    #[arg(long, value_name = "N")]
+    pub go_silent_at: Option<u32>,
+    /// How long a --go-silent-at hang lasts, in seconds.
+    #[arg(
+        long,
+        value_name = "SECS",
+        default_value_t = 30.0,
+        requires = "go_silent_at"
+    )]
+    pub silent_for: f64,
     /// Append every block written into the ring, every block executed and every sync to
     /// FILE, one JSON object per line.
     #[arg(long, value_name = "FILE")]
@@ -109,6 +121,12 @@ impl ModbusArgs {
                 disconnects: self.disconnects.clone(),
                 silence: Duration::from_millis(self.silence_ms),
                 fault_at_block: self.fault_at_block,
+                silent_after_block: self.go_silent_at.map(|n| {
+                    (
+                        n,
+                        Duration::try_from_secs_f64(self.silent_for).unwrap_or_default(),
+                    )
+                }),
             },
         }
     }
@@ -122,6 +140,12 @@ pub async fn run(args: ModbusArgs) -> anyhow::Result<()> {
     }
     if cfg.time_scale.is_nan() || cfg.time_scale < 0.0 {
         anyhow::bail!("--time-scale must be a number >= 0 (or inf)");
+    }
+    if !(args.silent_for.is_finite() && args.silent_for >= 0.0) {
+        anyhow::bail!(
+            "--silent-for must be a number of seconds, 0 or more, got {}",
+            args.silent_for
+        );
     }
     let sim = match (&args.tcp, &args.pty) {
         (Some(addr), _) => {

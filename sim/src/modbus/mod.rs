@@ -46,6 +46,11 @@ pub struct Faults {
     /// The device faults with this code when it first reaches this block sequence (the block
     /// is not executed; after a clear fault and a resume it runs normally).
     pub fault_at_block: Option<(u32, u16)>,
+    /// `(seq, silence)`: once block `seq` has executed, the device holds (as at a hold
+    /// command: the next block waits) and its communication hangs for `silence`: every
+    /// request meanwhile is lost, neither carried out nor answered. Afterwards it answers
+    /// again, still holding with block `seq` consumed, until a resume command.
+    pub silent_after_block: Option<(u32, Duration)>,
 }
 
 /// How the simulated device is built.
@@ -145,6 +150,8 @@ struct Shared {
     stats: Mutex<SimStats>,
     request_no: AtomicU64,
     fault_fired: AtomicBool,
+    /// Hung (`Faults::silent_after_block`) until then; set once.
+    silent_until: Mutex<Option<Instant>>,
     /// For each reply sent, in the order sent: the number of the request it answers.
     replies: Mutex<Vec<u64>>,
 }
@@ -212,6 +219,7 @@ impl Shared {
             stats: Mutex::new(SimStats::default()),
             request_no: AtomicU64::new(0),
             fault_fired: AtomicBool::new(false),
+            silent_until: Mutex::new(None),
             replies: Mutex::new(Vec::new()),
         })
     }
@@ -471,11 +479,22 @@ fn finish_block(shared: &Shared, dev: &mut Device, seq: u32, block: MotionBlock,
         dev.events.push(TraceEvent::Executed { seq, block });
         if block.kind == BlockKind::End {
             dev.set_state(ModbusState::Idle);
+        } else if let Some((at, silence)) = shared.cfg.faults.silent_after_block {
+            let mut until = lock(&shared.silent_until);
+            if at == seq && until.is_none() {
+                dev.set_state(ModbusState::Hold);
+                *until = Some(Instant::now() + silence);
+            }
         }
     }
 }
 
 impl Shared {
+    /// Whether the device's communication hangs now (`Faults::silent_after_block`).
+    fn silent(&self) -> bool {
+        lock(&self.silent_until).is_some_and(|t| Instant::now() < t)
+    }
+
     /// An infinitely fast machine (time scale 0 or infinite) executes what was committed
     /// before it answers the write that committed it.
     fn instant(&self) -> bool {

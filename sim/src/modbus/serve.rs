@@ -25,6 +25,11 @@ impl Shared {
     fn plan(&self, req: Result<Request, FrameError>, rtu: bool) -> (u64, Plan) {
         let n = self.request_no.fetch_add(1, Ordering::SeqCst) + 1;
         lock(&self.stats).requests = n;
+        if self.silent() {
+            // hung: the request is lost, neither carried out nor answered
+            lock(&self.stats).dropped += 1;
+            return (n, Plan::Silent);
+        }
         let f = &self.cfg.faults;
         if let Some(&(_, code)) = f.exceptions.iter().find(|e| e.0 == n) {
             lock(&self.stats).exceptions += 1;

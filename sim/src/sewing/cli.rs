@@ -28,6 +28,18 @@ pub struct SewingArgs {
     /// Lose power (and the pattern) before sewing record N (0-based; repeatable).
     #[arg(long, value_name = "N")]
     pub power_loss_at: Vec<u32>,
+    /// Once N records are sewn, hold and hang for --silent-for seconds: every byte received
+    /// is lost and nothing is answered (no STATUS); then answer again, held until RESUME.
+    #[arg(long, value_name = "N")]
+    pub go_silent_at: Option<u32>,
+    /// How long a --go-silent-at hang lasts, in seconds.
+    #[arg(
+        long,
+        value_name = "SECS",
+        default_value_t = 30.0,
+        requires = "go_silent_at"
+    )]
+    pub silent_for: f64,
     /// Sewing area in mm: X0,Y0,X1,Y1.
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true, num_args = 4, default_values_t = [-150.0, -100.0, 150.0, 100.0])]
     pub area: Vec<f64>,
@@ -75,6 +87,12 @@ impl SewingArgs {
                 self.max_stitch
             );
         }
+        if !(self.silent_for.is_finite() && self.silent_for >= 0.0) {
+            anyhow::bail!(
+                "--silent-for must be a number of seconds, 0 or more, got {}",
+                self.silent_for
+            );
+        }
         let u = |v: f64| (v * 10.0).round() as i32;
         Ok(super::SewingSimConfig {
             spm: self.spm,
@@ -83,6 +101,9 @@ impl SewingArgs {
             seed: self.seed,
             thread_break_at: self.thread_break_at.clone(),
             power_loss_at: self.power_loss_at.clone(),
+            silent_after: self
+                .go_silent_at
+                .map(|n| (n, std::time::Duration::from_secs_f64(self.silent_for))),
             area: [u(a[0]), u(a[1]), u(a[2]), u(a[3])],
             max_stitch: (self.max_stitch * 10.0).round() as u16,
             baud: self.baud,

@@ -39,6 +39,11 @@ pub struct SewingSimConfig {
     pub thread_break_at: Vec<u32>,
     /// The power fails when the machine is about to sew these records (once each).
     pub power_loss_at: Vec<u32>,
+    /// `(n, silence)`: once `n` records are sewn the machine holds (as on HOLD) and its
+    /// controller hangs for `silence`: every byte that arrives meanwhile is lost and
+    /// nothing is answered, STATUS included. Afterwards it answers again, still held at
+    /// stitch `n`, until RESUME.
+    pub silent_after: Option<(u32, Duration)>,
     /// The sewing area, 0.1 mm: min x, min y, max x, max y.
     pub area: [i32; 4],
     /// The longest step of one record, 0.1 mm.
@@ -62,6 +67,7 @@ impl Default for SewingSimConfig {
             seed: 1,
             thread_break_at: vec![],
             power_loss_at: vec![],
+            silent_after: None,
             area: [-1500, -1000, 1500, 1000],
             max_stitch: 127,
             baud: None,
@@ -180,6 +186,8 @@ struct Machine {
     last: Option<(u8, u8, Vec<u8>)>,
     breaks: BTreeSet<u32>,
     power_losses: BTreeSet<u32>,
+    /// Hung (`SewingSimConfig::silent_after`) until then.
+    silent_until: Option<Instant>,
 }
 
 impl Machine {
@@ -203,6 +211,7 @@ impl Machine {
             last: None,
             breaks,
             power_losses,
+            silent_until: None,
         }
     }
 
@@ -536,12 +545,22 @@ impl Machine {
         if self.counter as usize == self.pattern.len() {
             self.state = SewingState::Done;
             self.event("done".into());
-        } else if matches!(r.kind, StitchKind::ColorChange | StitchKind::Stop) {
-            // rule 9a: the operator changes the thread (or does what the stop asks), then
-            // RESUME sews on with the next record
-            self.event(format!("operator stop at {}", self.counter));
-            self.operator_stop = true;
-            self.state = SewingState::Held;
+        } else {
+            if matches!(r.kind, StitchKind::ColorChange | StitchKind::Stop) {
+                // rule 9a: the operator changes the thread (or does what the stop asks), then
+                // RESUME sews on with the next record
+                self.event(format!("operator stop at {}", self.counter));
+                self.operator_stop = true;
+                self.state = SewingState::Held;
+            }
+            if let Some((n, silence)) = self.cfg.silent_after {
+                if n == self.counter {
+                    self.cfg.silent_after = None;
+                    self.state = SewingState::Held;
+                    self.event(format!("hung after {n} records"));
+                    self.silent_until = Some(Instant::now() + silence);
+                }
+            }
         }
     }
 }
@@ -573,6 +592,10 @@ pub async fn run(
                     return Ok(());
                 }
                 last_rx = Instant::now();
+                if m.silent_until.is_some_and(|t| last_rx < t) {
+                    // hung: the bytes are lost
+                    continue;
+                }
                 dec.push(&rx_noise.apply(&buf[..n]));
                 while let Some(d) = dec.next_frame() {
                     let was_sewing = m.state == SewingState::Sewing;

@@ -49,6 +49,7 @@ fn faulty() -> Faults {
         disconnects: vec![220],
         silence: Duration::from_millis(150),
         fault_at_block: None,
+        silent_after_block: None,
     }
 }
 
@@ -139,6 +140,7 @@ async fn an_exception_names_the_register_and_the_code() {
 async fn a_device_fault_stops_the_job_with_its_code_and_block_and_a_resume_finishes_it() {
     let faults = Faults {
         fault_at_block: Some((250, 0x0107)),
+        silent_after_block: None,
         ..Faults::default()
     };
     let sim = ModbusSim::spawn_tcp(sim_config(faults), "127.0.0.1:0".parse().unwrap())

@@ -98,6 +98,7 @@ fn faults() -> Faults {
         disconnects: vec![330],
         silence: Duration::from_millis(150),
         fault_at_block: None,
+        silent_after_block: None,
     }
 }
 

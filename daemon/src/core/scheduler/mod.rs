@@ -468,7 +468,16 @@ impl Scheduler {
                     link: m.config.link.clone(),
                     job: lock(&m.active).as_ref().map(|a| a.job),
                     queued: jobs.iter().filter(|j| j.machine == m.config.name).count(),
-                    status: seen.status,
+                    status: match seen.status.state {
+                        // counted to now: its last report grows older while it says nothing
+                        DeviceState::NotAnswering { .. } => MachineStatus {
+                            state: DeviceState::NotAnswering {
+                                silent_s: seen.at.map_or(0, |t| t.elapsed().as_secs()),
+                            },
+                            ..seen.status
+                        },
+                        _ => seen.status,
+                    },
                     age_ms: seen.at.map(|t| t.elapsed().as_millis() as u64),
                 }
             })
@@ -796,10 +805,24 @@ impl Inner {
 
     /// Records the device's status (now).
     fn saw(&self, m: &Machine, status: MachineStatus) {
-        *lock(&m.status) = Seen {
-            status,
-            at: Some(Instant::now()),
+        let mut seen = lock(&m.status);
+        // a device that says nothing has not reported: its last report keeps its age
+        let at = match status.state {
+            DeviceState::NotAnswering { .. } => seen.at,
+            _ => Some(Instant::now()),
         };
+        *seen = Seen { status, at };
+    }
+
+    /// Records that the device has answered nothing since its last report (its link gave
+    /// up on it, or cannot be opened again while it stays silent), saying why in the
+    /// status's detail.
+    fn not_answering(&self, m: &Machine, why: &str) {
+        let mut s = lock(&m.status);
+        let silent = s.at.map_or(std::time::Duration::ZERO, |t| t.elapsed());
+        let mut status = MachineStatus::not_answering(&s.status, silent);
+        status.detail = why.to_string();
+        s.status = status;
     }
 
     /// Records that the machine's link is down, saying why in the status's detail.

@@ -573,8 +573,18 @@ impl Job<'_> {
         let (inner, m, id) = (self.inner, self.m, self.id);
         *link = None;
         let mut why = say(e);
+        // a device that went silent (rather than a port that went away) shows as not
+        // answering, counted from its last report, until it answers or its port goes
+        let mut silent = e.is_silence();
+        let down = |silent: bool, why: &str| {
+            if silent {
+                inner.not_answering(m, why);
+            } else {
+                inner.offline(m, why);
+            }
+        };
         loop {
-            inner.offline(m, &why);
+            down(silent, &why);
             let acked = inner
                 .store
                 .job(id)
@@ -620,7 +630,8 @@ impl Job<'_> {
                             }
                             Err(e2) => {
                                 why = format!("reconnecting: {e2}");
-                                inner.offline(m, &why);
+                                silent &= !matches!(e2, LinkError::Open { .. } | LinkError::PortBusy { .. });
+                                down(silent, &why);
                                 delay = (delay * 2).min(Duration::from_secs(5));
                             }
                         }

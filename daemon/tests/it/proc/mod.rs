@@ -3,11 +3,12 @@
 #![allow(dead_code)]
 
 use machlink::core::intake::{Input, JobSpec};
+use machlink::core::store::JobId;
 use machlink::faces::client::{Client, Endpoint};
 use machlink_protocols::gcode::{post, GcodeOptions};
 use offset_core::{Move, Point, Toolpath, P3};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// A `machlink serve` child on `dir/machlink.toml`, its log in `dir/daemon.log`; killed
@@ -158,5 +159,35 @@ impl Rng {
     }
     pub fn between(&mut self, lo: u64, hi: u64) -> u64 {
         lo + self.next() % (hi - lo)
+    }
+}
+
+/// `machlink ARGS --socket DIR/ml.sock`, stdin from /dev/null (no terminal), to the end.
+pub fn cli(dir: &Path, args: &[&str]) -> Output {
+    crate::common::cli::at_socket(&dir.join("ml.sock"), args)
+}
+
+pub use crate::common::cli::stderr;
+
+/// Waits (bounded) until job `id` satisfies `ok`; the job then.
+pub async fn wait_job(
+    d: &Daemon,
+    id: JobId,
+    what: &str,
+    ok: impl Fn(&machlink::core::store::JobRecord) -> bool,
+) -> machlink::core::store::JobRecord {
+    let until = Instant::now() + Duration::from_secs(90);
+    loop {
+        if let Ok(j) = d.client().job(id).await {
+            if ok(&j) {
+                return j;
+            }
+            assert!(
+                Instant::now() < until,
+                "job {id} never became {what}: {j:?}\n{}",
+                d.log()
+            );
+        }
+        tokio::time::sleep(Duration::from_millis(25)).await;
     }
 }
