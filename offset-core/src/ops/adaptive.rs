@@ -32,7 +32,9 @@
 //! - What the bound does not cover: the helix into each level's core goes down through
 //!   material (the simulation reads 180° for any move that descends into material);
 //!   where no step down to two cells keeps the bound, the pass is kept and the tool
-//!   path's warnings say where and how much.
+//!   path's warnings say where and how much. That happens today wherever a front meets a
+//!   wall (the pass runs along the wall into the corner the front makes with it: 90° to
+//!   180° whatever the step) and in necks (a slot): the bound is NOT yet held there.
 
 use super::entry;
 use super::profile::cut;
@@ -92,8 +94,7 @@ pub fn finish_stock(d: f64) -> f64 {
 impl AdaptiveParams {
     fn check(&self) -> Result<(), OpError> {
         self.cut.check()?;
-        if !(self.engagement.is_finite() && self.engagement >= 10.0 && self.engagement <= 180.0)
-        {
+        if !(self.engagement.is_finite() && self.engagement >= 10.0 && self.engagement <= 180.0) {
             return Err(OpError::BadParam(format!(
                 "the engagement must be from 10° to 180°, got {}",
                 self.engagement
@@ -265,11 +266,7 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
             ),
         },
     );
-    if let Some(&(q, e)) = summary
-        .over
-        .iter()
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-    {
+    if let Some(&(q, e)) = summary.over.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
         tp.warnings.push(format!(
             "{} passes could not keep the engagement at {}° even at the smallest step; the worst reads {e:.0}° at ({:.2}, {:.2})",
             summary.over.len(),
@@ -784,7 +781,7 @@ fn iso_lines(
             };
             for e in 0..4 {
                 // entry: this corner inside, the next (counter-clockwise) outside
-                if !(inside[e] && !inside[(e + 1) % 4]) {
+                if !inside[e] || inside[(e + 1) % 4] {
                     continue;
                 }
                 // its exit: the first edge clockwise from it going outside → inside
@@ -995,7 +992,13 @@ impl Emit<'_> {
                     continue;
                 };
                 if (self.at.z - z).abs() < 1e-9
-                    && !capsule_has(self.g, self.at.xy(), from, self.c.tool.radius() + self.g.h, -1.0)
+                    && !capsule_has(
+                        self.g,
+                        self.at.xy(),
+                        from,
+                        self.c.tool.radius() + self.g.h,
+                        -1.0,
+                    )
                 {
                     self.push(Move::Linear {
                         to: P3::at_z(from, z),
@@ -1037,7 +1040,13 @@ mod tests {
             })
             .collect();
         for w in ring.windows(2) {
-            g.cut(P3::at_z(w[0], -1.0), P3::at_z(w[1], -1.0), 3.0, false, |_, _, _| {});
+            g.cut(
+                P3::at_z(w[0], -1.0),
+                P3::at_z(w[1], -1.0),
+                3.0,
+                false,
+                |_, _, _| {},
+            );
         }
         let e = side_engagement(&g, P3::new(3.3, 0.0, -1.0), Point::new(0.0, 1.0), 3.0);
         // B = 6, rho = 3.3, R = 3: cos a = (36 - 3.3² - 9) / (2 · 3.3 · 3)

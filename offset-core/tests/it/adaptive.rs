@@ -1,14 +1,14 @@
 //! Adaptive clearing, checked by the cutting simulation on what it planned: on the plate
-//! with two islands, a neck just wider than the tool, a wavy region of 10,000 vertices
-//! with islands, and a region of a drawing in shared/data, every level cut's simulated
-//! engagement stays at or under the bound, nothing the tool can reach is left (the
-//! simulation's raster check, as the pocket tests use), nothing is gouged, no rapid goes
-//! through material; the entries (helices into each level's core) are reported apart.
+//! with two islands and a neck just wider than the tool, nothing the tool can reach is
+//! left (the simulation's raster check, as the pocket tests use), nothing is gouged, no
+//! rapid or plunge goes through material; the worst engagement of a level cut and of the
+//! entries (helices into each level's core) are printed. The bound itself is NOT held yet
+//! (where fronts meet walls, and in necks): its test is ignored (docs/BENCHMARKS.md).
 //! The machine time at the feed the bound allows is printed beside the contour-parallel
 //! pocket's at the feed its worst corner allows (docs/BENCHMARKS.md).
 
 use offset_core::cutsim::feed::chip_factor;
-use offset_core::cutsim::{retracts, simulate, MoveKind, Part, Report, SimOptions, Stock};
+use offset_core::cutsim::{retracts, simulate, MoveKind, Part, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Shape};
 use offset_core::ops::{adaptive, pocket, AdaptiveParams, Cutting, PocketParams, Stepover};
 use offset_core::stats::Kinematics;
@@ -43,26 +43,8 @@ fn neck() -> Shape {
     )])
 }
 
-/// A wavy outline of `n` vertices round (50, 40) with two round islands.
-fn wavy(n: usize) -> Shape {
-    let c = Point::new(50.0, 40.0);
-    let outer: Vec<Point> = (0..n)
-        .map(|k| {
-            let a = k as f64 / n as f64 * std::f64::consts::TAU;
-            let r = 36.0 + 3.0 * (7.0 * a).sin() + 1.0 * (23.0 * a).cos();
-            c + Point::new(r * 1.3 * a.cos(), r * a.sin())
-        })
-        .collect();
-    Shape::new(vec![
-        Polyline::from_points(&outer, true),
-        Polyline::circle(Point::new(32.0, 40.0), 7.0),
-        Polyline::circle(Point::new(72.0, 44.0), 5.0),
-    ])
-}
-
 pub struct Outcome {
     pub tp: Toolpath,
-    pub rep: Report,
     /// The largest engagement of a level cut (helices left out), and where.
     pub worst: f64,
     pub worst_at: (P3, usize),
@@ -131,12 +113,15 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
     );
     // every plunge goes down through air
     for m in rep.moves.iter().filter(|m| m.kind == MoveKind::Plunge) {
-        assert_eq!(m.removed, 0.0, "{name}: move {} plunges into material", m.index);
+        assert_eq!(
+            m.removed, 0.0,
+            "{name}: move {} plunges into material",
+            m.index
+        );
     }
     let worst_at = worst.map_or((P3::default(), 0), |m| (m.from, m.index));
     Outcome {
         tp,
-        rep,
         worst: cut,
         worst_at,
     }
@@ -230,11 +215,19 @@ fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_th
 #[ignore = "the engagement bound is not yet held where the fronts meet the walls (docs/BENCHMARKS.md)"]
 fn the_plate_keeps_the_engagement_bound() {
     let a = check("plate", &plate(), 2.0, 70.0);
-    assert!(a.worst <= 70.0, "move {} reads {:.1}°", a.worst_at.1, a.worst);
+    assert!(
+        a.worst <= 70.0,
+        "move {} reads {:.1}°",
+        a.worst_at.1,
+        a.worst
+    );
 }
 
 #[test]
 fn a_neck_just_wider_than_the_tool_is_cleared_without_a_gouge() {
     let a = check("neck", &neck(), 1.0, 70.0);
-    eprintln!("neck: worst level cut {:.1}° at {:?}", a.worst, a.worst_at.0);
+    eprintln!(
+        "neck: worst level cut {:.1}° at {:?}",
+        a.worst, a.worst_at.0
+    );
 }
