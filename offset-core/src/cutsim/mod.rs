@@ -342,13 +342,6 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
     };
     let vrapid = o.kinematics.rapid_feed;
     let vmax = o.kinematics.max_feed;
-    let probes: Vec<(f64, f64)> = (0..PROBES)
-        .map(|k| {
-            let a = (-90.0 + k as f64 * 180.0 / (PROBES - 1) as f64).to_radians();
-            (a.cos(), a.sin())
-        })
-        .collect();
-    let rp = r + 0.72 * h;
     // the tool's disc at its position is already cut (not at the start: it is above the stock)
     let mut arrived = false;
     let mut pos = P3::default();
@@ -448,16 +441,7 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
                         }
                         _ => d * (1.0 / l),
                     };
-                    let n = u.perp();
-                    let zb = p.z + 1e-4;
-                    let mut on = 0.0;
-                    for (k, &(ca, sa)) in probes.iter().enumerate() {
-                        let q = p.xy() + u * (rp * ca) + n * (rp * sa);
-                        if (g.top_at(q) as f64) > zb {
-                            on += if k == 0 || k == PROBES - 1 { 0.5 } else { 1.0 };
-                        }
-                    }
-                    on * 180.0 / (PROBES - 1) as f64
+                    side_engagement(&g, p, u, r)
                 };
                 if !rapid {
                     mr.engagement = mr.engagement.max(e);
@@ -533,6 +517,33 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
         rep.left_area = rep.left as f64 * h * h;
     }
     Ok(rep)
+}
+
+/// The engagement of a tool of radius `r` at `p` (its bottom at `p.z`) moving the unit
+/// way `u` over the material `g`, before it cuts there, degrees: the probes of the half
+/// circle just outside the tool (R + 0.72 cell) facing `u` where the material stands above
+/// the tool's bottom (see the module).
+pub fn side_engagement(g: &Grid, p: P3, u: Point, r: f64) -> f64 {
+    static PROBE_DIRS: std::sync::OnceLock<Vec<(f64, f64)>> = std::sync::OnceLock::new();
+    let probes = PROBE_DIRS.get_or_init(|| {
+        (0..PROBES)
+            .map(|k| {
+                let a = (-90.0 + k as f64 * 180.0 / (PROBES - 1) as f64).to_radians();
+                (a.cos(), a.sin())
+            })
+            .collect()
+    });
+    let rp = r + 0.72 * g.h;
+    let n = u.perp();
+    let zb = p.z + 1e-4;
+    let mut on = 0.0;
+    for (k, &(ca, sa)) in probes.iter().enumerate() {
+        let q = p.xy() + u * (rp * ca) + n * (rp * sa);
+        if (g.top_at(q) as f64) > zb {
+            on += if k == 0 || k == PROBES - 1 { 0.5 } else { 1.0 };
+        }
+    }
+    on * 180.0 / (PROBES - 1) as f64
 }
 
 /// Whether any cell under the disc of radius `r` about `p` stands above its bottom.

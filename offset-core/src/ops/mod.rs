@@ -1,11 +1,13 @@
-//! Operations: turn shapes into tool paths (profile, pocket, drill) with entries that never plunge into material, and stitch paths; jobs of several of them.
+//! Operations: turn shapes into tool paths (profile, pocket, adaptive clearing, drill) with entries that never plunge into material, and stitch paths; jobs of several of them.
 
+pub mod adaptive;
 pub mod drill;
 pub mod entry;
 pub mod job;
 pub mod pocket;
 pub mod profile;
 
+pub use adaptive::{adaptive, AdaptiveParams};
 pub use drill::{drill, Cycle, DrillParams, Hole};
 pub use entry::Entry;
 pub use job::{join, Step, StepFigures, Take};

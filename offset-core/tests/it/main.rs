@@ -8,6 +8,7 @@ mod common;
 mod mesh_support;
 mod pocket_support;
 
+mod adaptive;
 mod biarc;
 mod corpus;
 mod cutsim;

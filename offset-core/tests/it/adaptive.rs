@@ -1,0 +1,233 @@
+//! Adaptive clearing, checked by the cutting simulation on what it planned: on the plate
+//! with two islands and a neck just wider than the tool, nothing the tool can reach is
+//! left (the simulation's raster check, as the pocket tests use), nothing is gouged, no
+//! rapid or plunge goes through material; the worst engagement of a level cut and of the
+//! entries (helices into each level's core) are printed. The bound itself is NOT held yet
+//! (where fronts meet walls, and in necks): its test is ignored (docs/BENCHMARKS.md).
+//! The machine time at the feed the bound allows is printed beside the contour-parallel
+//! pocket's at the feed its worst corner allows (docs/BENCHMARKS.md).
+
+use offset_core::cutsim::feed::chip_factor;
+use offset_core::cutsim::{retracts, simulate, MoveKind, Part, SimOptions, Stock};
+use offset_core::geom::{Point, Polyline, Shape};
+use offset_core::ops::{adaptive, pocket, AdaptiveParams, Cutting, PocketParams, Stepover};
+use offset_core::stats::Kinematics;
+use offset_core::toolpath::{Move, Tool, Toolpath, P3};
+
+fn plate() -> Shape {
+    Shape::new(vec![
+        Polyline::rect(Point::new(0.0, 0.0), Point::new(120.0, 80.0)),
+        Polyline::circle(Point::new(40.0, 40.0), 10.0),
+        Polyline::rect(Point::new(75.0, 25.0), Point::new(95.0, 55.0)),
+    ])
+}
+
+/// Two 30 × 30 rooms joined by a neck 6.4 mm wide (a 6 mm tool).
+fn neck() -> Shape {
+    Shape::new(vec![Polyline::from_points(
+        &[
+            Point::new(0.0, 0.0),
+            Point::new(30.0, 0.0),
+            Point::new(30.0, 11.8),
+            Point::new(50.0, 11.8),
+            Point::new(50.0, 0.0),
+            Point::new(80.0, 0.0),
+            Point::new(80.0, 30.0),
+            Point::new(50.0, 30.0),
+            Point::new(50.0, 18.2),
+            Point::new(30.0, 18.2),
+            Point::new(30.0, 30.0),
+            Point::new(0.0, 30.0),
+        ],
+        true,
+    )])
+}
+
+pub struct Outcome {
+    pub tp: Toolpath,
+    /// The largest engagement of a level cut (helices left out), and where.
+    pub worst: f64,
+    pub worst_at: (P3, usize),
+}
+
+/// Plans adaptive clearing of `shape` with a 6 mm tool and simulates it on a block over
+/// the shape; asserts no gouge, nothing left, no rapid or plunge through material.
+fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
+    let p = AdaptiveParams {
+        cut: Cutting {
+            tool: Tool::flat(6.0),
+            depth,
+            stepdown: 1.0,
+            feed: 800.0,
+            ..Cutting::default()
+        },
+        engagement: bound,
+        ..AdaptiveParams::default()
+    };
+    let tp = adaptive(shape, &p).unwrap();
+    if let Move::Comment { text } = &tp.moves[0] {
+        eprintln!("{name}: {text}; {:?}", tp.warnings);
+    }
+    let b = shape.bounds();
+    let stock = Stock::block(
+        b.min - Point::new(1.0, 1.0),
+        b.max + Point::new(1.0, 1.0),
+        0.0,
+    );
+    let o = SimOptions {
+        cell: 0.1,
+        part: Some(Part {
+            clear: shape.regions(),
+            floor: -depth,
+        }),
+        ..SimOptions::new(Tool::flat(6.0))
+    };
+    let rep = simulate(&tp, &stock, &o).unwrap();
+    let helix = helix_moves(&tp);
+    let levels: Vec<_> = rep
+        .moves
+        .iter()
+        .filter(|m| m.kind == MoveKind::Cut && !helix[m.index])
+        .collect();
+    let worst = levels
+        .iter()
+        .max_by(|a, b| a.engagement.total_cmp(&b.engagement));
+    let cut = worst.map_or(0.0, |m| m.engagement);
+    let entries: Vec<_> = rep.moves.iter().filter(|m| helix[m.index]).collect();
+    let entry = entries.iter().map(|m| m.engagement).fold(0.0, f64::max);
+    let entries = entries.len();
+    eprintln!(
+        "{name}: {} moves, worst cut {cut:.1}°, entries {entries} moves reading up to {entry:.0}°, {} retracts, {:.0} s at 800 mm/min, left {} cells, gouges {}",
+        tp.moves.len(),
+        retracts(&tp),
+        rep.time(),
+        rep.left,
+        rep.gouges
+    );
+    assert_eq!(rep.gouges, 0, "{name}: gouge at {:?}", rep.first_gouge);
+    assert_eq!(rep.rapid_cuts, 0, "{name}: rapid through material");
+    assert_eq!(
+        rep.left, 0,
+        "{name}: {} mm² left at {:?}",
+        rep.left_area, rep.first_left
+    );
+    // every plunge goes down through air
+    for m in rep.moves.iter().filter(|m| m.kind == MoveKind::Plunge) {
+        assert_eq!(
+            m.removed, 0.0,
+            "{name}: move {} plunges into material",
+            m.index
+        );
+    }
+    let worst_at = worst.map_or((P3::default(), 0), |m| (m.from, m.index));
+    Outcome {
+        tp,
+        worst: cut,
+        worst_at,
+    }
+}
+
+/// The moves of the helices into the cores: a run of arcs about one centre that starts
+/// going down (the last turn of each is flat, at the depth).
+fn helix_moves(tp: &Toolpath) -> Vec<bool> {
+    let mut out = vec![false; tp.moves.len()];
+    let mut z = 0.0;
+    let mut centre: Option<Point> = None;
+    for (i, m) in tp.moves.iter().enumerate() {
+        match m {
+            Move::Arc { to, center, .. } => {
+                if centre == Some(*center) || (centre.is_none() && to.z < z - 1e-9) {
+                    centre = Some(*center);
+                    out[i] = true;
+                } else {
+                    centre = None;
+                }
+                z = to.z;
+            }
+            Move::Linear { to, .. } | Move::Rapid { to } => {
+                centre = None;
+                z = to.z;
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+/// The time of a tool path at the feed `feed` scaled by the chip thinning of its worst
+/// level cut (the feed at which a tooth takes the chip a full slot takes at `feed`).
+fn time_at_bound(tp: &Toolpath, worst: f64, feed: f64, max_feed: f64) -> (f64, f64) {
+    let f = (feed / chip_factor(worst)).min(max_feed);
+    let mut t = tp.clone();
+    for m in &mut t.moves {
+        if let Move::Linear { feed: g, .. } | Move::Arc { feed: g, .. } = m {
+            if (*g - feed).abs() < 1e-9 {
+                *g = f;
+            }
+        }
+    }
+    let k = Kinematics {
+        max_feed,
+        ..Kinematics::default()
+    };
+    (f, t.stats(&k).time())
+}
+
+#[test]
+fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_the_pocket() {
+    let a = check("plate", &plate(), 2.0, 70.0);
+    // the pocket at 40 %, simulated the same way, for the benchmark
+    let shape = plate();
+    let pp = PocketParams {
+        cut: Cutting {
+            tool: Tool::flat(6.0),
+            depth: 2.0,
+            stepdown: 1.0,
+            feed: 800.0,
+            ..Cutting::default()
+        },
+        stepover: Stepover::Percent(40.0),
+    };
+    let pk = pocket(&shape, &pp).unwrap();
+    let stock = Stock::block(Point::new(-1.0, -1.0), Point::new(121.0, 81.0), 0.0);
+    let o = SimOptions {
+        cell: 0.1,
+        ..SimOptions::new(Tool::flat(6.0))
+    };
+    let rp = simulate(&pk, &stock, &o).unwrap();
+    let pw = rp.worst(&[MoveKind::Cut]).map_or(0.0, |m| m.engagement);
+    let max_feed = 3000.0;
+    let (fa, ta) = time_at_bound(&a.tp, a.worst, 800.0, max_feed);
+    let (fp, tpk) = time_at_bound(&pk, pw, 800.0, max_feed);
+    eprintln!(
+        "benchmark plate: adaptive worst {:.1}° (at {:?}, move {}) → {fa:.0} mm/min, {ta:.0} s, {} retracts; pocket worst {pw:.1}° → {fp:.0} mm/min, {tpk:.0} s, {} retracts",
+        a.worst,
+        a.worst_at.0,
+        a.worst_at.1,
+        retracts(&a.tp),
+        retracts(&pk)
+    );
+}
+
+/// The bound itself: NOT met yet where a pass's front meets a wall (measured in
+/// docs/BENCHMARKS.md); run with `--ignored`.
+#[test]
+#[ignore = "the engagement bound is not yet held where the fronts meet the walls (docs/BENCHMARKS.md)"]
+fn the_plate_keeps_the_engagement_bound() {
+    let a = check("plate", &plate(), 2.0, 70.0);
+    assert!(
+        a.worst <= 70.0,
+        "move {} reads {:.1}°",
+        a.worst_at.1,
+        a.worst
+    );
+}
+
+#[test]
+fn a_neck_just_wider_than_the_tool_is_cleared_without_a_gouge() {
+    let a = check("neck", &neck(), 1.0, 70.0);
+    eprintln!(
+        "neck: worst level cut {:.1}° at {:?}",
+        a.worst, a.worst_at.0
+    );
+}
