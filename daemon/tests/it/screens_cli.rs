@@ -752,3 +752,38 @@ fn a_long_alarm_text_keeps_the_machines_columns_in_place() {
     }
     assert!(table.contains('…'), "the long alarm text is cut: {table}");
 }
+
+#[test]
+fn a_contour_that_crosses_itself_names_its_entities_handles_and_layer() {
+    let dir = tempfile::tempdir().unwrap();
+    // a bow tie of four LINEs on layer CUT: the first and third cross at (20, 15)
+    let mut dxf = String::from("0\nSECTION\n2\nENTITIES\n");
+    for ((a, b), h) in [
+        (((0, 0), (40, 30)), "2A"),
+        (((40, 30), (40, 0)), "2B"),
+        (((40, 0), (0, 30)), "2C"),
+        (((0, 30), (0, 0)), "2D"),
+    ] {
+        dxf.push_str(&format!(
+            "0\nLINE\n5\n{h}\n8\nCUT\n10\n{}\n20\n{}\n11\n{}\n21\n{}\n",
+            a.0, a.1, b.0, b.1
+        ));
+    }
+    dxf.push_str("0\nENDSEC\n0\nEOF\n");
+    let f = dir.path().join("bowtie.dxf");
+    std::fs::write(&f, dxf).unwrap();
+    let o = machlink()
+        .arg("plan")
+        .arg(&f)
+        .args(["--op", "profile", "--post", "grbl", "-o"])
+        .arg(dir.path().join("out.nc"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("crosses itself near (20, 15)"), "{err}");
+    for h in ["LINE (handle 2A, line 5) on layer CUT", "LINE (handle 2C, line 33) on layer CUT"] {
+        assert!(err.contains(h), "{h} in: {err}");
+    }
+    assert!(!err.contains("handle 2B") && !err.contains("handle 2D"), "{err}");
+}
