@@ -384,7 +384,10 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
     if let Some(at) = out.find("missing field `") {
         let rest = &out[at + "missing field `".len()..];
         if let Some((key, tail)) = rest.split_once('`') {
-            out = format!("{}key `{key}` is missing; add `{key} = …`{tail}", &out[..at]);
+            out = format!(
+                "{}key `{key}` is missing; add `{key} = …`{tail}",
+                &out[..at]
+            );
         }
     }
     // "unknown variant `fast`, expected one of `a`, `b`"
@@ -392,7 +395,11 @@ pub fn in_operators_words(message: &str, line: &str) -> String {
         let rest = &out[at + "unknown variant `".len()..];
         if let Some((got, known)) = rest.split_once('`') {
             let known: Vec<&str> = known.split('`').skip(1).step_by(2).collect();
-            let k = if key.is_empty() { "the value".to_string() } else { format!("`{key}`") };
+            let k = if key.is_empty() {
+                "the value".to_string()
+            } else {
+                format!("`{key}`")
+            };
             out = format!(
                 "{}{k} must be one of {}, not \"{got}\"",
                 &out[..at],

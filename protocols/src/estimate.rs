@@ -24,8 +24,7 @@ pub fn move_seconds(from: P3, m: &Move, rapid: f64) -> (f64, P3) {
             ccw,
             feed,
         } => {
-            let xy =
-                offset_core::toolpath::arc_segment(from.xy(), to.xy(), *center, *ccw).length();
+            let xy = offset_core::toolpath::arc_segment(from.xy(), to.xy(), *center, *ccw).length();
             (xy.hypot(to.z - from.z) / feed.max(1e-3) * 60.0, *to)
         }
         Move::Dwell { seconds } => (seconds.max(0.0), from),

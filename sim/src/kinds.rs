@@ -243,7 +243,10 @@ impl MachineKind for SimModbusKind {
         modbus_posts()
     }
     fn estimate(&self, s: &SimModbusSettings, blocks: &[MotionBlock]) -> Option<f64> {
-        let t = machlink_protocols::estimate::blocks_seconds(blocks, machlink_protocols::estimate::RAPID);
+        let t = machlink_protocols::estimate::blocks_seconds(
+            blocks,
+            machlink_protocols::estimate::RAPID,
+        );
         Some(t / s.time_scale)
     }
     fn check(&self, s: &SimModbusSettings) -> Result<(), String> {

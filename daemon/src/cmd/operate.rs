@@ -326,8 +326,8 @@ async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<Jo
     // GRBL's planner makes run ahead of the motion)
     bar.set_style(
         ProgressStyle::with_template("job {prefix} [{bar:16.cyan/blue}] {pos}/{len}  {wide_msg}")
-        .unwrap_or_else(|_| ProgressStyle::default_bar())
-        .progress_chars("=> "),
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
     );
     bar.set_prefix(id.to_string());
     bar.set_position(first.acked_units as u64);
@@ -336,14 +336,15 @@ async fn watch_bar(client: &Client, id: JobId, quiet: bool) -> anyhow::Result<Jo
     let mut status = String::new();
     let mut estimate = first.estimate_ms;
     let (mut acked_now, mut total_now) = (first.acked_units, first.total_units);
-    let show = |estimate: Option<i64>, state: JobState, status: &str, acked: usize, total: usize| {
-        let eta = eta_text(estimate, acked, total, state);
-        match (state, status.is_empty()) {
-            (JobState::Running, false) => format!("ETA {eta}  {status}"),
-            (_, true) => format!("ETA {eta}  {state}"),
-            (_, false) => format!("ETA {eta}  {state} {status}"),
-        }
-    };
+    let show =
+        |estimate: Option<i64>, state: JobState, status: &str, acked: usize, total: usize| {
+            let eta = eta_text(estimate, acked, total, state);
+            match (state, status.is_empty()) {
+                (JobState::Running, false) => format!("ETA {eta}  {status}"),
+                (_, true) => format!("ETA {eta}  {state}"),
+                (_, false) => format!("ETA {eta}  {state} {status}"),
+            }
+        };
     bar.set_message(show(estimate, first.state, "", acked_now, total_now));
     while let Some(ev) = events.next().await? {
         if estimate.is_none() && matches!(ev, Event::State { .. }) {

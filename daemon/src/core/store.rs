@@ -877,7 +877,12 @@ const JOB_COLUMNS: &str = "id, machine, state, op, file_name, params, created_ms
 /// acknowledged. A running job's machine still works off what it acknowledged last (GRBL
 /// acknowledges a line when it enters the planner, ahead of the motion), so while it runs
 /// the time left is never below one second; None for a job that ended or has no estimate.
-pub fn eta_ms(estimate_ms: Option<i64>, acked: usize, total: usize, state: JobState) -> Option<i64> {
+pub fn eta_ms(
+    estimate_ms: Option<i64>,
+    acked: usize,
+    total: usize,
+    state: JobState,
+) -> Option<i64> {
     let e = estimate_ms?;
     if total == 0 {
         return None;

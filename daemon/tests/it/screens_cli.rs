@@ -68,8 +68,16 @@ fn check_config_reports_five_independent_mistakes_in_one_run() {
             "line {line}: expected {key} and \"{words}\" in: {got}"
         );
     }
-    for serde_words in ["invalid type", "expected f64", "missing field", "unknown field"] {
-        assert!(!err.contains(serde_words), "serde's words `{serde_words}` in: {err}");
+    for serde_words in [
+        "invalid type",
+        "expected f64",
+        "missing field",
+        "unknown field",
+    ] {
+        assert!(
+            !err.contains(serde_words),
+            "serde's words `{serde_words}` in: {err}"
+        );
     }
 }
 
@@ -117,7 +125,10 @@ fn the_socket_default_is_the_same_in_code_help_and_docs() {
         eprintln!("skipped the code's default: this host has {SYSTEM_CONFIG}, which clients read");
     }
     for (xdg, want) in [
-        (Some("/run/user/4242"), "/run/user/4242/machlink.sock".to_string()),
+        (
+            Some("/run/user/4242"),
+            "/run/user/4242/machlink.sock".to_string(),
+        ),
         (None, "/tmp/machlink-alice/machlink.sock".to_string()),
     ]
     .into_iter()
@@ -139,7 +150,11 @@ fn the_socket_default_is_the_same_in_code_help_and_docs() {
         let o = machlink().args(args).output().unwrap();
         let help = String::from_utf8_lossy(&o.stdout).replace(char::is_whitespace, "");
         for d in [default, fallback] {
-            assert!(help.contains(d), "`machlink {}` names {d}: {help}", args.join(" "));
+            assert!(
+                help.contains(d),
+                "`machlink {}` names {d}: {help}",
+                args.join(" ")
+            );
         }
     }
     // every page that names a default names this one
@@ -173,7 +188,10 @@ fn a_socket_the_user_may_not_open_says_permission_denied_exit_3() {
     // the socket closed to everyone but root
     std::fs::set_permissions(&s.socket, std::fs::Permissions::from_mode(0o000)).unwrap();
     let mut c = machlink();
-    c.arg("machines").arg("--socket").arg(&s.socket).current_dir("/");
+    c.arg("machines")
+        .arg("--socket")
+        .arg(&s.socket)
+        .current_dir("/");
     if root {
         // root opens any socket: the client runs as nobody, as an operator would
         c.uid(NOBODY).gid(NOBODY);
@@ -292,10 +310,16 @@ fn submit_watch_in_a_pipe_prints_a_line_per_step_with_an_eta_never_0_while_cutti
         "the state change to running: {out}"
     );
     assert!(
-        lines.last().is_some_and(|l| l.starts_with("job 1 completed at 162/162")),
+        lines
+            .last()
+            .is_some_and(|l| l.starts_with("job 1 completed at 162/162")),
         "the last state change: {out}"
     );
-    let progress: Vec<&str> = lines.iter().copied().filter(|l| l.contains(" %) ETA ")).collect();
+    let progress: Vec<&str> = lines
+        .iter()
+        .copied()
+        .filter(|l| l.contains(" %) ETA "))
+        .collect();
     assert!(progress.len() >= 10, "a line per step of progress: {out}");
     for l in &progress {
         let eta = eta_of(l).unwrap();
@@ -443,7 +467,8 @@ fn gcode_files_on_grbl_count_as_submitted_jobs_and_json_logs_hold_only_json() {
         assert!(o.status.success(), "{}", stderr(&o));
     }
     let mut c = std::os::unix::net::UnixStream::connect(&s.socket).unwrap();
-    c.write_all(b"GET /metrics HTTP/1.0\r\nHost: x\r\n\r\n").unwrap();
+    c.write_all(b"GET /metrics HTTP/1.0\r\nHost: x\r\n\r\n")
+        .unwrap();
     let mut metrics = String::new();
     c.read_to_string(&mut metrics).unwrap();
     let line = metrics
@@ -473,8 +498,8 @@ fn gcode_files_on_grbl_count_as_submitted_jobs_and_json_logs_hold_only_json() {
     let err = stderr(&o);
     assert!(!err.is_empty());
     for l in err.lines() {
-        let v: serde_json::Value = serde_json::from_str(l)
-            .unwrap_or_else(|e| panic!("not a JSON line ({e}): {l}"));
+        let v: serde_json::Value =
+            serde_json::from_str(l).unwrap_or_else(|e| panic!("not a JSON line ({e}): {l}"));
         assert!(
             v["level"] == "ERROR" && v["error"].as_str().unwrap().contains("journal_every"),
             "{l}"
@@ -484,9 +509,8 @@ fn gcode_files_on_grbl_count_as_submitted_jobs_and_json_logs_hold_only_json() {
 
 /// An open path (a seam) and, with `closed`, a closed square beside it.
 fn open_contour(dir: &Path, closed: bool) -> std::path::PathBuf {
-    let mut paths = vec![
-        r#"{ "closed": false, "vertices": [[0,0,0], [40,0,0], [40,30,0]] }"#.to_string(),
-    ];
+    let mut paths =
+        vec![r#"{ "closed": false, "vertices": [[0,0,0], [40,0,0], [40,30,0]] }"#.to_string()];
     if closed {
         paths.push(
             r#"{ "closed": true, "vertices": [[60,0,0], [90,0,0], [90,30,0], [60,30,0]] }"#
@@ -551,7 +575,17 @@ fn a_profile_that_leaves_no_path_says_inside_in_words() {
     let o = machlink()
         .arg("plan")
         .arg(&f)
-        .args(["--op", "profile", "--side", "inside", "--tool-diameter", "6", "--post", "grbl", "-o"])
+        .args([
+            "--op",
+            "profile",
+            "--side",
+            "inside",
+            "--tool-diameter",
+            "6",
+            "--post",
+            "grbl",
+            "-o",
+        ])
         .arg(dir.path().join("out.nc"))
         .output()
         .unwrap();
@@ -606,11 +640,18 @@ fn the_unit_as_install_md_installs_it_passes_systemd_analyze_verify() {
         .find(|l| l.starts_with("install ") && l.ends_with(doc))
         .unwrap_or_else(|| panic!("install.md installs {doc}, which the unit names"));
     let src = doc_step.split_whitespace().rev().nth(1).unwrap();
-    assert!(repo().join(src).is_file(), "{doc_step}: {src} is in the repository");
+    assert!(
+        repo().join(src).is_file(),
+        "{doc_step}: {src} is in the repository"
+    );
     // the unit and the page say SIGTERM interrupts, not cancels
     assert!(unit.contains("KillSignal=SIGTERM") && unit.contains("interrupted (not cancelled)"));
     assert!(page.contains("a stop **interrupts** (does not cancel)"));
-    if Command::new("systemd-analyze").arg("--version").output().is_err() {
+    if Command::new("systemd-analyze")
+        .arg("--version")
+        .output()
+        .is_err()
+    {
         eprintln!("skipped systemd-analyze verify: systemd-analyze is not installed here");
         return;
     }
@@ -625,10 +666,16 @@ fn the_unit_as_install_md_installs_it_passes_systemd_analyze_verify() {
         .unwrap()
         .to_string();
     assert!(
-        steps.iter().any(|l| l.starts_with("install ") && l.ends_with(&exec)),
+        steps
+            .iter()
+            .any(|l| l.starts_with("install ") && l.ends_with(&exec)),
         "install.md installs {exec}, the unit's ExecStart"
     );
-    std::fs::write(&installed, unit.replace(&exec, env!("CARGO_BIN_EXE_machlink"))).unwrap();
+    std::fs::write(
+        &installed,
+        unit.replace(&exec, env!("CARGO_BIN_EXE_machlink")),
+    )
+    .unwrap();
     let o = Command::new("systemd-analyze")
         .arg("verify")
         .arg(&installed)
@@ -679,7 +726,10 @@ fn a_member_of_the_shipped_socket_group_connects_as_an_operator() {
     .replace("/var/lib/machlink/machlink.db", store.to_str().unwrap())
     .replace("/run/machlink/machlink.sock", socket.to_str().unwrap())
     .replace("\"machlink\"", &format!("\"{group}\""));
-    assert!(cfg.contains("socket_group") && cfg.contains("[[access.group]]"), "{cfg}");
+    assert!(
+        cfg.contains("socket_group") && cfg.contains("[[access.group]]"),
+        "{cfg}"
+    );
     let file = dir.path().join("machlink.toml");
     std::fs::write(&file, &cfg).unwrap();
     let mut c = machlink();
@@ -782,8 +832,14 @@ fn a_contour_that_crosses_itself_names_its_entities_handles_and_layer() {
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains("crosses itself near (20, 15)"), "{err}");
-    for h in ["LINE (handle 2A, line 5) on layer CUT", "LINE (handle 2C, line 33) on layer CUT"] {
+    for h in [
+        "LINE (handle 2A, line 5) on layer CUT",
+        "LINE (handle 2C, line 33) on layer CUT",
+    ] {
         assert!(err.contains(h), "{h} in: {err}");
     }
-    assert!(!err.contains("handle 2B") && !err.contains("handle 2D"), "{err}");
+    assert!(
+        !err.contains("handle 2B") && !err.contains("handle 2D"),
+        "{err}"
+    );
 }

@@ -55,7 +55,10 @@ fn check_config_passes_every_shipped_config() {
         .ok()
         .flatten()
         .map(|g| g.name);
-    let no_machlink = nix::unistd::Group::from_name("machlink").ok().flatten().is_none();
+    let no_machlink = nix::unistd::Group::from_name("machlink")
+        .ok()
+        .flatten()
+        .is_none();
     for f in files {
         let body = text(&std::fs::read(&f).unwrap());
         let f = match (&here, no_machlink && body.contains("group = \"machlink\"")) {

@@ -344,7 +344,10 @@ impl MachineKind for CanopenKind {
         CanopenSettings::keys()
     }
     fn estimate(&self, _s: &CanopenSettings, moves: &[Move]) -> Option<f64> {
-        Some(crate::estimate::moves_seconds(moves, crate::estimate::RAPID))
+        Some(crate::estimate::moves_seconds(
+            moves,
+            crate::estimate::RAPID,
+        ))
     }
     fn posts(&self) -> Vec<PostFor<Move>> {
         moves_posts()

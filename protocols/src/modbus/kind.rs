@@ -231,7 +231,10 @@ impl<T: RingTransport> MachineKind for ModbusKind<T> {
         modbus_posts()
     }
     fn estimate(&self, _s: &Self::Settings, blocks: &[MotionBlock]) -> Option<f64> {
-        Some(crate::estimate::blocks_seconds(blocks, crate::estimate::RAPID))
+        Some(crate::estimate::blocks_seconds(
+            blocks,
+            crate::estimate::RAPID,
+        ))
     }
     fn check(&self, s: &Self::Settings) -> Result<(), String> {
         s.own.check()?;

@@ -86,7 +86,8 @@ impl MachineKind for SimCanopenKind {
         SimCanopenSettings::keys()
     }
     fn estimate(&self, s: &SimCanopenSettings, moves: &[Move]) -> Option<f64> {
-        let t = machlink_protocols::estimate::moves_seconds(moves, machlink_protocols::estimate::RAPID);
+        let t =
+            machlink_protocols::estimate::moves_seconds(moves, machlink_protocols::estimate::RAPID);
         Some(t / s.own.time_scale)
     }
     fn posts(&self) -> Vec<PostFor<Move>> {
