@@ -363,7 +363,7 @@ fn every_kind_has_an_eta() {
         let jobs = jobs.as_array().unwrap().clone();
         let missing: Vec<String> = jobs
             .iter()
-            .filter(|j| !j["estimate_ms"].as_i64().is_some_and(|e| e > 0))
+            .filter(|j| j["estimate_ms"].as_i64().is_none_or(|e| e <= 0))
             .map(|j| format!("job {} on {} ({})", j["id"], j["machine"], j["state"]))
             .collect();
         if missing.is_empty() && jobs.len() == 4 {
