@@ -296,7 +296,7 @@ fn table_at(text: &str, offset: usize) -> Option<String> {
             let t = l.trim();
             (t.starts_with('[') && t.ends_with(']')).then(|| t.to_string())
         })
-        .last()
+        .next_back()
 }
 
 /// Within a table's `span`, the line of the key a message names ("key `url`: …"), so the

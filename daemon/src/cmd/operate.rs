@@ -121,19 +121,8 @@ pub fn jobs(a: JobsArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The STATUS column's width in `machines`: a longer status (an alarm's text) is cut with
-/// `…` so the columns after it stay in place; `--json` has it whole.
-const STATUS_WIDTH: usize = 28;
-
-/// `text` in at most `width` characters, cut with `…` when longer.
-fn fit(text: &str, width: usize) -> String {
-    if text.chars().count() <= width {
-        return text.to_string();
-    }
-    let mut out: String = text.chars().take(width - 1).collect();
-    out.push('…');
-    out
-}
+/// The POSITION column's width in `machines`: room for X-1234.567 Y-1234.567 Z-123.456.
+const POSITION_WIDTH: usize = 32;
 
 pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
     let ms = runtime()?.block_on(a.client.client().machines())?;
@@ -141,9 +130,11 @@ pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string_pretty(&ms)?);
         return Ok(());
     }
+    // the status last, whole: an alarm's or an operator's text (the tool to load) may be
+    // long, and only the last column can grow without moving the others
     println!(
-        "{:<12} {:<11} {:>5} {:>6}  {:<28} {:>8}  POSITION",
-        "MACHINE", "LINK", "JOB", "QUEUED", "STATUS", "REPORTED"
+        "{:<12} {:<11} {:>5} {:>6}  {:>8}  {:<POSITION_WIDTH$}  STATUS",
+        "MACHINE", "LINK", "JOB", "QUEUED", "REPORTED", "POSITION"
     );
     for m in ms {
         let p = m.status.position;
@@ -151,21 +142,32 @@ pub fn machines(a: MachinesArgs) -> anyhow::Result<()> {
             Some(ms) => format!("{} ago", span(ms as i64)),
             None => "never".into(),
         };
-        let position = match m.status.state {
-            machlink_protocols::DeviceState::Offline | machlink_protocols::DeviceState::Unknown => {
-                m.status.detail.clone()
+        let (position, status) = match m.status.state {
+            machlink_protocols::DeviceState::Offline | machlink_protocols::DeviceState::Unknown
+                if !m.status.detail.is_empty() =>
+            {
+                (
+                    "-".to_string(),
+                    format!("{}: {}", m.status.state, m.status.detail),
+                )
             }
-            _ => format!("X{:.3} Y{:.3} Z{:.3}", p[0], p[1], p[2]),
+            machlink_protocols::DeviceState::Offline | machlink_protocols::DeviceState::Unknown => {
+                ("-".to_string(), m.status.state.to_string())
+            }
+            _ => (
+                format!("X{:.3} Y{:.3} Z{:.3}", p[0], p[1], p[2]),
+                m.status.state.to_string(),
+            ),
         };
         println!(
-            "{:<12} {:<11} {:>5} {:>6}  {:<28} {:>8}  {}",
+            "{:<12} {:<11} {:>5} {:>6}  {:>8}  {:<POSITION_WIDTH$}  {}",
             m.name,
             m.link,
             m.job.map(|j| j.to_string()).unwrap_or_else(|| "-".into()),
             m.queued,
-            fit(&m.status.state.to_string(), STATUS_WIDTH),
             age,
-            position
+            position,
+            status
         )
     }
     Ok(())

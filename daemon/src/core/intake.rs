@@ -395,6 +395,32 @@ fn check_tolerance(t: f64) -> Result<(), IntakeError> {
     }
 }
 
+/// An operation's error in words; a contour that crosses itself also names the drawing's
+/// entities there (their handles and layers), where the file names them (DXF).
+fn crossing_named(spec: &JobSpec, e: offset_core::ops::OpError) -> String {
+    use offset_core::offset::OffsetError;
+    let offset_core::ops::OpError::Offset(OffsetError::SelfIntersecting { at, .. }) = &e else {
+        return e.to_string();
+    };
+    let Ok(bytes) = spec.input.bytes() else {
+        return e.to_string();
+    };
+    let names = offset_core::io::entities_at(
+        &bytes,
+        &spec.input.file_name,
+        &offset_core::io::ReadOptions {
+            layers: spec.layers.clone(),
+            tolerance: spec.tolerance.unwrap_or(DEFAULT_TOLERANCE),
+            ..Default::default()
+        },
+        *at,
+    );
+    if names.is_empty() {
+        return e.to_string();
+    }
+    format!("{e}: {}", names.join(", "))
+}
+
 /// Reads the job's shape with its layers and tolerance; the readers' warnings beside it.
 pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
     let bytes = spec.input.bytes()?;
@@ -438,12 +464,13 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
             let mut p = p.clone();
             p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
             offset_core::ops::profile(shape, &p)
-                .map_err(|e| format!("cannot plan the profile: {e}"))
+                .map_err(|e| format!("cannot plan the profile: {}", crossing_named(spec, e)))
         }
         Operation::Pocket(p) => {
             let mut p = p.clone();
             p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
-            offset_core::ops::pocket(shape, &p).map_err(|e| format!("cannot plan the pocket: {e}"))
+            offset_core::ops::pocket(shape, &p)
+                .map_err(|e| format!("cannot plan the pocket: {}", crossing_named(spec, e)))
         }
         Operation::PocketFeedControl(p) => {
             let mut p = p.clone();

@@ -179,10 +179,14 @@ fn serve_submit_watch_and_list() {
         ],
     );
     assert!(o.status.success(), "{}", stderr(&o));
+    // in a pipe `--watch` prints its progress lines after the job number
     let id: i64 = stdout(&o)
+        .lines()
+        .next()
+        .unwrap_or("")
         .trim()
         .parse()
-        .expect("submit prints the job number");
+        .expect("submit prints the job number first");
     assert!(
         stderr(&o).contains(&format!("job {id} completed")),
         "{}",

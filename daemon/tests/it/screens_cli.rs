@@ -363,7 +363,7 @@ fn every_kind_has_an_eta() {
         let jobs = jobs.as_array().unwrap().clone();
         let missing: Vec<String> = jobs
             .iter()
-            .filter(|j| !j["estimate_ms"].as_i64().is_some_and(|e| e > 0))
+            .filter(|j| j["estimate_ms"].as_i64().is_none_or(|e| e <= 0))
             .map(|j| format!("job {} on {} ({})", j["id"], j["machine"], j["state"]))
             .collect();
         if missing.is_empty() && jobs.len() == 4 {
@@ -789,16 +789,60 @@ fn a_long_alarm_text_keeps_the_machines_columns_in_place() {
     let col = |l: &str, word: &str| l.find(word).map(|b| l[..b].chars().count());
     let reported = col(lines[0], "REPORTED").unwrap();
     let position = col(lines[0], "POSITION").unwrap();
+    let status = col(lines[0], "STATUS").unwrap();
     for l in &lines[1..] {
         // the age ("1s ago") ends where the REPORTED heading ends, the position starts under
-        // POSITION, whatever the status before them
+        // POSITION and the status under STATUS, whatever the status says
         let ago = col(l, " ago").unwrap_or_else(|| panic!("{table}"));
         assert_eq!(ago + 4, reported + "REPORTED".len(), "{table}");
-        assert_eq!(
-            l.chars().skip(position).take(1).collect::<String>(),
-            "X",
-            "{table}"
-        );
+        let at = |c: usize| l.chars().skip(c).take(1).collect::<String>();
+        assert_eq!(at(position), "X", "{table}");
+        assert!(at(status - 1) == " " && at(status) != " ", "{table}");
     }
-    assert!(table.contains('…'), "the long alarm text is cut: {table}");
+    // the whole text, not cut
+    assert!(
+        table.contains("alarm lock: clear the cause, then unlock ($X) or home ($H)"),
+        "{table}"
+    );
+}
+
+#[test]
+fn a_contour_that_crosses_itself_names_its_entities_handles_and_layer() {
+    let dir = tempfile::tempdir().unwrap();
+    // a bow tie of four LINEs on layer CUT: the first and third cross at (20, 15)
+    let mut dxf = String::from("0\nSECTION\n2\nENTITIES\n");
+    for ((a, b), h) in [
+        (((0, 0), (40, 30)), "2A"),
+        (((40, 30), (40, 0)), "2B"),
+        (((40, 0), (0, 30)), "2C"),
+        (((0, 30), (0, 0)), "2D"),
+    ] {
+        dxf.push_str(&format!(
+            "0\nLINE\n5\n{h}\n8\nCUT\n10\n{}\n20\n{}\n11\n{}\n21\n{}\n",
+            a.0, a.1, b.0, b.1
+        ));
+    }
+    dxf.push_str("0\nENDSEC\n0\nEOF\n");
+    let f = dir.path().join("bowtie.dxf");
+    std::fs::write(&f, dxf).unwrap();
+    let o = machlink()
+        .arg("plan")
+        .arg(&f)
+        .args(["--op", "profile", "--post", "grbl", "-o"])
+        .arg(dir.path().join("out.nc"))
+        .output()
+        .unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("crosses itself near (20, 15)"), "{err}");
+    for h in [
+        "LINE (handle 2A, line 5) on layer CUT",
+        "LINE (handle 2C, line 33) on layer CUT",
+    ] {
+        assert!(err.contains(h), "{h} in: {err}");
+    }
+    assert!(
+        !err.contains("handle 2B") && !err.contains("handle 2D"),
+        "{err}"
+    );
 }

@@ -61,6 +61,26 @@ pub struct DxfDrawing {
     /// mm per drawing unit, from `$INSUNITS`.
     pub scale: f64,
     pub warnings: Vec<String>,
+    /// Each piece as read, before chaining, with the entity it came from as messages name
+    /// it (`LINE (handle 2A, line 120) on layer CUT`).
+    pieces: Vec<(Polyline, String)>,
+}
+
+impl DxfDrawing {
+    /// The entities whose geometry passes within `within` mm of `at` (a crossing, say), as
+    /// messages name them, each once, at most `max`.
+    pub fn entities_at(&self, at: Point, within: f64, max: usize) -> Vec<String> {
+        let mut out: Vec<String> = Vec::new();
+        for (pl, name) in &self.pieces {
+            if out.len() == max {
+                break;
+            }
+            if pl.distance_to(at) <= within && !out.contains(name) {
+                out.push(name.clone());
+            }
+        }
+        out
+    }
 }
 
 /// Reads a DXF file with default options.
@@ -448,6 +468,10 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 || opts.colors.contains(&entity_color(e, layer, &layer_colors)))
     };
     let mut pieces: Vec<Polyline> = Vec::new();
+    // the entity each piece came from: pieces pushed while reading an entity get its name
+    // when the next one starts (or at the end)
+    let mut names: Vec<String> = Vec::new();
+    let mut last_name = String::new();
     let mut skipped: BTreeMap<String, usize> = BTreeMap::new();
     let mut curve_points = 0; // points flattened from ELLIPSEs, SPLINEs and HATCHes so far
     let mut hatch_loops: Vec<Polyline> = Vec::new(); // closed, placed, chosen by style
@@ -463,6 +487,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
     while let Some(w) = work.pop() {
         let mut k = 0;
         while k < w.records.len() {
+            names.resize(pieces.len(), last_name.clone());
             let e = &w.records[k];
             k += 1;
             // an entity on layer 0 inside a block takes the layer of the INSERT
@@ -470,6 +495,7 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
                 ("0", Some(l)) => l.clone(),
                 (l, _) => l.to_string(),
             };
+            last_name = format!("{} on layer {layer}", e.handle());
             let xf = if e.ocs_x(file)? < 0.0 {
                 w.xf.then(&Xf::MIRROR_X)
             } else {
@@ -724,6 +750,8 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             if n == 1 { "y" } else { "ies" }
         ));
     }
+    names.resize(pieces.len(), last_name);
+    let read: Vec<(Polyline, String)> = pieces.iter().cloned().zip(names).collect();
     let mut paths = chain(pieces, tol, &mut warnings);
     // a hatch drawn over its own boundary (an associative hatch keeps the polyline or
     // circles it was made from): the loop that repeats a contour adds nothing
@@ -732,12 +760,25 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             paths.push(l);
         }
     }
+    let mut drawing = DxfDrawing {
+        shape: Shape::new(Vec::new()),
+        scale,
+        warnings: Vec::new(),
+        pieces: read,
+    };
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
             for x in self_intersections(p, 3) {
+                let at = drawing.entities_at(x, 10.0 * tol, 3);
                 warnings.push(format!(
-                    "contour {i} crosses itself near ({:.4}, {:.4})",
-                    x.x, x.y
+                    "contour {i} crosses itself near ({:.4}, {:.4}){}",
+                    x.x,
+                    x.y,
+                    if at.is_empty() {
+                        String::new()
+                    } else {
+                        format!(": {}", at.join(", "))
+                    }
                 ));
             }
         }
@@ -748,11 +789,9 @@ pub fn read_with(bytes: &[u8], file: &str, opts: &DxfOptions) -> Result<DxfDrawi
             format!("no geometry on layer(s) {}", opts.layers.join(", ")),
         ));
     }
-    Ok(DxfDrawing {
-        shape: Shape::new(paths),
-        scale,
-        warnings,
-    })
+    drawing.shape = Shape::new(paths);
+    drawing.warnings = warnings;
+    Ok(drawing)
 }
 
 /// Whether closed paths `a` and `b` trace the same loop within `tol` (bounds, area and

@@ -7,7 +7,7 @@ pub mod svg;
 pub mod svg_out;
 
 use crate::biarc::BiarcOptions;
-use crate::geom::Shape;
+use crate::geom::{Point, Shape};
 
 /// Reads a shape file, choosing the reader by the file name's extension (`.json`, `.dxf`,
 /// `.svg`), with the default options of [`ReadOptions`]: see [`read_shape_with`].
@@ -88,6 +88,37 @@ pub fn read_shape_with(
     };
     check_range(&shape, file)?;
     Ok((shape, warnings))
+}
+
+/// The drawing's entities that pass near `at` (within ten times the tolerance), as messages
+/// name them (`LINE (handle 2A, line 120) on layer CUT`), at most three: what a crossing
+/// found while planning is made of. Only DXF files name entities; other files give none.
+pub fn entities_at(bytes: &[u8], file: &str, opts: &ReadOptions, at: Point) -> Vec<String> {
+    let is_dxf = std::path::Path::new(file)
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("dxf"));
+    if !is_dxf {
+        return Vec::new();
+    }
+    let tol = if opts.tolerance.is_finite() && opts.tolerance > 0.0 {
+        opts.tolerance
+    } else {
+        1e-3
+    };
+    let read = dxf::read_with(
+        bytes,
+        file,
+        &dxf::DxfOptions {
+            layers: opts.layers.clone(),
+            tolerance: tol,
+            colors: opts.colors.clone(),
+            ..Default::default()
+        },
+    );
+    match read {
+        Ok(d) => d.entities_at(at, 10.0 * tol, 3),
+        Err(_) => Vec::new(),
+    }
 }
 
 /// Refuses a shape that reaches beyond ±[`MAX_COORDINATE`] mm, naming the first path that
