@@ -748,7 +748,7 @@ mod tests {
         // each tab: its width plus the tool's (3 mm) at least, with the ramp back down after
         // it; far less than the last pass's loop (about 209 mm)
         assert!(
-            tab_len >= 4.0 * (4.0 + 3.0) - 1e-6 && tab_len < 0.6 * 209.0,
+            (4.0 * (4.0 + 3.0) - 1e-6..0.6 * 209.0).contains(&tab_len),
             "{tab_len}"
         );
         // the start is where the first cut begins, and arrows follow the cuts' direction

@@ -15,7 +15,9 @@
 //! `nats.shop.lan:4222` the fixture's NATS server, `/tmp/…` and system paths (/etc, /usr/local)
 //! folders inside the cell, and `cargo run … -p machlink --` the built `machlink`.
 //!
-//! A command fails if it exits non-zero or runs longer than a minute. Commands that run until
+//! A command that asks the operator (`resume` without `--yes`) runs at a terminal (`script`
+//! gives it a pty) where the answer is `y`. A command fails if it exits non-zero or runs
+//! longer than a minute. Commands that run until
 //! stopped (`serve`, `events`, `watch`, `machlink-sim`) pass when they are still running
 //! after a few seconds or ended with 0; each `serve` runs in a copy of the cell, beside the
 //! fixture's daemon. Lines run in the page's order (a `plan … -o part.nc` feeds a later
@@ -36,12 +38,6 @@ const SKIP: &[(&str, &str)] = &[
     (
         "cargo build --release",
         "a release build (docs/install.md): the test runs the debug build",
-    ),
-    // asks the operator at a terminal; without one it shows the plan, sends nothing and
-    // exits 1 by design (docs/daemon.md), so as written it cannot pass in a test
-    (
-        "machlink resume 7",
-        "asks at a terminal (no TTY in a test: exit 1 by design)",
     ),
 ];
 
@@ -485,6 +481,56 @@ impl Cell {
         self.running_job = None;
     }
 
+    /// The job a `7` stands for after `verb`: a running one to watch, pause or override, a
+    /// paused one (paused here first) to resume, a cancelled one to resume from a line, any
+    /// open one to cancel.
+    fn job_for(&mut self, verb: &str) -> u64 {
+        let cached = self.running_job.map(|id| (id, self.job_state(id)));
+        match (verb, cached) {
+            ("resume --from-line", _) => {
+                // a stopped job: one cancelled mid-way
+                let id = self.running_job();
+                let out = self
+                    .command(&format!("machlink cancel {id}"))
+                    .output()
+                    .unwrap();
+                assert!(
+                    out.status.success(),
+                    "cancel {id}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                let until = Instant::now() + Duration::from_secs(30);
+                while self.job_state(id) != "cancelled" {
+                    assert!(Instant::now() < until, "job {id} was not cancelled");
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                self.running_job = None;
+                id
+            }
+            ("resume", Some((id, s))) if s == "paused" || s == "interrupted" => id,
+            ("cancel", Some((id, s))) if s == "paused" || s == "running" => id,
+            ("resume", _) => {
+                let id = self.running_job();
+                let out = self
+                    .command(&format!("machlink pause {id}"))
+                    .output()
+                    .unwrap();
+                assert!(
+                    out.status.success(),
+                    "pause {id}: {}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                let until = Instant::now() + Duration::from_secs(30);
+                while self.job_state(id) != "paused" {
+                    assert!(Instant::now() < until, "job {id} did not pause");
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+                id
+            }
+            _ => self.running_job(),
+        }
+    }
+
     /// The command with the cell's placeholders filled in.
     fn fill(&mut self, command: &str) -> String {
         let d = self.path().display().to_string();
@@ -499,8 +545,17 @@ impl Cell {
         }
         let job_verb = |w: &str| matches!(w, "watch" | "pause" | "resume" | "cancel" | "override");
         let words: Vec<String> = c.split(' ').map(String::from).collect();
-        if words.windows(2).any(|w| job_verb(&w[0]) && w[1] == "7") {
-            let id = self.running_job().to_string();
+        if let Some(verb) = words
+            .windows(2)
+            .find(|w| job_verb(&w[0]) && w[1] == "7")
+            .map(|w| w[0].clone())
+        {
+            let verb = if c.contains("--from-line") {
+                "resume --from-line".to_string()
+            } else {
+                verb
+            };
+            let id = self.job_for(&verb).to_string();
             let mut filled = words.clone();
             for i in 1..words.len() {
                 if job_verb(&words[i - 1]) && words[i] == "7" {
@@ -564,6 +619,16 @@ fn path_with(dir: &Path) -> std::ffi::OsString {
     std::env::join_paths(parts).unwrap()
 }
 
+/// Asks the operator before it moves the machine (`resume` without `--yes`).
+fn asks(command: &str) -> bool {
+    command.starts_with("machlink resume") && !command.contains("--yes")
+}
+
+/// `s` as one shell word.
+fn shell_quote(s: &str) -> String {
+    format!("'{}'", s.replace('\'', "'\\''"))
+}
+
 /// Runs until stopped: passes when still running after `STAYS_UP`.
 fn runs_until_stopped(command: &str) -> bool {
     command.starts_with("machlink serve")
@@ -608,7 +673,8 @@ fn run(mut cmd: Command, stays: bool) -> Result<(), String> {
     let stdout = String::from_utf8_lossy(&out_t.join().unwrap()).to_string();
     let stderr = String::from_utf8_lossy(&err_t.join().unwrap()).to_string();
     let tail = |s: &str| {
-        s.lines()
+        s.split(['\n', '\r'])
+            .filter(|l| !l.trim().is_empty())
             .rev()
             .take(8)
             .collect::<Vec<_>>()
@@ -706,6 +772,13 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
         let filled = cell.fill(&ex.command);
         let stays = runs_until_stopped(&filled);
         let mut cmd = cell.command(&filled);
+        if asks(&filled) {
+            // at a terminal, where the operator answers the question with y
+            cmd = cell.command(&format!(
+                "printf 'y\\n' | script -qec {} /dev/null",
+                shell_quote(&filled)
+            ));
+        }
         if filled.starts_with("machlink serve") {
             let folder = cell.serve_folder(n);
             cmd.current_dir(&folder)
