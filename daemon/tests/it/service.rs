@@ -336,10 +336,18 @@ fn json_logs_name_job_machine_and_unit_and_carry_no_colour() {
     }
 
     // human logs off a terminal: no colour either
+    // (the socket exists a moment before the line saying so is written: wait for the line)
     let dir = tempfile::tempdir().unwrap();
     let s = serve(dir.path(), "", &[], &[]);
+    let until = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    let log = loop {
+        let log = std::fs::read_to_string(dir.path().join("serve.log")).unwrap_or_default();
+        if log.contains("machlink daemon listening") || std::time::Instant::now() > until {
+            break log;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
     drop(s);
-    let log = std::fs::read_to_string(dir.path().join("serve.log")).unwrap();
     assert!(log.contains("machlink daemon listening"), "{log}");
     assert!(!log.contains('\u{1b}'), "{log}");
 }
