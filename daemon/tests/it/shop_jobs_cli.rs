@@ -594,19 +594,7 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
         stderr(&o)
     );
 
-    let o = cli(
-        &sock,
-        &[
-            "submit",
-            sign.to_str().unwrap(),
-            "--machine",
-            "router",
-            "--recipe",
-            recipe.to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
-    let id: i64 = out(&o).trim().parse().unwrap();
+    let id = submit_recipe(&sock, &sign, "router", &recipe);
     let tools = ["load T1 (3 mm drill)", "load T2 (6 mm flat end mill)"];
     for tool in tools {
         let j = wait_job_record(&sock, id, "paused for a tool", |j| {
@@ -617,15 +605,7 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
             Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
         );
         // `machines` shows the tool to load
-        let until = Instant::now() + Duration::from_secs(20);
-        loop {
-            let o = cli(&sock, &["machines"]);
-            if out(&o).contains(&format!("needs operator: {tool}")) {
-                break;
-            }
-            assert!(Instant::now() < until, "{}", out(&o));
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        machines_show(&sock, &format!("needs operator: {tool}"));
         // nothing moves while the operator changes the tool
         let (moved, at) = (executed(&sim), sim.position());
         std::thread::sleep(Duration::from_millis(600));
@@ -660,6 +640,49 @@ fn pyembroidery_commands(path: &Path) -> Vec<u32> {
     pyembroidery_read(path).into_iter().map(|r| r.2).collect()
 }
 
+/// The two seams of `seams_dxf`, each in its own thread (tool 1 red, tool 2 blue).
+const SEAMS_RECIPE: &str =
+    "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
+     [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n";
+
+/// `machlink submit FILE --machine MACHINE --recipe RECIPE` against the daemon at `sock`;
+/// the job's number.
+fn submit_recipe(sock: &Path, file: &Path, machine: &str, recipe: &Path) -> i64 {
+    let o = cli(
+        sock,
+        &[
+            "submit",
+            file.to_str().unwrap(),
+            "--machine",
+            machine,
+            "--recipe",
+            recipe.to_str().unwrap(),
+        ],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    out(&o)
+        .trim()
+        .parse()
+        .expect("submit prints the job's number")
+}
+
+/// Polls `machlink machines` (bounded, 20 s) until it shows `text`.
+fn machines_show(sock: &Path, text: &str) {
+    let until = Instant::now() + Duration::from_secs(20);
+    loop {
+        let o = cli(sock, &["machines"]);
+        if out(&o).contains(text) {
+            return;
+        }
+        assert!(
+            Instant::now() < until,
+            "`machines` never showed {text}: {}",
+            out(&o)
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 /// Two seams on two DXF layers, open polylines 40 mm long.
 fn seams_dxf() -> String {
     let mut s = String::from("0\nSECTION\n2\nENTITIES\n");
@@ -680,12 +703,7 @@ fn a_two_thread_seam_job_changes_colour_once_in_dst_and_jef() {
     let dxf = dir.path().join("seams.dxf");
     std::fs::write(&dxf, seams_dxf()).unwrap();
     let recipe = dir.path().join("seams.toml");
-    std::fs::write(
-        &recipe,
-        "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
-         [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n",
-    )
-    .unwrap();
+    std::fs::write(&recipe, SEAMS_RECIPE).unwrap();
     for post in ["dst", "jef"] {
         let out = dir.path().join(format!("seams.{post}"));
         let o = machlink(&[
@@ -739,27 +757,10 @@ async fn the_sewing_machine_stops_at_the_colour_change_until_the_operator_resume
     let dxf = dir.path().join("seams.dxf");
     std::fs::write(&dxf, seams_dxf()).unwrap();
     let recipe = dir.path().join("seams.toml");
-    std::fs::write(
-        &recipe,
-        "[[operations]]\nop = \"stitch\"\ntool = 1\ntake = { layers = [\"SEAM-RED\"] }\n\n\
-         [[operations]]\nop = \"stitch\"\ntool = 2\ntake = { layers = [\"SEAM-BLUE\"] }\n",
-    )
-    .unwrap();
+    std::fs::write(&recipe, SEAMS_RECIPE).unwrap();
     let daemon = proc::Daemon::start(dir.path()).await;
     let sock = daemon.socket.clone();
-    let o = cli(
-        &sock,
-        &[
-            "submit",
-            dxf.to_str().unwrap(),
-            "--machine",
-            "sewer",
-            "--recipe",
-            recipe.to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
-    let id: i64 = out(&o).trim().parse().unwrap();
+    let id = submit_recipe(&sock, &dxf, "sewer", &recipe);
     let j = wait_job_record(&sock, id, "paused at the colour change", |j| {
         j.state == JobState::Paused
     });
@@ -871,19 +872,7 @@ async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes()
     .unwrap();
     let daemon = proc::Daemon::start(dir.path()).await;
     let sock = daemon.socket.clone();
-    let o = cli(
-        &sock,
-        &[
-            "submit",
-            dxf.to_str().unwrap(),
-            "--machine",
-            "gantry",
-            "--recipe",
-            recipe.to_str().unwrap(),
-        ],
-    );
-    assert!(o.status.success(), "{}", stderr(&o));
-    let id: i64 = out(&o).trim().parse().unwrap();
+    let id = submit_recipe(&sock, &dxf, "gantry", &recipe);
     // how far the drives have moved: set-points that changed a drive's actual position
     let moved = |drives: &machlink_sim::canopen::SimDrives| -> usize {
         drives
@@ -906,15 +895,7 @@ async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes()
             j.note.as_deref(),
             Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
         );
-        let until = Instant::now() + Duration::from_secs(20);
-        loop {
-            let o = cli(&sock, &["machines"]);
-            if out(&o).contains(&format!("needs operator: {tool}")) {
-                break;
-            }
-            assert!(Instant::now() < until, "{}", out(&o));
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        machines_show(&sock, &format!("needs operator: {tool}"));
         let before = moved(&drives);
         std::thread::sleep(Duration::from_millis(600));
         assert_eq!(
