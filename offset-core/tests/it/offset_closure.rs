@@ -12,22 +12,6 @@ use offset_core::offset::{offset_region, OffsetOptions};
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
-/// r = r0 + Σ a_k sin(f_k θ + φ_k), sampled at n points.
-fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = TAU * i as f64 / n as f64;
-            let r = r0
-                + waves
-                    .iter()
-                    .map(|(amp, f, ph)| amp * (f * a + ph).sin())
-                    .sum::<f64>();
-            Point::new(r * a.cos(), r * a.sin())
-        })
-        .collect();
-    Polyline::from_points(&pts, true)
-}
-
 /// Offsets `start` by `d` again and again (every piece of every result), checking each
 /// result is valid input (and every eighth at the distance asked from the one before);
 /// returns how many offsets were made.

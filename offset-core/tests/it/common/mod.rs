@@ -191,3 +191,19 @@ pub fn star_with_arcs(center: Point, radii: &[f64], bulges: &[f64]) -> Polyline 
 pub fn v(x: f64, y: f64, b: f64) -> Vertex {
     Vertex::new(x, y, b)
 }
+
+/// r = r0 + Σ a_k sin(f_k θ + φ_k), sampled at n points.
+pub fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            let r = r0
+                + waves
+                    .iter()
+                    .map(|(amp, f, ph)| amp * (f * a + ph).sin())
+                    .sum::<f64>();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
