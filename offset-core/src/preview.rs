@@ -634,8 +634,21 @@ pub fn polyline_d(pl: &Polyline) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// The four numbers of an SVG's viewBox (min x, min y, width, height).
+    pub(crate) fn view_box(svg: &str) -> Vec<f64> {
+        svg.split("viewBox=\"")
+            .nth(1)
+            .unwrap()
+            .split('"')
+            .next()
+            .unwrap()
+            .split(' ')
+            .map(|v| v.parse().unwrap())
+            .collect()
+    }
 
     #[test]
     fn the_drawing_parses_as_svg_and_flips_y() {
@@ -779,16 +792,7 @@ mod tests {
                 && s.contains(">tab</text>")
         );
         // every move's ends inside the viewBox (y is flipped: the box holds -y)
-        let vb: Vec<f64> = s
-            .split("viewBox=\"")
-            .nth(1)
-            .unwrap()
-            .split('"')
-            .next()
-            .unwrap()
-            .split(' ')
-            .map(|v| v.parse().unwrap())
-            .collect();
+        let vb = view_box(&s);
         tp.walk(P3::default(), |from, _, to| {
             for q in [from.xy(), to.xy()] {
                 assert!(q.x >= vb[0] && q.x <= vb[0] + vb[2], "{q:?} off {vb:?}");

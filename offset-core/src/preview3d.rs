@@ -574,16 +574,7 @@ mod tests {
         }
         assert!(s.contains(" mm along X, Y or Z</text>") && s.contains(START_COLOUR));
         // the band lies inside the viewBox: every text's baseline above its bottom edge
-        let vb: Vec<f64> = s
-            .split("viewBox=\"")
-            .nth(1)
-            .unwrap()
-            .split('"')
-            .next()
-            .unwrap()
-            .split(' ')
-            .map(|v| v.parse().unwrap())
-            .collect();
+        let vb = crate::preview::tests::view_box(&s);
         for y in s.split("<text x=\"").skip(1).map(|t| {
             t.split("y=\"")
                 .nth(1)
