@@ -110,34 +110,16 @@ impl Checker {
 
     /// The exact distance from `p` to the nearest input segment (infinite with no input).
     pub fn distance(&self, p: Point) -> f64 {
-        let mut best = f64::INFINITY;
-        self.index.nearest(
-            p.x,
-            p.y,
-            f64::INFINITY,
-            |i| self.segs[i].dist(p),
-            |_, d| {
-                best = d;
-                false
-            },
-        );
-        best
+        self.index
+            .nearest_one(p.x, p.y, f64::INFINITY, |i| self.segs[i].dist(p))
+            .map_or(f64::INFINITY, |(_, d)| d)
     }
 
     /// Whether some input segment lies nearer than `r` to `p` (stops at the first found).
     fn nearer_than(&self, p: Point, r: f64) -> bool {
-        let mut hit = false;
-        self.index.nearest(
-            p.x,
-            p.y,
-            r,
-            |i| self.segs[i].dist(p),
-            |_, d| {
-                hit = d < r;
-                false
-            },
-        );
-        hit
+        self.index
+            .nearest_one(p.x, p.y, r, |i| self.segs[i].dist(p))
+            .is_some_and(|(_, d)| d < r)
     }
 
     /// Whether `p` lies in the region the closed input paths bound, nested even-odd (each

@@ -255,18 +255,9 @@ impl Geo {
 
     /// Distance from `p` to the nearest boundary.
     fn dist(&self, p: Point) -> f64 {
-        let mut best = f64::INFINITY;
-        self.index.nearest(
-            p.x,
-            p.y,
-            f64::INFINITY,
-            |i| self.segs[i].dist(p),
-            |_, d| {
-                best = d;
-                false
-            },
-        );
-        best
+        self.index
+            .nearest_one(p.x, p.y, f64::INFINITY, |i| self.segs[i].dist(p))
+            .map_or(f64::INFINITY, |(_, d)| d)
     }
 
     /// Whether `p` lies inside one of the regions: the winding numbers of the outers
