@@ -22,6 +22,7 @@
 //! after a few seconds or ended with 0; each `serve` runs in a copy of the cell, beside the
 //! fixture's daemon. Lines run in the page's order (a `plan … -o part.nc` feeds a later
 //! `preview part.nc`), with `bash -e -o pipefail`, so `a ; b` and `a | jq .` fail on `a`.
+//! Pages run side by side, three at a time (`DOC_EXAMPLES_JOBS`), each in its own cell.
 
 use crate::common::{bin, nats};
 use std::io::Read;
@@ -749,11 +750,8 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
     );
     // set DOC_EXAMPLES_ONLY=docs/fleet.md (a page, or a word of the command) to run a few
     let only = std::env::var("DOC_EXAMPLES_ONLY").ok();
-    let mut failures = Vec::new();
-    let mut ran = 0;
-    // each page is read on its own: a fresh cell for each page's commands
-    let mut cell: Option<(String, Cell)> = None;
-    for (n, ex) in examples.iter().enumerate() {
+    let mut by_page: Vec<(String, Vec<(usize, Example)>)> = Vec::new();
+    for (n, ex) in examples.into_iter().enumerate() {
         if only
             .as_deref()
             .is_some_and(|o| !ex.command.contains(o) && !ex.file.contains(o))
@@ -764,11 +762,61 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
             eprintln!("skip {}:{}: {} ({why})", ex.file, ex.line, ex.command);
             continue;
         }
-        if cell.as_ref().is_none_or(|(page, _)| *page != ex.file) {
-            drop(cell.take()); // the last page's daemon stops before the next starts
-            cell = Some((ex.file.clone(), Cell::new()));
+        match by_page.last_mut() {
+            Some((page, list)) if *page == ex.file => list.push((n, ex)),
+            _ => by_page.push((ex.file.clone(), vec![(n, ex)])),
         }
-        let cell = &mut cell.as_mut().unwrap().1;
+    }
+    // Each page is read on its own, in a fresh cell (its own folder, daemon, simulated
+    // machines and NATS server), so pages run side by side: most of a page's time is spent
+    // waiting on simulated machines and on the commands that must stay up. Within a page the
+    // lines run in order. DOC_EXAMPLES_JOBS sets how many pages at once (default 3).
+    let jobs: usize = std::env::var("DOC_EXAMPLES_JOBS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .filter(|&j| j > 0)
+        .unwrap_or(3);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let outcomes = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..jobs.min(by_page.len()) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                let Some((_, list)) = by_page.get(i) else {
+                    break;
+                };
+                let page = run_page(list);
+                outcomes
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .push(page);
+            });
+        }
+    });
+    let outcomes = outcomes.into_inner().unwrap_or_else(|e| e.into_inner());
+    let ran: usize = outcomes.iter().map(|(ran, _)| ran).sum();
+    let mut failures: Vec<(usize, String)> = outcomes.into_iter().flat_map(|(_, f)| f).collect();
+    failures.sort();
+    eprintln!("{ran} example commands run");
+    assert!(
+        failures.is_empty(),
+        "{} of {ran} example commands failed:\n\n{}",
+        failures.len(),
+        failures
+            .into_iter()
+            .map(|(_, f)| f)
+            .collect::<Vec<_>>()
+            .join("\n\n")
+    );
+}
+
+/// Runs one page's commands in order in a fresh cell: how many ran, and each failure with
+/// its place in the pages (so the report keeps the pages' order).
+fn run_page(list: &[(usize, Example)]) -> (usize, Vec<(usize, String)>) {
+    let mut cell = Cell::new();
+    let mut failures = Vec::new();
+    let mut ran = 0;
+    for (n, ex) in list {
         let filled = cell.fill(&ex.command);
         let stays = runs_until_stopped(&filled);
         let mut cmd = cell.command(&filled);
@@ -780,7 +828,7 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
             ));
         }
         if filled.starts_with("machlink serve") {
-            let folder = cell.serve_folder(n);
+            let folder = cell.serve_folder(*n);
             cmd.current_dir(&folder)
                 .env("MACHLINK_CONFIG", folder.join("cell.toml"));
         }
@@ -790,19 +838,16 @@ fn every_example_command_of_the_readme_and_docs_runs_as_written() {
         eprintln!("run {}:{}: {filled}", ex.file, ex.line);
         ran += 1;
         if let Err(why) = run(cmd, stays) {
-            failures.push(format!(
-                "{}:{}: `{}`\n  ran `{filled}`\n  {why}",
-                ex.file, ex.line, ex.command
+            failures.push((
+                *n,
+                format!(
+                    "{}:{}: `{}`\n  ran `{filled}`\n  {why}",
+                    ex.file, ex.line, ex.command
+                ),
             ));
         }
     }
-    eprintln!("{ran} example commands run");
-    assert!(
-        failures.is_empty(),
-        "{} of {ran} example commands failed:\n\n{}",
-        failures.len(),
-        failures.join("\n\n")
-    );
+    (ran, failures)
 }
 
 #[test]

@@ -2,6 +2,12 @@
 //! an operator does. `env!("CARGO_BIN_EXE_…")` exists only inside the crate that owns the
 //! binary, so this builds them (a no-op when they are fresh) into the target folder this test
 //! binary runs from, with the cargo that runs the tests.
+//!
+//! The build is the one `cargo test --workspace` makes of the binaries: the `test` profile and
+//! the whole workspace's features (tests/Cargo.toml says how they are kept equal). A plain
+//! `cargo build` (the `dev` profile) would build the binaries and every dependency a second
+//! time during the test run, and overwrite the binaries `cargo test` put in target/debug, so
+//! the next run built them again.
 #![allow(dead_code)]
 
 use std::path::PathBuf;
@@ -24,10 +30,9 @@ pub fn bin_dir() -> PathBuf {
             .args([
                 "build",
                 "--quiet",
-                "-p",
-                "machlink",
-                "-p",
-                "machlink-sim",
+                "--profile",
+                "test",
+                "--workspace",
                 "--bins",
             ])
             .arg("--target-dir")
