@@ -157,9 +157,6 @@ struct Plan {
     found: Found,
     bound: f64,
     climb: bool,
-    /// Each cell's distance to the part, mm, and the least the tool centre keeps.
-    wall: Vec<f64>,
-    keep: f64,
 }
 
 /// Plans adaptive clearing of every region of `shape` (see the module).
@@ -320,8 +317,6 @@ impl Plan {
             found: Found::default(),
             bound,
             climb,
-            wall: Vec::new(),
-            keep: f64::INFINITY,
         }
     }
 
@@ -333,9 +328,7 @@ impl Plan {
     /// then the iso-lines of the geodesic distance from each.
     fn clear(&mut self, keep: f64) {
         let (nx, ny) = (self.g.nx, self.g.ny);
-        self.wall = self.g.distance_to(&self.part);
-        self.keep = keep;
-        let wall = self.wall.clone();
+        let wall = self.g.distance_to(&self.part);
         let allowed: Vec<bool> = wall.iter().map(|&w| w >= keep).collect();
         let mut geo = vec![f64::INFINITY; nx * ny];
         let mut comp = vec![u32::MAX; nx * ny];
@@ -448,19 +441,15 @@ impl Plan {
             let mut step = (s * 1.2).min(s_max);
             loop {
                 let next = (level + step).min(far + self.h);
-                let fronts = iso_lines(&self.g, geo, comp, id, bbox, next, self.h);
+                let loops = iso_lines(&self.g, geo, comp, id, bbox, next, self.h);
                 let mut trial = self.g.clone();
                 let mut steps = Vec::new();
                 let mut at = self.at;
                 let (worst, where_) =
-                    self.pass(&mut trial, &fronts, &mut steps, &mut at, core, step);
+                    self.pass(&mut trial, &loops, &mut steps, &mut at, core, step);
                 if worst <= self.bound || step <= s_min {
                     if worst > self.bound {
                         self.found.over.push((where_, worst));
-                        if std::env::var("ADAPTIVE_PLAN_DIAG").is_ok() {
-                            let wd = self.g.cell_of(where_).map_or(-1.0, |k| self.wall[k]);
-                            eprintln!("over {worst:.1} at ({:.2},{:.2}) wall {wd:.2} keep {:.2} step {step:.2} level {level:.2}", where_.x, where_.y, self.keep);
-                        }
                     }
                     if worst > self.found.worst {
                         self.found.worst = worst;
@@ -479,214 +468,71 @@ impl Plan {
         }
     }
 
-    /// Cuts the fronts of one pass on `g`, nearest first, into `steps`: the largest
+    /// Cuts the loops of one pass on `g`, nearest first, into `steps`: the largest
     /// engagement and where.
     fn pass(
         &self,
         g: &mut Grid,
-        fronts: &[Front],
+        loops: &[Vec<Point>],
         steps: &mut Vec<Step>,
         at: &mut Point,
         core: Point,
         step: f64,
     ) -> (f64, Point) {
         let mut worst = (0.0, Point::default());
-        let mut todo: Vec<&Front> = fronts
-            .iter()
-            .filter(|f| match f {
-                Front::Ring(l) => l.len() >= 3,
-                Front::Open(l) => l.len() >= 2,
-            })
-            .collect();
+        let mut todo: Vec<&Vec<Point>> = loops.iter().filter(|l| l.len() >= 3).collect();
         while !todo.is_empty() {
-            // the front nearest the tool: a ring's nearest vertex, an open front's start
-            let (fi, vi) = todo
+            // the loop with the vertex nearest the tool
+            let (li, vi) = todo
                 .iter()
                 .enumerate()
-                .flat_map(|(fi, f)| {
-                    let pts: &[Point] = match f {
-                        Front::Ring(l) => l,
-                        Front::Open(l) => &l[..1],
-                    };
-                    pts.iter().enumerate().map(move |(vi, q)| (fi, vi, *q))
-                })
+                .flat_map(|(li, l)| l.iter().enumerate().map(move |(vi, q)| (li, vi, *q)))
                 .min_by(|a, b| a.2.dist(*at).total_cmp(&b.2.dist(*at)))
-                .map(|(fi, vi, _)| (fi, vi))
-                .expect("fronts left");
-            match todo.swap_remove(fi) {
-                Front::Ring(lp) => self.ring(g, lp, vi, steps, at, core, step, &mut worst),
-                Front::Open(pts) => self.open(g, pts, steps, at, step, &mut worst),
-            }
-        }
-        worst
-    }
-
-    /// A closed ring from its vertex `vi`: from where it comes out of air into material,
-    /// else (it cuts all round, the rings round the core) by a spiral out to it from a
-    /// cleared spot over one turn, then once round on it.
-    #[allow(clippy::too_many_arguments)]
-    fn ring(
-        &self,
-        g: &mut Grid,
-        lp: &[Point],
-        vi: usize,
-        steps: &mut Vec<Step>,
-        at: &mut Point,
-        core: Point,
-        step: f64,
-        worst: &mut (f64, Point),
-    ) {
-        let n = lp.len();
-        let air: Vec<bool> = (0..n)
-            .map(|i| !capsule_has(g, lp[i], lp[(i + 1) % n], self.r + self.h, -1.0))
-            .collect();
-        if air.iter().all(|&a| a) {
-            return;
-        }
-        let start = (0..n).find(|&i| air[(i + n - 1) % n] && !air[i]);
-        let order: Vec<Point> = match start {
-            Some(i0) => {
-                self.link(g, steps, at, lp[i0]);
-                (1..=n).map(|k| lp[(i0 + k) % n]).collect()
-            }
-            None => {
-                let q = lp[vi];
-                let Some(a) = self.lead_from(g, q, core, step) else {
-                    // no cleared spot found: take the loop from the nearest vertex
-                    self.link(g, steps, at, q);
-                    let pts: Vec<Point> = (1..=n).map(|k| lp[(vi + k) % n]).collect();
-                    self.chain(g, steps, at, &pts, worst);
-                    return;
-                };
-                let inset = a.dist(q);
-                self.link(g, steps, at, a);
-                let mut order: Vec<Point> = (1..=n)
-                    .map(|k| {
-                        let p = lp[(vi + k) % n];
-                        let u = (core - p) * (1.0 / p.dist(core).max(1e-12));
-                        let f = 1.0 - k as f64 / n as f64;
-                        p + u * (inset.min(p.dist(core)) * f)
-                    })
-                    .collect();
-                order.extend((1..=n).map(|k| lp[(vi + k) % n]));
-                order
-            }
-        };
-        self.chain(g, steps, at, &order, worst);
-    }
-
-    /// An open front from wall to wall. Where its start is already air, from where it
-    /// comes out of air into material. Else its start, at the wall, has the new band's
-    /// full width in front of it, and no way in from the cleared side runs straight: the
-    /// tool joins the front a tool radius along it (M) by a quarter arc from the cleared
-    /// side, heading for the wall, cuts back to the wall's end (the band on its left),
-    /// goes back along the cut to M, and on along the front to its other end.
-    fn open(
-        &self,
-        g: &mut Grid,
-        pts: &[Point],
-        steps: &mut Vec<Step>,
-        at: &mut Point,
-        step: f64,
-        worst: &mut (f64, Point),
-    ) {
-        let two;
-        let pts = if pts.len() == 2 {
-            two = [pts[0], pts[0].lerp(pts[1], 0.5), pts[1]];
-            &two[..]
-        } else {
-            pts
-        };
-        let n = pts.len();
-        let air: Vec<bool> = (0..n - 1)
-            .map(|i| !capsule_has(g, pts[i], pts[i + 1], self.r + self.h, -1.0))
-            .collect();
-        let Some(i0) = air.iter().position(|&a| !a) else {
-            return;
-        };
-        if i0 > 0 {
-            self.link(g, steps, at, pts[i0]);
-            self.chain(g, steps, at, &pts[i0 + 1..], worst);
-            return;
-        }
-        // M: the first vertex a tool radius or more along the front (not its last)
-        let mut len = 0.0;
-        let mut k = n - 1;
-        for i in 1..n {
-            len += pts[i].dist(pts[i - 1]);
-            if len >= self.r {
-                k = i;
-                break;
-            }
-        }
-        let k = k.min(n - 2).max(1);
-        let m = pts[k];
-        let f = (pts[k + 1] - pts[k - 1]).unit();
-        let left = f.perp();
-        let lead = [self.r, 1.5 * self.r, 0.75 * self.r, 0.5 * self.r]
-            .into_iter()
-            .filter(|&rho| rho >= step + self.h)
-            .find_map(|rho| {
-                let c = m + left * rho;
-                let arc: Vec<Point> = (0..=12)
-                    .map(|i| {
-                        let a = i as f64 / 12.0 * std::f64::consts::FRAC_PI_2;
-                        c + f * (rho * a.cos()) - left * (rho * a.sin())
-                    })
-                    .collect();
-                let inside = arc.iter().all(|&q| self.may_visit(q));
-                (inside && !disc_has(g, arc[0], self.r + self.h, -1.0)).then_some(arc)
-            });
-        let Some(arc) = lead else {
-            // no room for the arc: in from the nearest cleared spot on the cleared side
-            // of the wall's end, else from the wall's end as it is
-            let f0 = (pts[1] - pts[0]).unit().perp();
-            let from = (1..=16)
-                .map(|i| pts[0] + f0 * (i as f64 * self.r / 8.0))
-                .find(|&q| self.may_visit(q) && !disc_has(g, q, self.r + self.h, -1.0));
-            match from {
-                Some(q) => {
-                    self.link(g, steps, at, q);
-                    self.follow(g, steps, at, &pts[..1], worst);
-                }
-                None => self.link(g, steps, at, pts[0]),
-            }
-            self.chain(g, steps, at, &pts[1..], worst);
-            return;
-        };
-        self.link(g, steps, at, arc[0]);
-        let back: Vec<Point> = pts[..k].iter().rev().copied().collect();
-        for run in [&arc[1..], &back[..], &pts[1..=k]] {
-            self.follow(g, steps, at, run, worst);
-        }
-        self.chain(g, steps, at, &pts[k + 1..], worst);
-    }
-
-    /// Cuts to each point in turn from `at`, air or not.
-    fn follow(
-        &self,
-        g: &mut Grid,
-        steps: &mut Vec<Step>,
-        at: &mut Point,
-        pts: &[Point],
-        worst: &mut (f64, Point),
-    ) {
-        for &b in pts {
-            if at.dist(b) < 1e-9 {
+                .map(|(li, vi, _)| (li, vi))
+                .expect("loops left");
+            let lp = todo.swap_remove(li);
+            let n = lp.len();
+            let air: Vec<bool> = (0..n)
+                .map(|i| !capsule_has(g, lp[i], lp[(i + 1) % n], self.r + self.h, -1.0))
+                .collect();
+            if air.iter().all(|&a| a) {
                 continue;
             }
-            let e = cut_chord(g, *at, b, self.r, self.h);
-            if e > worst.0 {
-                *worst = (e, *at);
-            }
-            steps.push(Step::Cut { to: b });
-            *at = b;
+            // start where the loop comes out of air into material, or by a lead-in
+            let start = (0..n).find(|&i| air[(i + n - 1) % n] && !air[i]);
+            let order: Vec<Point> = match start {
+                Some(i0) => {
+                    self.link(g, steps, at, lp[i0]);
+                    (1..=n).map(|k| lp[(i0 + k) % n]).collect()
+                }
+                None => {
+                    // a ring that cuts all round: a spiral out to it from the last ring
+                    // over one turn, then once round on it
+                    let q = lp[vi];
+                    let Some(a) = self.lead_from(g, q, core, step) else {
+                        // no cleared spot found: take the loop from the nearest vertex
+                        self.link(g, steps, at, q);
+                        let pts: Vec<Point> = (1..=n).map(|k| lp[(vi + k) % n]).collect();
+                        self.chain(g, steps, at, &pts, &mut worst);
+                        continue;
+                    };
+                    let inset = a.dist(q);
+                    self.link(g, steps, at, a);
+                    let mut order: Vec<Point> = (1..=n)
+                        .map(|k| {
+                            let p = lp[(vi + k) % n];
+                            let u = (core - p) * (1.0 / p.dist(core).max(1e-12));
+                            let f = 1.0 - k as f64 / n as f64;
+                            p + u * (inset.min(p.dist(core)) * f)
+                        })
+                        .collect();
+                    order.extend((1..=n).map(|k| lp[(vi + k) % n]));
+                    order
+                }
+            };
+            self.chain(g, steps, at, &order, &mut worst);
         }
-    }
-
-    /// Whether the tool centre may stand at `q` (its cell is in the area).
-    fn may_visit(&self, q: Point) -> bool {
-        self.g.cell_of(q).is_some_and(|k| self.wall[k] >= self.keep)
+        worst
     }
 
     /// A spot on the way from `q` to the core whose tool disc is cleared.
@@ -888,7 +734,7 @@ fn iso_lines(
     bbox: [usize; 4],
     level: f64,
     h: f64,
-) -> Vec<Front> {
+) -> Vec<Vec<Point>> {
     let nx = g.nx;
     let val = |i: usize, j: usize| {
         let k = j * nx + i;
@@ -903,7 +749,7 @@ fn iso_lines(
     let i1 = (bbox[2] + 1).min(g.nx - 2);
     let j1 = (bbox[3] + 1).min(g.ny - 2);
     // edge ids: horizontal (i,j)-(i+1,j) 2k, vertical (i,j)-(i,j+1) 2k+1
-    let mut next: HashMap<usize, (usize, (Point, bool))> = HashMap::new();
+    let mut next: HashMap<usize, (usize, Point)> = HashMap::new();
     for j in j0..=j1 {
         for i in i0..=i1 {
             let c = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
@@ -920,20 +766,18 @@ fn iso_lines(
                     _ => 2 * (j * nx + i) + 1,
                 }
             };
-            // the crossing on edge e, and whether it lies on the area's boundary (against
-            // a cell the tool centre may not visit)
-            let point = |e: usize| -> (Point, bool) {
+            let point = |e: usize| -> Point {
                 let (a, b) = (e, (e + 1) % 4);
                 let (pa, pb) = (g.centre(c[a].0, c[a].1), g.centre(c[b].0, c[b].1));
                 let (va, vb) = (v[a], v[b]);
-                let (t, wall) = if va.is_finite() && vb.is_finite() {
-                    (((level - va) / (vb - va)).clamp(0.0, 1.0), false)
+                let t = if va.is_finite() && vb.is_finite() {
+                    ((level - va) / (vb - va)).clamp(0.0, 1.0)
                 } else if va.is_finite() {
-                    (0.0, true)
+                    0.0
                 } else {
-                    (1.0, true)
+                    1.0
                 };
-                (pa + (pb - pa) * t, wall)
+                pa + (pb - pa) * t
             };
             for e in 0..4 {
                 // entry: this corner inside, the next (counter-clockwise) outside
@@ -951,7 +795,7 @@ fn iso_lines(
             }
         }
     }
-    let mut fronts = Vec::new();
+    let mut loops = Vec::new();
     while let Some(&start) = next.keys().next() {
         let mut pts = Vec::new();
         let mut e = start;
@@ -959,58 +803,11 @@ fn iso_lines(
             pts.push(p);
             e = to;
         }
-        if pts.len() < 3 {
-            continue;
-        }
-        split_at_walls(&pts, h, &mut fronts);
-    }
-    fronts
-}
-
-/// One pass of the growth: a ring that closes inside the area, or a front that runs from
-/// the area's boundary (a wall) to the boundary, the cleared side on its left.
-#[derive(Clone, Debug)]
-enum Front {
-    Ring(Vec<Point>),
-    Open(Vec<Point>),
-}
-
-/// A closed iso-line as fronts: its stretches along the area's boundary (both ends of a
-/// piece on it) left out, each piece between them an open front; a loop that never
-/// touches the boundary a ring. Simplified to within a quarter of a cell.
-fn split_at_walls(pts: &[(Point, bool)], h: f64, out: &mut Vec<Front>) {
-    let n = pts.len();
-    let Some(w0) = (0..n).find(|&i| pts[i].1 && pts[(i + 1) % n].1) else {
-        let ring: Vec<Point> = pts.iter().map(|p| p.0).collect();
-        out.push(Front::Ring(simplify_closed(&ring, h / 4.0)));
-        return;
-    };
-    // from the end of a wall piece round to it again
-    let mut cur: Vec<Point> = Vec::new();
-    for k in 1..=n {
-        let i = (w0 + k) % n;
-        let j = (i + 1) % n;
-        cur.push(pts[i].0);
-        if pts[i].1 && pts[j].1 {
-            if cur.len() >= 2 {
-                out.push(Front::Open(simplify_open(&cur, h / 4.0)));
-            }
-            cur.clear();
+        if pts.len() >= 3 {
+            loops.push(simplify_closed(&pts, h / 4.0));
         }
     }
-}
-
-/// Douglas–Peucker on an open run of points, within `tol` (both ends kept).
-fn simplify_open(pts: &[Point], tol: f64) -> Vec<Point> {
-    let n = pts.len();
-    if n <= 2 {
-        return pts.to_vec();
-    }
-    let mut keep = vec![false; n];
-    keep[0] = true;
-    keep[n - 1] = true;
-    douglas_peucker(|k| pts[k], &mut keep, vec![(0, n - 1)], tol);
-    (0..n).filter(|&k| keep[k]).map(|k| pts[k]).collect()
+    loops
 }
 
 /// Douglas–Peucker on a closed loop of points, within `tol`.
@@ -1024,17 +821,8 @@ fn simplify_closed(pts: &[Point], tol: f64) -> Vec<Point> {
     keep[0] = true;
     keep[far] = true;
     keep[n] = true;
-    douglas_peucker(|k| pts[k % n], &mut keep, vec![(0usize, far), (far, n)], tol);
-    (0..n).filter(|&k| keep[k]).map(|k| pts[k]).collect()
-}
-
-/// Marks in `keep` the points each span of `stack` needs to stay within `tol`.
-fn douglas_peucker(
-    at: impl Fn(usize) -> Point,
-    keep: &mut [bool],
-    mut stack: Vec<(usize, usize)>,
-    tol: f64,
-) {
+    let at = |k: usize| pts[k % n];
+    let mut stack = vec![(0usize, far), (far, n)];
     while let Some((a, b)) = stack.pop() {
         if b <= a + 1 {
             continue;
@@ -1054,6 +842,7 @@ fn douglas_peucker(
             stack.push((best, b));
         }
     }
+    (0..n).filter(|&k| keep[k]).map(|k| pts[k]).collect()
 }
 
 /// Writes the plan at each level.
