@@ -35,6 +35,7 @@
 //!   path's warnings say where and how much. That happens today wherever a front meets a
 //!   wall (the pass runs along the wall into the corner the front makes with it: 90° to
 //!   180° whatever the step) and in necks (a slot): the bound is NOT yet held there.
+//! - The passes' runs of cuts go out fitted into lines and arcs within a quarter of a cell.
 
 use super::entry;
 use super::profile::cut;
@@ -915,7 +916,16 @@ impl Emit<'_> {
     fn level(&mut self, steps: &[Step], z: f64, z_top: f64) {
         let feed = self.c.feed;
         let ccw = self.c.climb;
+        let mut run: Vec<Point> = Vec::new();
         for s in steps {
+            if let Step::Cut { to } = s {
+                if run.is_empty() {
+                    run.push(self.at.xy());
+                }
+                run.push(*to);
+                continue;
+            }
+            self.cuts(&mut run, z);
             match s {
                 Step::Helix { c, rho } => {
                     let q = *c + Point::new(*rho, 0.0);
@@ -936,10 +946,8 @@ impl Emit<'_> {
                         self.down(z);
                     }
                 }
-                Step::Cut { to } => self.push(Move::Linear {
-                    to: P3::at_z(*to, z),
-                    feed,
-                }),
+                // gathered into the run above
+                Step::Cut { .. } => {}
                 Step::Wall { pl } => {
                     for seg in pl.segments() {
                         self.push(cut(seg, z, feed));
@@ -961,6 +969,26 @@ impl Emit<'_> {
                 }
             }
         }
+        self.cuts(&mut run, z);
+    }
+
+    /// A run of cuts at depth from its first point, fitted into lines and arcs within a
+    /// quarter of a planning cell (the passes are traced off the raster; every one keeps
+    /// 1.5 cells or more from the wall, so the fit cannot reach the part).
+    fn cuts(&mut self, run: &mut Vec<Point>, z: f64) {
+        if run.len() < 2 {
+            run.clear();
+            return;
+        }
+        let fit = crate::biarc::fit_points(
+            run,
+            false,
+            &crate::biarc::BiarcOptions::with_tolerance(self.g.h / 4.0),
+        );
+        for seg in fit.segments() {
+            self.push(cut(seg, z, self.c.feed));
+        }
+        run.clear();
     }
 
     /// The finishing pass at the full depth `z`: round each final wall, in from the

@@ -174,7 +174,7 @@ fn time_at_bound(tp: &Toolpath, worst: f64, feed: f64, max_feed: f64) -> (f64, f
 }
 
 #[test]
-#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): 45 s in the test profile, the slowest test of the workspace; run: cargo test --release -p offset-core --test it adaptive:: -- --ignored"]
+#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): about 200 s in the test profile, the slowest test of the workspace; run: cargo test -p offset-core --test it adaptive:: -- --ignored --nocapture"]
 fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_the_pocket() {
     let a = check("plate", &plate(), 2.0, 70.0);
     // the pocket at 40 %, simulated the same way, for the benchmark
