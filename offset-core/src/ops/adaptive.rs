@@ -47,7 +47,7 @@ use crate::offset::{offset_region, OffsetOptions};
 use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::{BTreeMap, BinaryHeap};
 
 /// The engagement bound when none is given, degrees.
 pub const DEFAULT_ENGAGEMENT: f64 = 70.0;
@@ -750,7 +750,9 @@ fn iso_lines(
     let i1 = (bbox[2] + 1).min(g.nx - 2);
     let j1 = (bbox[3] + 1).min(g.ny - 2);
     // edge ids: horizontal (i,j)-(i+1,j) 2k, vertical (i,j)-(i,j+1) 2k+1
-    let mut next: HashMap<usize, (usize, Point)> = HashMap::new();
+    // ordered, so each loop starts at the same edge in every run (the same job plans the
+    // same program twice)
+    let mut next: BTreeMap<usize, (usize, Point)> = BTreeMap::new();
     for j in j0..=j1 {
         for i in i0..=i1 {
             let c = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];

@@ -232,3 +232,23 @@ fn a_neck_just_wider_than_the_tool_is_cleared_without_a_gouge() {
         a.worst, a.worst_at.0
     );
 }
+
+#[test]
+fn the_same_shape_plans_the_same_program_twice() {
+    let shape = Shape::new(vec![
+        Polyline::rect(Point::new(0.0, 0.0), Point::new(30.0, 20.0)),
+        Polyline::circle(Point::new(11.5, 10.0), 2.5),
+    ]);
+    let p = AdaptiveParams {
+        cut: Cutting {
+            tool: Tool::flat(6.0),
+            depth: 1.0,
+            ..Cutting::default()
+        },
+        ..AdaptiveParams::default()
+    };
+    let a = adaptive(&shape, &p).unwrap();
+    let b = adaptive(&shape, &p).unwrap();
+    assert!(a.moves.len() > 100, "{} moves", a.moves.len());
+    assert_eq!(a.moves, b.moves, "two plans of one shape differ");
+}
