@@ -19,7 +19,8 @@ pub enum Op {
     /// Clear the inside of closed shapes, around their islands.
     Pocket,
     /// Clear the inside of closed shapes keeping the tool's engagement at or under
-    /// --engagement (adaptive clearing; docs/toolpaths.md).
+    /// --engagement (adaptive clearing; the bound is not yet held everywhere:
+    /// docs/toolpaths.md).
     Adaptive,
     /// Sew stitches along the shape (sewing machines).
     Stitch,
