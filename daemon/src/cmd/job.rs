@@ -4,7 +4,9 @@
 
 use machlink::core::intake::{Input, JobSpec, Operation};
 use offset_core::mesh::{Cutter, CutterShape, Finish3dParams, Rough3dParams, WaterlineParams};
-use offset_core::ops::{Cutting, Entry, PocketParams, ProfileParams, Side, Stepover};
+use offset_core::ops::{
+    AdaptiveParams, Cutting, Entry, PocketParams, ProfileParams, Side, Stepover,
+};
 use offset_core::stitch::StitchParams;
 use offset_core::Tool;
 use std::path::Path;
@@ -16,6 +18,10 @@ pub enum Op {
     Profile,
     /// Clear the inside of closed shapes, around their islands.
     Pocket,
+    /// Clear the inside of closed shapes keeping the tool's engagement at or under
+    /// --engagement (adaptive clearing; the bound is not yet held everywhere:
+    /// docs/toolpaths.md).
+    Adaptive,
     /// Sew stitches along the shape (sewing machines).
     Stitch,
     /// Drill the circles the tool's size (see --cycle); bore larger ones with a helix.
@@ -126,6 +132,14 @@ pub struct JobArgs {
     /// as the feed makes it at the step-over, up to --max-feed (docs/toolpaths.md).
     #[arg(long)]
     pub feed_control: bool,
+    /// Adaptive: the largest angle of the tool's circumference in the material, degrees
+    /// (10 to 180) [70].
+    #[arg(long, value_name = "DEG")]
+    pub engagement: Option<f64>,
+    /// Adaptive: leave 2 % of the tool diameter on the walls and take it in one last pass
+    /// round each wall at the full depth.
+    #[arg(long)]
+    pub finish_pass: bool,
     /// Feed control: the largest feed the machine runs, mm/min [5000].
     #[arg(long)]
     pub max_feed: Option<f64>,
@@ -284,6 +298,15 @@ impl JobArgs {
                 } else {
                     Operation::Pocket(pocket)
                 }
+            }
+            Op::Adaptive => {
+                let d = AdaptiveParams::default();
+                Operation::Adaptive(AdaptiveParams {
+                    cut: self.cutting(d.cut),
+                    engagement: self.engagement.unwrap_or(d.engagement),
+                    finish: self.finish_pass || d.finish,
+                    ..d
+                })
             }
             Op::Stitch => {
                 let d = StitchParams::default();

@@ -158,6 +158,8 @@ pub enum Operation {
     Profile(ProfileParams),
     /// Clear the inside of closed shapes, around their islands.
     Pocket(PocketParams),
+    /// Clear the inside of closed shapes keeping the tool's engagement under a bound.
+    Adaptive(offset_core::ops::AdaptiveParams),
     /// Pocket whose feed follows the simulated load (`--op pocket --feed-control`).
     PocketFeedControl(offset_core::cutsim::feed::FeedControlledPocket),
     /// Sew stitches along the shape.
@@ -178,6 +180,7 @@ impl Operation {
         match self {
             Operation::Profile(_) => "profile",
             Operation::Pocket(_) | Operation::PocketFeedControl(_) => "pocket",
+            Operation::Adaptive(_) => "adaptive",
             Operation::Stitch(_) => "stitch",
             Operation::Drill(_) => "drill",
             Operation::Rough3d(_) => "rough3d",
@@ -455,7 +458,7 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
 pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> {
     let Some(op) = &spec.operation else {
         return Err(IntakeError::Input(format!(
-            "{} is a shape file: say which operation to plan (--op profile, pocket or stitch)",
+            "{} is a shape file: say which operation to plan (--op profile, pocket, adaptive or stitch)",
             spec.input.file_name
         )));
     };
@@ -471,6 +474,16 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
             p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
             offset_core::ops::pocket(shape, &p)
                 .map_err(|e| format!("cannot plan the pocket: {}", crossing_named(spec, e)))
+        }
+        Operation::Adaptive(p) => {
+            let mut p = p.clone();
+            p.cut.tolerance = spec.tolerance.unwrap_or(p.cut.tolerance);
+            offset_core::ops::adaptive(shape, &p).map_err(|e| {
+                format!(
+                    "cannot plan the adaptive clearing: {}",
+                    crossing_named(spec, e)
+                )
+            })
         }
         Operation::PocketFeedControl(p) => {
             let mut p = p.clone();
@@ -711,6 +724,7 @@ pub mod recipe {
         let own = match &op.operation {
             Operation::Profile(p) => p.cut.tool,
             Operation::Pocket(p) => p.cut.tool,
+            Operation::Adaptive(p) => p.cut.tool,
             Operation::Drill(p) => p.tool,
             Operation::Stitch(_) => Tool {
                 number: 1,
@@ -719,7 +733,7 @@ pub mod recipe {
             },
             other => {
                 return Err(IntakeError::Input(format!(
-                    "operation {} ({}) plans meshes; a job of operations takes profile, pocket, drill and stitch",
+                    "operation {} ({}) plans meshes; a job of operations takes profile, pocket, adaptive, drill and stitch",
                     i + 1,
                     other.name()
                 )))
@@ -1024,6 +1038,10 @@ pub mod recipe {
             Operation::Pocket(mut p) => {
                 p.cut.tool = tool;
                 Operation::Pocket(p)
+            }
+            Operation::Adaptive(mut p) => {
+                p.cut.tool = tool;
+                Operation::Adaptive(p)
             }
             Operation::Drill(mut p) => {
                 p.tool = tool;

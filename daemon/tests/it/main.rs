@@ -6,6 +6,7 @@
 mod common;
 mod proc;
 
+mod adaptive_cli;
 mod cli;
 mod cli_3d;
 mod cli_access;

@@ -35,6 +35,7 @@
 //!   path's warnings say where and how much. That happens today wherever a front meets a
 //!   wall (the pass runs along the wall into the corner the front makes with it: 90° to
 //!   180° whatever the step) and in necks (a slot): the bound is NOT yet held there.
+//! - The passes' runs of cuts go out fitted into lines and arcs within a quarter of a cell.
 
 use super::entry;
 use super::profile::cut;
@@ -46,7 +47,7 @@ use crate::offset::{offset_region, OffsetOptions};
 use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::{BTreeMap, BinaryHeap};
 
 /// The engagement bound when none is given, degrees.
 pub const DEFAULT_ENGAGEMENT: f64 = 70.0;
@@ -749,7 +750,9 @@ fn iso_lines(
     let i1 = (bbox[2] + 1).min(g.nx - 2);
     let j1 = (bbox[3] + 1).min(g.ny - 2);
     // edge ids: horizontal (i,j)-(i+1,j) 2k, vertical (i,j)-(i,j+1) 2k+1
-    let mut next: HashMap<usize, (usize, Point)> = HashMap::new();
+    // ordered, so each loop starts at the same edge in every run (the same job plans the
+    // same program twice)
+    let mut next: BTreeMap<usize, (usize, Point)> = BTreeMap::new();
     for j in j0..=j1 {
         for i in i0..=i1 {
             let c = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
@@ -915,7 +918,16 @@ impl Emit<'_> {
     fn level(&mut self, steps: &[Step], z: f64, z_top: f64) {
         let feed = self.c.feed;
         let ccw = self.c.climb;
+        let mut run: Vec<Point> = Vec::new();
         for s in steps {
+            if let Step::Cut { to } = s {
+                if run.is_empty() {
+                    run.push(self.at.xy());
+                }
+                run.push(*to);
+                continue;
+            }
+            self.cuts(&mut run, z);
             match s {
                 Step::Helix { c, rho } => {
                     let q = *c + Point::new(*rho, 0.0);
@@ -936,10 +948,8 @@ impl Emit<'_> {
                         self.down(z);
                     }
                 }
-                Step::Cut { to } => self.push(Move::Linear {
-                    to: P3::at_z(*to, z),
-                    feed,
-                }),
+                // gathered into the run above
+                Step::Cut { .. } => {}
                 Step::Wall { pl } => {
                     for seg in pl.segments() {
                         self.push(cut(seg, z, feed));
@@ -961,6 +971,26 @@ impl Emit<'_> {
                 }
             }
         }
+        self.cuts(&mut run, z);
+    }
+
+    /// A run of cuts at depth from its first point, fitted into lines and arcs within a
+    /// quarter of a planning cell (the passes are traced off the raster; every one keeps
+    /// 1.5 cells or more from the wall, so the fit cannot reach the part).
+    fn cuts(&mut self, run: &mut Vec<Point>, z: f64) {
+        if run.len() < 2 {
+            run.clear();
+            return;
+        }
+        let fit = crate::biarc::fit_points(
+            run,
+            false,
+            &crate::biarc::BiarcOptions::with_tolerance(self.g.h / 4.0),
+        );
+        for seg in fit.segments() {
+            self.push(cut(seg, z, self.c.feed));
+        }
+        run.clear();
     }
 
     /// The finishing pass at the full depth `z`: round each final wall, in from the

@@ -174,7 +174,7 @@ fn time_at_bound(tp: &Toolpath, worst: f64, feed: f64, max_feed: f64) -> (f64, f
 }
 
 #[test]
-#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): 45 s in the test profile, the slowest test of the workspace; run: cargo test --release -p offset-core --test it adaptive:: -- --ignored"]
+#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): about 200 s in the test profile, the slowest test of the workspace; run: cargo test -p offset-core --test it adaptive:: -- --ignored --nocapture"]
 fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_the_pocket() {
     let a = check("plate", &plate(), 2.0, 70.0);
     // the pocket at 40 %, simulated the same way, for the benchmark
@@ -231,4 +231,24 @@ fn a_neck_just_wider_than_the_tool_is_cleared_without_a_gouge() {
         "neck: worst level cut {:.1}° at {:?}",
         a.worst, a.worst_at.0
     );
+}
+
+#[test]
+fn the_same_shape_plans_the_same_program_twice() {
+    let shape = Shape::new(vec![
+        Polyline::rect(Point::new(0.0, 0.0), Point::new(30.0, 20.0)),
+        Polyline::circle(Point::new(11.5, 10.0), 2.5),
+    ]);
+    let p = AdaptiveParams {
+        cut: Cutting {
+            tool: Tool::flat(6.0),
+            depth: 1.0,
+            ..Cutting::default()
+        },
+        ..AdaptiveParams::default()
+    };
+    let a = adaptive(&shape, &p).unwrap();
+    let b = adaptive(&shape, &p).unwrap();
+    assert!(a.moves.len() > 100, "{} moves", a.moves.len());
+    assert_eq!(a.moves, b.moves, "two plans of one shape differ");
 }
