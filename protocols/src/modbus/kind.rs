@@ -7,6 +7,7 @@ use super::post::{post_blocks, ModbusPost};
 use crate::kind::{started, Joined, MachineKind, OpenLink};
 use crate::link::{Link, LinkError};
 use crate::post::{PostError, PostFor};
+use crate::program::Units;
 use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -230,9 +231,9 @@ impl<T: RingTransport> MachineKind for ModbusKind<T> {
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
     }
-    fn estimate(&self, _s: &Self::Settings, blocks: &[MotionBlock]) -> Option<f64> {
+    fn estimate(&self, _s: &Self::Settings, blocks: Units<'_, MotionBlock>) -> Option<f64> {
         Some(crate::estimate::blocks_seconds(
-            blocks,
+            &blocks.to_vec().ok()?,
             crate::estimate::RAPID,
         ))
     }

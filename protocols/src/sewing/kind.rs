@@ -6,6 +6,7 @@ use super::{dst, jef, records, RecordLimits, StitchRecord};
 use crate::kind::{started, MachineKind, OpenLink};
 use crate::link::Link;
 use crate::post::{Post, PostError, PostFor};
+use crate::program::Units;
 use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -104,7 +105,7 @@ impl MachineKind for SewingKind {
     fn check(&self, s: &SewingSettings) -> Result<(), String> {
         check_port(&s.port, s.baud)
     }
-    fn estimate(&self, _s: &SewingSettings, stitches: &[StitchRecord]) -> Option<f64> {
+    fn estimate(&self, _s: &SewingSettings, stitches: Units<'_, StitchRecord>) -> Option<f64> {
         Some(crate::estimate::stitches_seconds(
             stitches.len(),
             crate::estimate::SPM,
