@@ -95,7 +95,8 @@ pub fn default_sewing_silent_timeout() -> f64 {
 /// timeouts as fit in it.
 pub fn sewing_timing(silent_timeout_s: f64) -> SewingTiming {
     let t = SewingTiming::default();
-    let attempts = (silent_timeout_s / t.reply_timeout.as_secs_f64()).ceil();
+    // (less a nanosecond's worth: 6 s / 150 ms is 40 attempts, not 41 by rounding)
+    let attempts = (silent_timeout_s / t.reply_timeout.as_secs_f64() - 1e-6).ceil();
     SewingTiming {
         attempts: attempts.clamp(1.0, u32::MAX as f64) as u32,
         ..t
@@ -166,6 +167,11 @@ mod tests {
         assert_eq!(
             ok.get::<super::SewingSettings>().unwrap().silent_timeout_s,
             6.0
+        );
+        assert_eq!(
+            super::sewing_timing(6.0),
+            super::SewingTiming::default(),
+            "the default silence is the link's own 40 attempts"
         );
         let t = super::sewing_timing(30.0);
         let patience = t.reply_timeout * t.attempts;
