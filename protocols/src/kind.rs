@@ -11,7 +11,7 @@ use crate::link::{
     ResumePlan, SendJournal, StreamEnd,
 };
 use crate::post::{AnyPost, Post, PostError, PostFor};
-use crate::program::{Program, Unit};
+use crate::program::{Program, Unit, UnitPages, Units};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
 use serde::de::{self, DeserializeOwned, Deserializer, Visitor};
@@ -89,12 +89,12 @@ pub trait MachineKind: Send + Sync + 'static {
     fn resume_plan(
         &self,
         _settings: &Self::Settings,
-        units: &[Self::Unit],
+        units: Units<'_, Self::Unit>,
         from: usize,
     ) -> Result<ResumePlan, String> {
         Ok(ResumePlan {
             from,
-            steps: vec![match units.get(from) {
+            steps: vec![match units.get(from).ok() {
                 Some(u) => format!(
                     "the machine continues at unit {} ({}) from where it stands",
                     from + 1,
@@ -107,7 +107,7 @@ pub trait MachineKind: Send + Sync + 'static {
     }
     /// How long the machine takes to run `units`, for the ETA; None when the kind cannot
     /// tell.
-    fn estimate(&self, _settings: &Self::Settings, _units: &[Self::Unit]) -> Option<f64> {
+    fn estimate(&self, _settings: &Self::Settings, _units: Units<'_, Self::Unit>) -> Option<f64> {
         None
     }
 }
@@ -160,8 +160,8 @@ impl<U: Unit> MachineLink for TypedLink<U> {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
-        match program.units::<U>() {
-            Some(units) => self.0.stream(units, from, events, control),
+        match program.view::<U>() {
+            Some(units) => self.0.stream_units(units, from, events, control),
             None => foreign(program),
         }
     }
@@ -175,8 +175,8 @@ impl<U: Unit> MachineLink for TypedLink<U> {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
-        match program.units::<U>() {
-            Some(units) => self.0.reattach(units, handed, events, control),
+        match program.view::<U>() {
+            Some(units) => self.0.reattach_units(units, handed, events, control),
             None => foreign(program),
         }
     }
@@ -232,6 +232,8 @@ pub trait AnyKind: Send + Sync {
     fn posts(&self) -> Vec<Arc<dyn AnyPost>>;
     /// A stored program's units read back.
     fn decode(&self, post: &str, units_json: &str) -> Result<Program, serde_json::Error>;
+    /// A stored program whose units stay where they are kept, read back page by page.
+    fn decode_pages(&self, post: &str, pages: Arc<dyn UnitPages>) -> Program;
     /// A G-code program handed in as it is; None when the kind takes none.
     fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>>;
     /// See [`MachineKind::gcode_lines_are_units`].
@@ -283,7 +285,7 @@ impl<U: Unit> AnyPost for ErasedPost<U> {
         Ok(Program::new(self.0.name(), self.0.units(tp)?))
     }
     fn file(&self, program: &Program, label: &str) -> Result<Vec<u8>, PostError> {
-        let units = program.units::<U>().ok_or_else(|| {
+        let units = program.view::<U>().ok_or_else(|| {
             PostError::new(
                 self.0.name(),
                 format!(
@@ -293,7 +295,10 @@ impl<U: Unit> AnyPost for ErasedPost<U> {
                 ),
             )
         })?;
-        self.0.file(units, label)
+        let units = units
+            .to_vec()
+            .map_err(|e| PostError::new(self.0.name(), e.to_string()))?;
+        self.0.file(&units, label)
     }
 }
 
@@ -335,6 +340,9 @@ impl<K: MachineKind> AnyKind for K {
     }
     fn decode(&self, post: &str, units_json: &str) -> Result<Program, serde_json::Error> {
         Program::from_json::<K::Unit>(post, units_json)
+    }
+    fn decode_pages(&self, post: &str, pages: Arc<dyn UnitPages>) -> Program {
+        Program::paged::<K::Unit>(post, pages)
     }
     fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>> {
         self.gcode_units(lines, moves)
@@ -386,7 +394,7 @@ impl<K: MachineKind> AnyKind for K {
                 MachineKind::link(self)
             )
         })?;
-        let units = program.units::<K::Unit>().ok_or_else(|| {
+        let units = program.view::<K::Unit>().ok_or_else(|| {
             format!(
                 "this machine cannot run a program made by the {} post",
                 program.post()
@@ -396,7 +404,7 @@ impl<K: MachineKind> AnyKind for K {
     }
     fn estimate(&self, settings: &KindSettings, program: &Program) -> Option<f64> {
         let s = settings.get::<K::Settings>()?;
-        let units = program.units::<K::Unit>()?;
+        let units = program.view::<K::Unit>()?;
         MachineKind::estimate(self, s, units).filter(|t| t.is_finite() && *t >= 0.0)
     }
 }

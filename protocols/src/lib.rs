@@ -27,7 +27,7 @@ pub use link::{
     OperatorReason, Overrides, Reattach, ResumePlan, SendJournal, StreamEnd,
 };
 pub use post::{AnyPost, Post, PostError};
-pub use program::{Program, Unit};
+pub use program::{Paged, Program, Unit, UnitPages, Units, UnitsError};
 
 /// Registers the machine kinds of real devices (grbl, modbus-tcp, modbus-rtu, sewing, canopen), their
 /// posts, and the posts no kind runs (linuxcnc, generic).

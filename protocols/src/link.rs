@@ -1,6 +1,7 @@
 //! The link contract: how the daemon streams a program's units to a device, steers it, and
 //! hears back, in typed words (states, events, errors) that no caller has to parse.
 
+use crate::program::{Unit, Units};
 use futures::future::BoxFuture;
 use serde::{Deserialize, Serialize};
 use tokio::sync::{mpsc, watch};
@@ -194,6 +195,9 @@ pub enum LinkError {
     /// than hand the device units a restart could not account for.
     #[error("cannot journal the program's progress: {0}")]
     Journal(String),
+    /// The program's units could not be read where they are kept (the daemon's store).
+    #[error("{0}")]
+    Program(#[from] crate::program::UnitsError),
 }
 
 impl LinkError {
@@ -403,7 +407,13 @@ pub struct ResumePlan {
 /// Only `stream` is required. The other operations have defaults that refuse with a reason
 /// (or, for `reattach`, fall back on the journal), so a kind that cannot do one says so and
 /// the daemon passes the sentence on; it never asks which kind it talks to.
-pub trait Link<U>: Send {
+///
+/// The daemon streams through [`Link::stream_units`] and [`Link::reattach_units`], which
+/// take the program wherever it is kept ([`Units`]: in memory, or page by page from the
+/// store). A link whose programs can be long (GRBL: G-code files of millions of lines)
+/// reads them there a page at a time; the defaults take every unit into memory first and
+/// call `stream` and `reattach`, which suits devices that take the whole program at once.
+pub trait Link<U: Unit>: Send {
     /// Streams `units` from unit `from` on, reporting progress on `events` and obeying
     /// `control`, until every unit is executed, the stream is cancelled, or it fails.
     fn stream<'a>(
@@ -413,6 +423,36 @@ pub trait Link<U>: Send {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>>;
+
+    /// [`Link::stream`] of a program wherever it is kept. The default reads every unit into
+    /// memory first.
+    fn stream_units<'a>(
+        &'a mut self,
+        units: Units<'a, U>,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        Box::pin(async move {
+            let all = units.to_vec()?;
+            self.stream(&all, from, events, control).await
+        })
+    }
+
+    /// [`Link::reattach`] of a program wherever it is kept. The default reads every unit
+    /// into memory first.
+    fn reattach_units<'a>(
+        &'a mut self,
+        units: Units<'a, U>,
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(async move {
+            let all = units.to_vec()?;
+            self.reattach(&all, handed, events, control).await
+        })
+    }
 
     /// Asks the device what it is doing, without disturbing it (no reset, no motion): the
     /// daemon's first question after it (re)connects, and its poll while no job runs.

@@ -64,7 +64,7 @@ impl<P: Post> AnyPost for P {
         Ok(Program::new(Post::name(self), self.units(tp)?))
     }
     fn file(&self, program: &Program, label: &str) -> Result<Vec<u8>, PostError> {
-        let units = program.units::<P::Unit>().ok_or_else(|| {
+        let units = program.view::<P::Unit>().ok_or_else(|| {
             PostError::new(
                 Post::name(self),
                 format!(
@@ -74,7 +74,10 @@ impl<P: Post> AnyPost for P {
                 ),
             )
         })?;
-        Post::file(self, units, label)
+        let units = units
+            .to_vec()
+            .map_err(|e| PostError::new(Post::name(self), e.to_string()))?;
+        Post::file(self, &units, label)
     }
 }
 

@@ -19,7 +19,7 @@ use machlink_protocols::modbus::{MotionBlock, Transport};
 use machlink_protocols::post::{PostError, PostFor};
 use machlink_protocols::sewing::kind::{open_sewing, stitch_posts};
 use machlink_protocols::sewing::StitchRecord;
-use machlink_protocols::ResumePlan;
+use machlink_protocols::{ResumePlan, Units};
 use offset_core::Toolpath;
 use serde::{Deserialize, Serialize};
 
@@ -121,12 +121,12 @@ impl MachineKind for SimGrblKind {
     fn resume_plan(
         &self,
         s: &SimGrblSettings,
-        lines: &[String],
+        lines: Units<'_, String>,
         from: usize,
     ) -> Result<ResumePlan, String> {
         grbl_resume_plan(lines, from, s.spindle_dwell_s)
     }
-    fn estimate(&self, s: &SimGrblSettings, lines: &[String]) -> Option<f64> {
+    fn estimate(&self, s: &SimGrblSettings, lines: Units<'_, String>) -> Option<f64> {
         gcode_time(lines, ESTIMATE_RAPID).map(|t| t / s.time_scale)
     }
 }
@@ -174,7 +174,7 @@ impl MachineKind for SimSewingKind {
     fn posts(&self) -> Vec<PostFor<StitchRecord>> {
         stitch_posts()
     }
-    fn estimate(&self, s: &SimSewingSettings, stitches: &[StitchRecord]) -> Option<f64> {
+    fn estimate(&self, s: &SimSewingSettings, stitches: Units<'_, StitchRecord>) -> Option<f64> {
         let t = machlink_protocols::estimate::stitches_seconds(stitches.len(), s.spm as f64);
         Some(t / s.time_scale)
     }
@@ -247,9 +247,9 @@ impl MachineKind for SimModbusKind {
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
     }
-    fn estimate(&self, s: &SimModbusSettings, blocks: &[MotionBlock]) -> Option<f64> {
+    fn estimate(&self, s: &SimModbusSettings, blocks: Units<'_, MotionBlock>) -> Option<f64> {
         let t = machlink_protocols::estimate::blocks_seconds(
-            blocks,
+            &blocks.to_vec().ok()?,
             machlink_protocols::estimate::RAPID,
         );
         Some(t / s.time_scale)

@@ -12,7 +12,7 @@
 //! for the disk; a thread of its own checkpoints the write-ahead log, so no fsync stalls a
 //! stream.
 
-use machlink_protocols::Program;
+use machlink_protocols::{Program, UnitPages};
 use rusqlite::{params, Connection, OptionalExtension};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -138,33 +138,184 @@ pub struct NewJob {
     pub program: Program,
 }
 
-/// A new job whose program is already in the store's form: the post's name and the units as
-/// a JSON array (what `AnyKind::decode` reads back), with their count.
-#[derive(Clone, Debug)]
+/// A new job whose program is already in the store's pages (a G-code file written page by
+/// page as it streamed in, [`Store::page_writer`]).
+#[derive(Debug)]
 pub struct NewJobUnits {
     pub machine: String,
     pub op: String,
     pub file_name: String,
     pub params: serde_json::Value,
+    /// The post that made the units.
     pub post: String,
-    pub units_json: String,
-    pub total_units: usize,
+    pub pages: PageSet,
 }
 
+/// Units a program is stored in a page of: a page of G-code lines is some 20 KB of JSON,
+/// and a link holds two pages at a time.
+pub const PAGE_UNITS: usize = 1024;
+
 /// A program as the store holds it.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct StoredProgram {
     /// The post that made it (`grbl`, `dst`, …, or `gcode-file`).
     pub post: String,
-    /// Its units, a JSON array.
-    pub units: String,
+    pub units: StoredUnits,
+}
+
+/// Where a stored program's units are.
+#[derive(Clone, Debug)]
+pub enum StoredUnits {
+    /// All of them, one JSON array (a store written before programs were paged).
+    Whole(String),
+    /// In pages of [`PAGE_UNITS`], each read when a link comes to it.
+    Pages(Arc<StorePages>),
 }
 
 impl StoredProgram {
-    /// The program, read back by the kind of machine it was made for.
+    /// The program, read back by the kind of machine it was made for: a paged program stays
+    /// in the store, and is read a page at a time.
     pub fn decode(&self, kind: &dyn machlink_protocols::AnyKind) -> Result<Program, StoreError> {
-        kind.decode(&self.post, &self.units)
-            .map_err(|e| StoreError::Corrupt(format!("a stored {} program: {e}", self.post)))
+        match &self.units {
+            StoredUnits::Whole(json) => kind
+                .decode(&self.post, json)
+                .map_err(|e| StoreError::Corrupt(format!("a stored {} program: {e}", self.post))),
+            StoredUnits::Pages(p) => Ok(kind.decode_pages(&self.post, p.clone())),
+        }
+    }
+}
+
+/// A program's pages in the store, read one at a time.
+#[derive(Clone)]
+pub struct StorePages {
+    store: Store,
+    set: i64,
+    units: usize,
+}
+
+impl std::fmt::Debug for StorePages {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "page set {} ({} units)", self.set, self.units)
+    }
+}
+
+impl UnitPages for StorePages {
+    fn len(&self) -> usize {
+        self.units
+    }
+    fn page_len(&self) -> usize {
+        PAGE_UNITS
+    }
+    fn page(&self, k: usize) -> Result<Vec<u8>, String> {
+        self.store
+            .conn()
+            .query_row(
+                "SELECT units FROM program_pages WHERE page_set = ?1 AND page = ?2",
+                params![self.set, k as i64],
+                |r| text_or_blob(r.get_ref(0)?),
+            )
+            .optional()
+            .map_err(|e| format!("the job store failed: {e}"))?
+            .map(String::into_bytes)
+            .ok_or_else(|| format!("page {k} of the stored program is missing"))
+    }
+}
+
+/// A program's units as they are written to the store, a page at a time; what is written
+/// so far is deleted if it is dropped unfinished (a refused upload).
+pub struct PageWriter {
+    store: Store,
+    set: i64,
+    /// The page being filled, a JSON array still open.
+    page: Vec<u8>,
+    in_page: usize,
+    pages: usize,
+    units: usize,
+    finished: bool,
+}
+
+/// A finished set of pages: a program's units in the store, not yet any job's.
+#[derive(Debug)]
+pub struct PageSet {
+    set: i64,
+    units: usize,
+}
+
+impl PageSet {
+    /// Units in the set.
+    pub fn units(&self) -> usize {
+        self.units
+    }
+}
+
+impl PageWriter {
+    /// Appends one unit, given as its JSON.
+    pub fn push_json(&mut self, unit: &[u8]) -> Result<(), StoreError> {
+        self.page.push(if self.in_page == 0 { b'[' } else { b',' });
+        self.page.extend_from_slice(unit);
+        self.in_page += 1;
+        self.units += 1;
+        if self.in_page == PAGE_UNITS {
+            self.flush()?;
+        }
+        Ok(())
+    }
+
+    /// Appends a whole page: `json` is the array of its `units` units (a page of
+    /// [`PAGE_UNITS`], or fewer for the last), as [`Program::page_json`] writes them.
+    fn push_page(&mut self, json: &str, units: usize) -> Result<(), StoreError> {
+        self.flush()?;
+        self.insert(json.as_bytes())?;
+        self.units += units;
+        Ok(())
+    }
+
+    /// Units written so far.
+    pub fn units(&self) -> usize {
+        self.units
+    }
+
+    fn insert(&mut self, page: &[u8]) -> Result<(), StoreError> {
+        self.store.conn().execute(
+            "INSERT INTO program_pages (page_set, page, units) VALUES (?1, ?2, ?3)",
+            params![self.set, self.pages as i64, page],
+        )?;
+        self.pages += 1;
+        Ok(())
+    }
+
+    /// Writes the page being filled.
+    fn flush(&mut self) -> Result<(), StoreError> {
+        if self.in_page == 0 {
+            return Ok(());
+        }
+        let mut page = std::mem::take(&mut self.page);
+        page.push(b']');
+        self.insert(&page)?;
+        page.clear();
+        self.page = page;
+        self.in_page = 0;
+        Ok(())
+    }
+
+    /// The pages, for [`NewJobUnits`].
+    pub fn finish(mut self) -> Result<PageSet, StoreError> {
+        self.flush()?;
+        self.finished = true;
+        Ok(PageSet {
+            set: self.set,
+            units: self.units,
+        })
+    }
+}
+
+impl Drop for PageWriter {
+    fn drop(&mut self) {
+        if !self.finished {
+            let conn = self.store.conn();
+            let _ = conn.execute("DELETE FROM program_pages WHERE page_set = ?1", [self.set]);
+            let _ = conn.execute("DELETE FROM page_sets WHERE id = ?1", [self.set]);
+        }
     }
 }
 
@@ -395,6 +546,16 @@ CREATE TABLE IF NOT EXISTS journal (
     detail      TEXT
 );
 CREATE INDEX IF NOT EXISTS journal_job ON journal(job_id);
+CREATE TABLE IF NOT EXISTS page_sets (
+    id         INTEGER PRIMARY KEY AUTOINCREMENT,
+    created_ms INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS program_pages (
+    page_set INTEGER NOT NULL REFERENCES page_sets(id),
+    page     INTEGER NOT NULL,
+    units    BLOB    NOT NULL, -- a JSON array of up to PAGE_UNITS units
+    PRIMARY KEY (page_set, page)
+);
 ";
 
 /// Now, in Unix milliseconds.
@@ -510,25 +671,46 @@ impl Store {
         self.conn.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    /// Inserts a queued job and its program in one transaction; returns its id.
+    /// Inserts a queued job and its program (written in pages first); returns its id.
     pub fn insert_job(&self, job: &NewJob) -> Result<JobId, StoreError> {
-        let units = job
-            .program
-            .to_json()
-            .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
+        let mut w = self.page_writer()?;
+        let n = job.program.len();
+        for at in (0..n).step_by(PAGE_UNITS) {
+            let end = (at + PAGE_UNITS).min(n);
+            let json = job
+                .program
+                .page_json(at..end)
+                .map_err(|e| StoreError::Corrupt(format!("cannot encode the program: {e}")))?;
+            w.push_page(&json, end - at)?;
+        }
         self.insert_job_units(&NewJobUnits {
             machine: job.machine.clone(),
             op: job.op.clone(),
             file_name: job.file_name.clone(),
             params: job.params.clone(),
             post: job.program.post().to_string(),
-            units_json: units,
-            total_units: job.program.len(),
+            pages: w.finish()?,
         })
     }
 
-    /// Inserts a queued job whose program comes as the store keeps it (a G-code file whose
-    /// units were written as it streamed in), in one transaction; returns its id.
+    /// A writer of a new program's pages, for [`Store::insert_job_units`].
+    pub fn page_writer(&self) -> Result<PageWriter, StoreError> {
+        let conn = self.conn();
+        conn.execute("INSERT INTO page_sets (created_ms) VALUES (?1)", [now_ms()])?;
+        let set = conn.last_insert_rowid();
+        Ok(PageWriter {
+            store: self.clone(),
+            set,
+            page: Vec::new(),
+            in_page: 0,
+            pages: 0,
+            units: 0,
+            finished: false,
+        })
+    }
+
+    /// Inserts a queued job whose program is in the store's pages already (a G-code file
+    /// whose units were written as it streamed in), in one transaction; returns its id.
     pub fn insert_job_units(&self, job: &NewJobUnits) -> Result<JobId, StoreError> {
         let mut conn = self.conn();
         let tx = conn.transaction()?;
@@ -541,23 +723,15 @@ impl Store {
                 job.file_name,
                 job.params.to_string(),
                 now_ms(),
-                job.total_units as i64
+                job.pages.units as i64
             ],
         )?;
         let id = tx.last_insert_rowid();
-        // the units are written into a blob of their size, page by page: no copy of a large
-        // program is made on the way into the store
+        // the units stay in their pages: the program's row names them
         tx.execute(
-            "INSERT INTO programs (job_id, kind, units) VALUES (?1, ?2, zeroblob(?3))",
-            params![id, job.post, job.units_json.len() as i64],
+            "INSERT INTO programs (job_id, kind, units, page_set, page_units) VALUES (?1, ?2, '', ?3, ?4)",
+            params![id, job.post, job.pages.set, job.pages.units as i64],
         )?;
-        {
-            use std::io::Write;
-            let mut blob = tx.blob_open(rusqlite::MAIN_DB, "programs", "units", id, false)?;
-            blob.write_all(job.units_json.as_bytes()).map_err(|e| {
-                StoreError::Corrupt(format!("cannot write job {id}'s program: {e}"))
-            })?;
-        }
         tx.execute(
             "INSERT INTO journal (job_id, at_ms, event, acked_units) VALUES (?1, ?2, 'queued', 0)",
             params![id, now_ms()],
@@ -611,15 +785,27 @@ impl Store {
     /// A job's program as stored: the post that made it and its units as JSON, for the
     /// machine's kind to read back (`AnyKind::decode`).
     pub fn program(&self, id: JobId) -> Result<StoredProgram, StoreError> {
-        let (post, units): (String, String) = self
+        let (post, set, count): (String, Option<i64>, i64) = self
             .conn()
             .query_row(
-                "SELECT kind, units FROM programs WHERE job_id = ?1",
+                "SELECT kind, page_set, page_units FROM programs WHERE job_id = ?1",
                 [id],
-                |r| Ok((r.get(0)?, text_or_blob(r.get_ref(1)?)?)),
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
             )
             .optional()?
             .ok_or_else(|| StoreError::Corrupt(format!("job {id} has no program")))?;
+        let units = match set {
+            Some(set) => StoredUnits::Pages(Arc::new(StorePages {
+                store: self.clone(),
+                set,
+                units: count.max(0) as usize,
+            })),
+            None => StoredUnits::Whole(self.conn().query_row(
+                "SELECT units FROM programs WHERE job_id = ?1",
+                [id],
+                |r| text_or_blob(r.get_ref(0)?),
+            )?),
+        };
         Ok(StoredProgram { post, units })
     }
 
@@ -896,8 +1082,27 @@ pub fn eta_ms(
     }
 }
 
-/// Adds the columns a store written by an older daemon lacks.
+/// Adds the columns a store written by an older daemon lacks, and drops the pages of
+/// programs that never became a job (an upload the daemon stopped in).
 fn migrate(conn: &Connection) -> rusqlite::Result<()> {
+    let mut st = conn.prepare("PRAGMA table_info(programs)")?;
+    let have: Vec<String> = st
+        .query_map([], |r| r.get::<_, String>(1))?
+        .collect::<Result<_, _>>()?;
+    for (col, def) in [
+        ("page_set", "INTEGER REFERENCES page_sets(id)"),
+        ("page_units", "INTEGER NOT NULL DEFAULT 0"),
+    ] {
+        if !have.iter().any(|h| h == col) {
+            conn.execute_batch(&format!("ALTER TABLE programs ADD COLUMN {col} {def}"))?;
+        }
+    }
+    conn.execute_batch(
+        "DELETE FROM program_pages WHERE page_set NOT IN
+             (SELECT page_set FROM programs WHERE page_set IS NOT NULL);
+         DELETE FROM page_sets WHERE id NOT IN
+             (SELECT page_set FROM programs WHERE page_set IS NOT NULL);",
+    )?;
     let mut st = conn.prepare("PRAGMA table_info(jobs)")?;
     let have: Vec<String> = st
         .query_map([], |r| r.get::<_, String>(1))?

@@ -86,11 +86,16 @@ pub struct UnitPath {
     pub bounds: [f64; 4],
 }
 
+/// Every unit of `program` as type `U`, read from its pages if it is kept in the store.
+fn all_units<U: machlink_protocols::Unit>(program: &Program) -> Option<Vec<U>> {
+    program.view::<U>()?.to_vec().ok()
+}
+
 /// The move each unit of `program` makes (None: it does not move, as a spindle word or a
 /// trim), for the program units this daemon's posts make: G-code lines, motion blocks,
 /// stitch records and CANopen moves. None for a unit type it does not know.
 pub fn unit_moves(program: &Program) -> Option<Vec<Option<Move>>> {
-    if let Some(lines) = program.units::<String>() {
+    if let Some(lines) = all_units::<String>(program) {
         let mut reader = machlink_protocols::gcode_read::Reader::default();
         return Some(
             lines
@@ -99,7 +104,7 @@ pub fn unit_moves(program: &Program) -> Option<Vec<Option<Move>>> {
                 .collect(),
         );
     }
-    if let Some(records) = program.units::<StitchRecord>() {
+    if let Some(records) = all_units::<StitchRecord>(program) {
         return Some(
             records
                 .iter()
@@ -111,10 +116,10 @@ pub fn unit_moves(program: &Program) -> Option<Vec<Option<Move>>> {
                 .collect(),
         );
     }
-    if let Some(moves) = program.units::<Move>() {
+    if let Some(moves) = all_units::<Move>(program) {
         return Some(moves.iter().cloned().map(Some).collect());
     }
-    let blocks = program.units::<MotionBlock>()?;
+    let blocks = all_units::<MotionBlock>(program)?;
     let mut at = P3::default();
     Some(
         blocks

@@ -139,6 +139,7 @@ impl Metrics {
             LinkError::Protocol(_) => "protocol",
             LinkError::Unsupported(_) => "unsupported",
             LinkError::Journal(_) => "journal",
+            LinkError::Program(_) => "program",
         };
         let m = machine.to_string();
         self.record(|| counter!(name::LINK_ERRORS, "machine" => m, "error" => kind).increment(1));

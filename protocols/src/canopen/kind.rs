@@ -9,7 +9,7 @@ use super::trajectory::AxisLimits;
 use crate::kind::{started, Joined, MachineKind};
 use crate::link::{Link, LinkError};
 use crate::post::{Post, PostError, PostFor};
-use crate::program::Unit;
+use crate::program::{Unit, Units};
 use futures::future::BoxFuture;
 use offset_core::{Move, Toolpath};
 use serde::{Deserialize, Serialize};
@@ -343,9 +343,9 @@ impl MachineKind for CanopenKind {
     fn keys(&self) -> Vec<&'static str> {
         CanopenSettings::keys()
     }
-    fn estimate(&self, _s: &CanopenSettings, moves: &[Move]) -> Option<f64> {
+    fn estimate(&self, _s: &CanopenSettings, moves: Units<'_, Move>) -> Option<f64> {
         Some(crate::estimate::moves_seconds(
-            moves,
+            &moves.to_vec().ok()?,
             crate::estimate::RAPID,
         ))
     }

@@ -8,6 +8,7 @@ use crate::link::{
     Control, DeviceState, Handed, LinkError, LinkEvent, Operation, OperatorReason, Overrides,
     Reattach,
 };
+use crate::program::Units;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
@@ -23,7 +24,7 @@ impl GrblLink {
     /// requests and what the operator asks for (hold, cycle start, cancel).
     pub(super) async fn follow(
         &mut self,
-        lines: &[String],
+        lines: Units<'_, String>,
         handed: Handed,
         events: mpsc::UnboundedSender<LinkEvent>,
         mut control: watch::Receiver<Control>,
@@ -192,7 +193,7 @@ impl GrblLink {
     /// spindle is not).
     async fn settle_doubt(
         &mut self,
-        lines: &[String],
+        lines: Units<'_, String>,
         handed: Handed,
         events: &mpsc::UnboundedSender<LinkEvent>,
     ) -> Result<usize, LinkError> {
@@ -205,9 +206,15 @@ impl GrblLink {
         if sending == sent {
             return Ok(sent);
         }
-        let ends = end_positions(&lines[..sending]);
-        let before = if sent == 0 { [None; 3] } else { ends[sent - 1] };
-        let after = ends[sending - 1];
+        // the positions at the ends of lines sent - 1 ..= sending - 1
+        let base = sent.saturating_sub(1);
+        let ends = end_positions(lines, base..sending)?;
+        let before = if sent == 0 {
+            [None; 3]
+        } else {
+            ends[sent - 1 - base]
+        };
+        let after = ends[sending - 1 - base];
         let same = (0..3).all(|k| match (before[k], after[k]) {
             (Some(a), Some(b)) => (a - b).abs() < AT_LINE_END,
             (None, None) => true,
@@ -239,7 +246,7 @@ impl GrblLink {
     /// that prefix, are taken as lost (sent again) rather than skipped.
     async fn settle_cut_off(
         &mut self,
-        lines: &[String],
+        lines: Units<'_, String>,
         handed: Handed,
         events: &mpsc::UnboundedSender<LinkEvent>,
     ) -> Result<usize, LinkError> {
@@ -249,7 +256,10 @@ impl GrblLink {
         if hi == lo {
             return Ok(lo);
         }
-        let ends = end_positions(&lines[..hi]);
+        // the positions at the ends of lines lo - 2 ..= hi - 1, as far as they exist
+        let base = lo.saturating_sub(2);
+        let ends = end_positions(lines, base..hi)?;
+        let end = |k: usize| ends[k - base];
         let pos = self.work_position().await?;
         let near = |p: [Option<f64>; 3], q: [Option<f64>; 3]| {
             (0..3).all(|k| match (p[k], q[k]) {
@@ -259,7 +269,7 @@ impl GrblLink {
             })
         };
         let here = pos.map(Some);
-        let at = |k: usize| k > 0 && near(ends[k - 1], here);
+        let at = |k: usize| k > 0 && near(end(k - 1), here);
         let Some(mut k) = (lo..=hi).rev().find(|&k| at(k)) else {
             let _ = events.send(LinkEvent::Message(format!(
                 "the machine stands at X{:.3} Y{:.3} Z{:.3}, at the end of none of lines {}..{}; taking line {} as the next",
@@ -267,7 +277,7 @@ impl GrblLink {
             )));
             return Ok(lo);
         };
-        while k > lo && k >= 2 && near(ends[k - 1], ends[k - 2]) {
+        while k > lo && k >= 2 && near(end(k - 1), end(k - 2)) {
             k -= 1;
         }
         Ok(k)

@@ -9,6 +9,7 @@ use crate::link::{
     Reattach, ResumePlan, SendJournal, StreamEnd,
 };
 use crate::post::{PostError, PostFor};
+use crate::program::Units;
 use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -77,7 +78,11 @@ pub fn check_dwell(s: f64) -> Result<(), String> {
 }
 
 /// The resume plan of a GRBL machine: retract, restore, spin up, rapid, plunge (docs/grbl.md).
-pub fn grbl_resume_plan(lines: &[String], from: usize, dwell: f64) -> Result<ResumePlan, String> {
+pub fn grbl_resume_plan(
+    lines: Units<'_, String>,
+    from: usize,
+    dwell: f64,
+) -> Result<ResumePlan, String> {
     super::resume::plan(
         lines,
         from,
@@ -90,9 +95,18 @@ pub fn grbl_resume_plan(lines: &[String], from: usize, dwell: f64) -> Result<Res
 /// How long a G-code program takes, s: cutting moves at their feed (capped at `max_feed`),
 /// rapids at `rapid` mm/min, dwells as written. Acceleration is left out, so short moves
 /// take a little longer than this says.
-pub fn gcode_time(lines: &[String], rapid: f64) -> Option<f64> {
-    let tp = crate::gcode_read::read(&lines.join("\n")).ok()?;
-    Some(crate::estimate::moves_seconds(&tp.moves, rapid))
+pub fn gcode_time(lines: Units<'_, String>, rapid: f64) -> Option<f64> {
+    // line by line, so a long file's moves are never held
+    let mut reader = crate::gcode_read::Reader::default();
+    let (mut t, mut pos) = (0.0, offset_core::P3::default());
+    for l in lines.iter(0..lines.len()) {
+        if let Some(m) = reader.line(&l.ok()?).ok()? {
+            let (dt, to) = crate::estimate::move_seconds(pos, &m, rapid);
+            t += dt;
+            pos = to;
+        }
+    }
+    Some(t)
 }
 
 /// The rapid rate assumed for estimates, mm/min (GRBL's default `$110` is 500; routers run
@@ -157,12 +171,12 @@ impl MachineKind for GrblKind {
     fn resume_plan(
         &self,
         s: &GrblSettings,
-        lines: &[String],
+        lines: Units<'_, String>,
         from: usize,
     ) -> Result<ResumePlan, String> {
         grbl_resume_plan(lines, from, s.spindle_dwell_s)
     }
-    fn estimate(&self, _s: &GrblSettings, lines: &[String]) -> Option<f64> {
+    fn estimate(&self, _s: &GrblSettings, lines: Units<'_, String>) -> Option<f64> {
         gcode_time(lines, ESTIMATE_RAPID)
     }
 }
@@ -190,6 +204,15 @@ impl Link<String> for GrblMachine {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        self.stream_units(lines.into(), from, events, control)
+    }
+    fn stream_units<'a>(
+        &'a mut self,
+        lines: Units<'a, String>,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
         Box::pin(async move {
             let status = self.link.query_status().await?;
             if let DeviceState::Alarm { .. } = status.device_state() {
@@ -204,7 +227,7 @@ impl Link<String> for GrblMachine {
                     "the machine was in alarm from an earlier job; unlocked it with $X".into(),
                 ));
             }
-            self.link.stream(lines, from, events, control).await
+            self.link.stream_units(lines, from, events, control).await
         })
     }
     fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
@@ -218,6 +241,15 @@ impl Link<String> for GrblMachine {
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
         self.link.reattach(lines, handed, events, control)
+    }
+    fn reattach_units<'a>(
+        &'a mut self,
+        lines: Units<'a, String>,
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        self.link.reattach_units(lines, handed, events, control)
     }
     fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
         self.link.operate(op)

@@ -17,6 +17,7 @@ use crate::link::{
     Control, DeviceState, Handed, Link, LinkError, LinkEvent, MachineStatus, Operation,
     OperatorReason, Overrides, Reattach, SendJournal, StreamEnd,
 };
+use crate::program::Units;
 use codes::{describe_alarm, describe_error};
 use futures::future::BoxFuture;
 use reply::{classify, parse_opt, Reply, StatusReport};
@@ -434,22 +435,24 @@ impl GrblLink {
 
     async fn stream_gcode(
         &mut self,
-        lines: &[String],
+        units: Units<'_, String>,
         from: usize,
         events: mpsc::UnboundedSender<LinkEvent>,
         mut control: watch::Receiver<Control>,
     ) -> Result<StreamEnd, LinkError> {
         self.read_info().await?;
-        for (i, l) in lines.iter().enumerate() {
-            check_line(l, i, self.window)?;
+        // the program is read a page at a time here and while it streams: a file of
+        // millions of lines costs the link a page or two of memory, not its length
+        for (i, l) in units.iter(0..units.len()).enumerate() {
+            check_line(&l?, i, self.window)?;
         }
-        let from = from.min(lines.len());
+        let from = from.min(units.len());
         // a program that goes on after a stop first brings the machine back to where it
         // left off (docs/grbl.md, "Resume"); the resume lines carry the comment `(resume)`
-        let back = resume::reposition(lines, from, &self.opts.resume).map_err(|e| {
+        let back = resume::reposition(units, from, &self.opts.resume).map_err(|e| {
             LinkError::Rejected {
                 unit: from,
-                text: lines.get(from).cloned().unwrap_or_default(),
+                text: units.get(from).unwrap_or_default(),
                 reason: e,
             }
         })?;
@@ -461,12 +464,10 @@ impl GrblLink {
         for p in &preamble {
             check_line(p, from, self.window)?;
         }
-        let rewritten: Option<Vec<String>> = back.rewrite.as_ref().map(|(k, l)| {
-            let mut v = lines.to_vec();
-            v[*k] = l.clone();
-            v
-        });
-        let lines: &[String] = rewritten.as_deref().unwrap_or(lines);
+        let lines = &Lines {
+            units,
+            rewrite: back.rewrite.clone(),
+        };
         if self.opts.check_first && from < lines.len() {
             self.send_setting("$C").await?;
             for p in &preamble {
@@ -530,7 +531,7 @@ impl GrblLink {
     /// and (outside check mode) the machine reports Idle with an empty planner.
     async fn run_pass(
         &mut self,
-        lines: &[String],
+        lines: &Lines<'_>,
         from: usize,
         events: &mpsc::UnboundedSender<LinkEvent>,
         control: &mut watch::Receiver<Control>,
@@ -558,7 +559,7 @@ impl GrblLink {
 
     async fn run_pass_with(
         &mut self,
-        lines: &[String],
+        lines: &Lines<'_>,
         from: usize,
         events: &mpsc::UnboundedSender<LinkEvent>,
         control: &mut watch::Receiver<Control>,
@@ -567,6 +568,8 @@ impl GrblLink {
     ) -> Result<PassEnd, LinkError> {
         let n = lines.len();
         let mut next = from;
+        // the last program stop (M0, M1) sent, which may name the tool to load
+        let mut last_stop = lines.last_stop_before(from)?;
         let mut inflight: VecDeque<(usize, usize)> = VecDeque::new();
         let mut used = 0usize;
         let mut held = false;
@@ -602,11 +605,15 @@ impl GrblLink {
             let acked_now = next - inflight.len();
             let mut out = Vec::new();
             while next < n {
-                let len = lines[next].len() + 1;
+                let line = lines.get(next)?;
+                let len = line.len() + 1;
                 if used + len > self.window {
                     break;
                 }
-                out.extend_from_slice(lines[next].as_bytes());
+                if is_program_stop(&line) {
+                    last_stop = Some(line.clone());
+                }
+                out.extend_from_slice(line.as_bytes());
                 out.push(b'\n');
                 inflight.push_back((next, len));
                 used += len;
@@ -666,7 +673,7 @@ impl GrblLink {
                             }
                             return Err(LinkError::Rejected {
                                 unit,
-                                text: lines[unit].clone(),
+                                text: lines.text(unit),
                                 reason: describe_error(code),
                             });
                         }
@@ -678,7 +685,7 @@ impl GrblLink {
                             if !check {
                                 self.journal_reset(acked_count);
                             }
-                            let text = lines.get(k).map(String::as_str).unwrap_or("");
+                            let text = lines.text(k);
                             return Err(LinkError::Alarm {
                                 code: Some(code as u32),
                                 text: format!(
@@ -702,11 +709,9 @@ impl GrblLink {
                             if status.state == DeviceState::Held && (!held || machine_paused) {
                                 // a hold nobody here asked for: M0/M1 or the machine's button;
                                 // the last program stop sent may name the tool to load
-                                let reason = lines[..next]
-                                    .iter()
-                                    .rev()
-                                    .find(|l| l.starts_with("M0") || l.starts_with("M1"))
-                                    .and_then(|l| crate::gcode::tool_to_load(l))
+                                let reason = last_stop
+                                    .as_deref()
+                                    .and_then(crate::gcode::tool_to_load)
                                     .map_or(OperatorReason::ProgramStop, |(number, name)| {
                                         OperatorReason::LoadTool { number, name }
                                     });
@@ -884,6 +889,44 @@ fn words(line: &str) -> Vec<(char, String)> {
     out
 }
 
+/// The lines a stream sends: the program's, with the one a resume rewrites.
+struct Lines<'a> {
+    units: Units<'a, String>,
+    rewrite: Option<(usize, String)>,
+}
+
+impl Lines<'_> {
+    fn len(&self) -> usize {
+        self.units.len()
+    }
+    fn get(&self, i: usize) -> Result<String, LinkError> {
+        match &self.rewrite {
+            Some((k, l)) if *k == i => Ok(l.clone()),
+            _ => Ok(self.units.get(i)?),
+        }
+    }
+    /// Line `i` for a message; empty when it cannot be read.
+    fn text(&self, i: usize) -> String {
+        self.get(i).unwrap_or_default()
+    }
+    /// The last program stop among the lines before `from`.
+    fn last_stop_before(&self, from: usize) -> Result<Option<String>, LinkError> {
+        let mut last = None;
+        for i in 0..from.min(self.len()) {
+            let l = self.get(i)?;
+            if is_program_stop(&l) {
+                last = Some(l);
+            }
+        }
+        Ok(last)
+    }
+}
+
+/// A program stop the controller holds at (M0, M1; docs/grbl.md).
+fn is_program_stop(line: &str) -> bool {
+    line.starts_with("M0") || line.starts_with("M1")
+}
+
 impl Link<String> for GrblLink {
     fn stream<'a>(
         &'a mut self,
@@ -892,7 +935,16 @@ impl Link<String> for GrblLink {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
-        Box::pin(self.stream_gcode(lines, from, events, control))
+        Box::pin(self.stream_gcode(lines.into(), from, events, control))
+    }
+    fn stream_units<'a>(
+        &'a mut self,
+        units: Units<'a, String>,
+        from: usize,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<StreamEnd, LinkError>> {
+        Box::pin(self.stream_gcode(units, from, events, control))
     }
     fn inquire(&mut self) -> BoxFuture<'_, Result<MachineStatus, LinkError>> {
         Box::pin(async move {
@@ -907,7 +959,16 @@ impl Link<String> for GrblLink {
         events: mpsc::UnboundedSender<LinkEvent>,
         control: watch::Receiver<Control>,
     ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
-        Box::pin(self.follow(lines, handed, events, control))
+        Box::pin(self.follow(lines.into(), handed, events, control))
+    }
+    fn reattach_units<'a>(
+        &'a mut self,
+        units: Units<'a, String>,
+        handed: Handed,
+        events: mpsc::UnboundedSender<LinkEvent>,
+        control: watch::Receiver<Control>,
+    ) -> BoxFuture<'a, Result<Reattach, LinkError>> {
+        Box::pin(self.follow(units, handed, events, control))
     }
     fn operate<'a>(&'a mut self, op: &'a Operation) -> BoxFuture<'a, Result<String, LinkError>> {
         Box::pin(self.operator(op))

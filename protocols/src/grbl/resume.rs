@@ -7,6 +7,8 @@
 
 use super::words;
 use crate::link::ResumePlan;
+use crate::program::{Units, UnitsError};
+use std::ops::Range;
 
 /// How a resume brings the machine back.
 #[derive(Clone, Debug, PartialEq)]
@@ -196,38 +198,48 @@ fn axis_and_motion(line: &str) -> (bool, bool) {
     (axis, motion)
 }
 
-/// The work position (mm) at the end of each line, where it is known.
-pub fn end_positions(lines: &[String]) -> Vec<[Option<f64>; 3]> {
+/// The work position (mm) at the end of each line of `keep`, where it is known: element
+/// `i - keep.start` for line `i` (the lines are read from the program's start, one at a
+/// time, and only `keep`'s positions are held).
+pub fn end_positions<'a>(
+    lines: impl Into<Units<'a, String>>,
+    keep: Range<usize>,
+) -> Result<Vec<[Option<f64>; 3]>, UnitsError> {
     let mut m = Modal::default();
-    lines
-        .iter()
-        .map(|l| {
-            m.apply(l);
-            m.pos
-        })
-        .collect()
+    let mut out = Vec::with_capacity(keep.len());
+    for (i, l) in lines.into().iter(0..keep.end).enumerate() {
+        m.apply(&l?);
+        if i >= keep.start {
+            out.push(m.pos);
+        }
+    }
+    Ok(out)
 }
 
 /// The state the lines before `from` leave behind.
-pub fn state_before(lines: &[String], from: usize) -> Modal {
+pub fn state_before<'a>(
+    lines: impl Into<Units<'a, String>>,
+    from: usize,
+) -> Result<Modal, UnitsError> {
     let mut m = Modal::default();
-    for l in &lines[..from.min(lines.len())] {
-        m.apply(l);
+    for l in lines.into().iter(0..from) {
+        m.apply(&l?);
     }
-    m
+    Ok(m)
 }
 
 /// The highest Z (work frame, mm) the program reaches: the height a resume retracts to.
-pub fn safe_z(lines: &[String]) -> Option<f64> {
+pub fn safe_z<'a>(lines: impl Into<Units<'a, String>>) -> Result<Option<f64>, UnitsError> {
+    let lines = lines.into();
     let mut m = Modal::default();
     let mut top: Option<f64> = None;
-    for l in lines {
-        m.apply(l);
+    for l in lines.iter(0..lines.len()) {
+        m.apply(&l?);
         if let Some(z) = m.pos[2] {
             top = Some(top.map_or(z, |t: f64| t.max(z)));
         }
     }
-    top
+    Ok(top)
 }
 
 /// A resume's lines and what they are for.
@@ -263,18 +275,19 @@ fn feed_word(mm_per_min: f64, inches: bool) -> String {
 /// over the start point, a plunge at the program's last plunge feed, then the motion mode
 /// and feed. Nothing for a program that starts at its beginning. An error names the line
 /// whose start cannot be known.
-pub fn reposition(
-    lines: &[String],
+pub fn reposition<'a>(
+    lines: impl Into<Units<'a, String>>,
     from: usize,
     opts: &ResumeOptions,
 ) -> Result<Reposition, String> {
+    let lines = lines.into();
     if from == 0 || from >= lines.len() {
         return Ok(Reposition {
             lines: Vec::new(),
             rewrite: None,
         });
     }
-    let s = state_before(lines, from);
+    let s = state_before(lines, from).map_err(|e| e.to_string())?;
     let inch = s.inches;
     let n = from + 1;
     let mut out: Vec<(String, String)> = Vec::new();
@@ -294,7 +307,7 @@ pub fn reposition(
             s.wcs
         ));
     };
-    let top = safe_z(lines);
+    let top = safe_z(lines).map_err(|e| e.to_string())?;
     if let Some(t) = top {
         out.push((
             format!("G0 Z{}", coord(t, inch)),
@@ -401,8 +414,9 @@ pub fn reposition(
     let mut rewrite = None;
     if let Some(m @ (2 | 3)) = s.motion {
         // the first line that moves: if it does not name its motion, it runs in G2/G3
-        for (k, l) in lines.iter().enumerate().skip(from) {
-            let (axis, motion) = axis_and_motion(l);
+        for (k, l) in lines.iter(from..lines.len()).enumerate() {
+            let (k, l) = (from + k, l.map_err(|e| e.to_string())?);
+            let (axis, motion) = axis_and_motion(&l);
             if motion {
                 break;
             }
@@ -420,7 +434,12 @@ pub fn reposition(
 
 /// The plan the operator sees for a resume at `from` (0-based), in the order the link
 /// carries it out.
-pub fn plan(lines: &[String], from: usize, opts: &ResumeOptions) -> Result<ResumePlan, String> {
+pub fn plan<'a>(
+    lines: impl Into<Units<'a, String>>,
+    from: usize,
+    opts: &ResumeOptions,
+) -> Result<ResumePlan, String> {
+    let lines = lines.into();
     if from >= lines.len() {
         return Ok(ResumePlan {
             from,
@@ -436,7 +455,7 @@ pub fn plan(lines: &[String], from: usize, opts: &ResumeOptions) -> Result<Resum
         .collect();
     let first = match &r.rewrite {
         Some((k, l)) if *k == from => l.clone(),
-        _ => lines[from].clone(),
+        _ => lines.get(from).map_err(|e| e.to_string())?,
     };
     steps.push(format!("run the program from line {}: `{first}`", from + 1));
     if let Some((k, l)) = &r.rewrite {

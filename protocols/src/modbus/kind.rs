@@ -7,6 +7,7 @@ use super::post::{post_blocks, ModbusPost};
 use crate::kind::{started, Joined, MachineKind, OpenLink};
 use crate::link::{Link, LinkError};
 use crate::post::{PostError, PostFor};
+use crate::program::Units;
 use crate::serial::{check_port, default_baud, warn_missing_port};
 use futures::future::BoxFuture;
 use offset_core::Toolpath;
@@ -42,6 +43,11 @@ pub struct RingSettings {
     /// Failed attempts in a row (with backoff) before the job fails.
     #[serde(default = "default_retries")]
     pub retries: u32,
+    /// How long the device may answer nothing at all mid-job before the job pauses with its
+    /// last acknowledged block and the link reconnects, s (2 to 3600); without it, after
+    /// `retries` unanswered attempts.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub silent_timeout_s: Option<f64>,
 }
 
 impl Default for RingSettings {
@@ -55,6 +61,7 @@ impl Default for RingSettings {
             timeout_ms: default_timeout(),
             poll_ms: default_poll(),
             retries: default_retries(),
+            silent_timeout_s: None,
         }
     }
 }
@@ -123,7 +130,16 @@ impl RingSettings {
         s.timeout = Duration::from_millis(self.timeout_ms);
         s.poll_interval = Duration::from_millis(self.poll_ms);
         s.max_retries = self.retries;
+        s.silent_timeout = self.silent_timeout_s.map(Duration::from_secs_f64);
         s
+    }
+
+    /// Checks the keys that are the ring's own (the link's settings check the rest).
+    pub fn check(&self) -> Result<(), String> {
+        match self.silent_timeout_s {
+            Some(t) => crate::grbl::kind::check_silent_timeout(t),
+            None => Ok(()),
+        }
     }
 }
 
@@ -230,14 +246,15 @@ impl<T: RingTransport> MachineKind for ModbusKind<T> {
     fn posts(&self) -> Vec<PostFor<MotionBlock>> {
         modbus_posts()
     }
-    fn estimate(&self, _s: &Self::Settings, blocks: &[MotionBlock]) -> Option<f64> {
+    fn estimate(&self, _s: &Self::Settings, blocks: Units<'_, MotionBlock>) -> Option<f64> {
         Some(crate::estimate::blocks_seconds(
-            blocks,
+            &blocks.to_vec().ok()?,
             crate::estimate::RAPID,
         ))
     }
     fn check(&self, s: &Self::Settings) -> Result<(), String> {
         s.own.check()?;
+        s.common.check()?;
         s.own
             .settings(&s.common)
             .validate()

@@ -49,6 +49,10 @@ pub(crate) struct Ring {
     /// What the device said to FC23: `None` until it was asked.
     read_write: Option<bool>,
     pub(super) target: String,
+    /// How long the device may be silent before a stream gives up (`None`: after the
+    /// backoff's retries), and the longest wait between attempts meanwhile.
+    silent_timeout: Option<Duration>,
+    backoff_max: Duration,
     /// Where the sync that hands the device a program is journaled first (see `attach.rs`).
     pub(crate) journal: Option<Box<dyn crate::link::SendJournal>>,
 }
@@ -67,6 +71,8 @@ impl Ring {
             allow_read_write: s.read_write,
             read_write: None,
             target: format!("Modbus device {} unit {}", s.transport, s.unit_id),
+            silent_timeout: s.silent_timeout,
+            backoff_max: s.backoff_max,
             journal: None,
         }
     }
@@ -632,7 +638,12 @@ impl Ring {
                             &p.seen, silent,
                         )));
                     }
-                    let Some(wait) = backoff.failed() else {
+                    let wait = match (backoff.failed(), self.silent_timeout) {
+                        (_, Some(t)) if silent >= t => None,
+                        (w, Some(_)) => Some(w.unwrap_or(self.backoff_max)),
+                        (w, None) => w,
+                    };
+                    let Some(wait) = wait else {
                         return Err(ModbusError::GaveUp {
                             target: self.target.clone(),
                             attempts: backoff.failures(),

@@ -65,6 +65,9 @@ pub struct ModbusSettings {
     pub backoff_max: Duration,
     /// Failed attempts in a row before the stream gives up.
     pub max_retries: u32,
+    /// With it, the stream gives up once the device has answered nothing for this long
+    /// (however many attempts that took), instead of after `max_retries`.
+    pub silent_timeout: Option<Duration>,
     /// RTU only: after a timeout, the line must be silent this long before the next request,
     /// so that a late reply is not taken for the next one (RTU has no transaction id). Never
     /// less than 3.5 characters.
@@ -85,6 +88,7 @@ impl ModbusSettings {
             backoff_initial: Duration::from_millis(50),
             backoff_max: Duration::from_secs(2),
             max_retries: 8,
+            silent_timeout: None,
             rtu_quiet: Duration::from_millis(500),
         }
     }

@@ -10,7 +10,7 @@ use machlink_protocols::canopen::master::{CanopenLink, Pace};
 use machlink_protocols::canopen::MemoryBus;
 use machlink_protocols::kind::{Joined, MachineKind};
 use machlink_protocols::post::{PostError, PostFor};
-use machlink_protocols::{Link, LinkError};
+use machlink_protocols::{Link, LinkError, Units};
 use offset_core::{Move, Toolpath};
 use serde::{Deserialize, Serialize};
 
@@ -85,9 +85,11 @@ impl MachineKind for SimCanopenKind {
     fn keys(&self) -> Vec<&'static str> {
         SimCanopenSettings::keys()
     }
-    fn estimate(&self, s: &SimCanopenSettings, moves: &[Move]) -> Option<f64> {
-        let t =
-            machlink_protocols::estimate::moves_seconds(moves, machlink_protocols::estimate::RAPID);
+    fn estimate(&self, s: &SimCanopenSettings, moves: Units<'_, Move>) -> Option<f64> {
+        let t = machlink_protocols::estimate::moves_seconds(
+            &moves.to_vec().ok()?,
+            machlink_protocols::estimate::RAPID,
+        );
         Some(t / s.own.time_scale)
     }
     fn posts(&self) -> Vec<PostFor<Move>> {

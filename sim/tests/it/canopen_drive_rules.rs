@@ -151,3 +151,166 @@ fn a_second_set_point_before_a_sync_faults_with_emcy_0x8700() {
     assert_eq!(emcy.code, 0x8700);
     assert_eq!(d.power_state(), PowerState::Fault);
 }
+
+/// The statusword a drive shows, read by SDO as machlink reads it.
+fn statusword(d: &mut Drive) -> u16 {
+    let b = sdo(d, 0x6041, 0, None).unwrap();
+    u16::from_le_bytes([b[0], b[1]])
+}
+
+/// docs/canopen.md's statusword table, as (bits 6, 5, 3–0 mask, value) per row.
+fn in_row(sw: u16, mask: u16, value: u16) -> bool {
+    sw & mask == value
+}
+
+#[test]
+fn the_device_type_names_profile_402_in_its_low_16_bits() {
+    let mut d = Drive::new(NODE);
+    let b = sdo(&mut d, 0x1000, 0, None).unwrap();
+    let v = u32::from_le_bytes(b[..4].try_into().unwrap());
+    assert_eq!(v & 0xFFFF, 402, "0x1000 = {v:#010x}");
+}
+
+#[test]
+fn the_power_state_machine_follows_the_statusword_table_row_by_row() {
+    let mut d = Drive::new(NODE);
+    let mut out = Vec::new();
+    d.take_output(&mut out);
+    // switch on disabled: x1xx 0000
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x4F, 0x40),
+        "switch on disabled, statusword {sw:#06x}"
+    );
+    // 0x0006 → ready to switch on: x01x 0001
+    controlword(&mut d, Command::Shutdown);
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x6F, 0x21),
+        "ready to switch on, statusword {sw:#06x}"
+    );
+    // 0x0007 → switched on: x01x 0011
+    controlword(&mut d, Command::SwitchOn);
+    let sw = statusword(&mut d);
+    assert!(in_row(sw, 0x6F, 0x23), "switched on, statusword {sw:#06x}");
+    // 0x000F → operation enabled: x01x 0111
+    controlword(&mut d, Command::EnableOperation);
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x6F, 0x27),
+        "operation enabled, statusword {sw:#06x}"
+    );
+    // quick stop with 0x605A = 6: x00x 0111, and 0x000F back to operation enabled
+    write(&mut d, 0x605A, 0, &6i16.to_le_bytes());
+    controlword(&mut d, Command::QuickStop);
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x6F, 0x07),
+        "quick stop active, statusword {sw:#06x}"
+    );
+    controlword(&mut d, Command::EnableOperation);
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x6F, 0x27),
+        "operation enabled again, statusword {sw:#06x}"
+    );
+}
+
+#[test]
+fn a_fault_is_cleared_by_0x0000_then_a_rising_edge_of_bit_7_to_switch_on_disabled() {
+    let mut d = enabled_drive();
+    cycle(&mut d, 10);
+    let mut out = Vec::new();
+    for c in [20i32, 30] {
+        d.on_frame(
+            &CanFrame::new(0x200 + NODE as u16, &c.to_le_bytes()).unwrap(),
+            &mut out,
+        );
+    }
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x4F, 0x08),
+        "fault: x0xx 1000, statusword {sw:#06x}"
+    );
+    write(&mut d, 0x6040, 0, &0x0000u16.to_le_bytes());
+    write(&mut d, 0x6040, 0, &0x0080u16.to_le_bytes());
+    let sw = statusword(&mut d);
+    assert!(
+        in_row(sw, 0x4F, 0x40),
+        "switch on disabled after the reset, statusword {sw:#06x}"
+    );
+}
+
+#[test]
+fn the_set_point_received_before_sync_k_is_the_target_at_sync_k_and_every_sync_is_answered() {
+    let mut d = enabled_drive();
+    d.clear_trace();
+    for (k, counts) in [100i32, 250, -40, 0].into_iter().enumerate() {
+        let out = cycle(&mut d, counts);
+        let tpdos = out.iter().filter(|f| f.id() == 0x180 + NODE as u32).count();
+        assert_eq!(tpdos, 1, "one TPDO1 for SYNC {}", k + 1);
+        let last = d.trace().last().expect("a record of the SYNC");
+        assert_eq!(last.demand, counts, "SYNC {} applies its set-point", k + 1);
+    }
+}
+
+#[test]
+fn pdo_mapping_is_accepted_while_the_pdo_is_not_valid_and_refused_with_0x08000022_otherwise() {
+    let mut d = enabled_drive();
+    // RPDO1 is valid: a change of its mapping is refused
+    let e = sdo(&mut d, 0x1600, 0, Some(&[0])).unwrap_err();
+    assert!(e.contains("08000022"), "{e}");
+    // made not valid (bit 31), the same write is taken
+    let rpdo = 0x200 + NODE as u32;
+    write(&mut d, 0x1400, 1, &(rpdo | 0x8000_0000).to_le_bytes());
+    assert!(sdo(&mut d, 0x1600, 0, Some(&[0])).is_ok());
+}
+
+#[test]
+fn the_heartbeat_comes_at_the_period_written_to_0x1017_in_the_nmt_state() {
+    let mut d = Drive::new(NODE);
+    let mut out = Vec::new();
+    d.take_output(&mut out);
+    write(&mut d, 0x1017, 0, &100u16.to_le_bytes());
+    d.on_frame(&NmtCommand::Start.frame(NODE), &mut out);
+    out.clear();
+    let mut beats = Vec::new();
+    for ms in (0..=1000u64).step_by(5) {
+        d.tick(std::time::Duration::from_millis(ms), &mut out);
+        for f in out.drain(..) {
+            if let Some((node, state)) = nmt::parse_heartbeat(&f) {
+                assert_eq!(node, NODE);
+                beats.push((ms, state));
+            }
+        }
+    }
+    assert_eq!(
+        beats.len(),
+        11,
+        "one heartbeat per 100 ms over 1 s: {beats:?}"
+    );
+    assert!(
+        beats.windows(2).all(|w| w[1].0 - w[0].0 == 100),
+        "{beats:?}"
+    );
+    assert!(beats
+        .iter()
+        .all(|(_, s)| *s == machlink_protocols::canopen::nmt::NmtState::Operational));
+}
+
+#[test]
+fn a_drive_sent_enter_pre_operational_processes_no_pdos() {
+    let mut d = enabled_drive();
+    let mut out = Vec::new();
+    d.on_frame(&NmtCommand::PreOperational.frame(NODE), &mut out);
+    let before = d.trace().len();
+    let out = cycle(&mut d, 500);
+    assert!(
+        !out.iter().any(|f| f.id() == 0x180 + NODE as u32),
+        "no TPDO1 in pre-operational"
+    );
+    assert!(
+        d.trace().len() == before || d.trace().last().unwrap().demand != 500,
+        "the set-point was not taken in pre-operational"
+    );
+}

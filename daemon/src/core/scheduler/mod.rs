@@ -435,7 +435,7 @@ impl Scheduler {
                 "the daemon is shutting down and takes no new jobs".into(),
             ));
         }
-        if job.total_units == 0 {
+        if job.pages.units() == 0 {
             return Err(SchedError::Conflict(
                 "the program is empty: there is nothing to send".into(),
             ));

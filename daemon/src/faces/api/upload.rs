@@ -2,8 +2,9 @@
 //!
 //! The body is the file as it is. Each line is checked as it arrives (the checks of
 //! `check::gcode_program`, one line at a time) and, for a machine whose kind takes a G-code
-//! file's lines as its units (GRBL), appended to the stored program's JSON: the file is never
-//! held whole, neither as text nor as moves; the program's JSON is the one copy. Other kinds
+//! file's lines as its units (GRBL), appended to the stored program's pages: the file is
+//! never held whole, neither as text nor as moves nor as JSON; a page of
+//! [`PAGE_UNITS`](crate::core::store::PAGE_UNITS) lines at a time goes into the store. Other kinds
 //! get the whole file planned as a `POST /jobs` would (bounded by the JSON body limit).
 
 use crate::core::check::GcodeCheck;
@@ -57,16 +58,15 @@ pub async fn gcode(
     }
     let checking = std::time::Instant::now();
     let mut check = GcodeCheck::new(&file, &machine);
-    let mut json: Vec<u8> =
-        Vec::with_capacity(declared.unwrap_or(0).min(MAX_GCODE_BODY) as usize + 64);
-    json.push(b'[');
+    let mut pages = st.sched.store().page_writer()?;
+    let mut json: Vec<u8> = Vec::new();
     let mut count = 0usize;
     let mut received = 0u64;
     let mut partial: Vec<u8> = Vec::new();
     let mut n = 0usize;
     let mut take = |raw: &[u8],
                     n: usize,
-                    json: &mut Vec<u8>,
+                    pages: &mut crate::core::store::PageWriter,
                     count: &mut usize|
      -> Result<(), ApiError> {
         let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
@@ -88,10 +88,11 @@ pub async fn gcode(
                     format!("{file} has more than the daemon's limit of {MAX_PROGRAM_UNITS} program lines"),
                 ));
             }
-            if *count > 0 {
-                json.push(b',');
-            }
-            serde_json::to_writer(&mut *json, &c.line)
+            json.clear();
+            serde_json::to_writer(&mut json, &c.line)
+                .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+            pages
+                .push_json(&json)
                 .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
             *count += 1;
         }
@@ -109,11 +110,11 @@ pub async fn gcode(
         while let Some(i) = rest.iter().position(|&b| b == b'\n') {
             n += 1;
             if partial.is_empty() {
-                take(&rest[..i], n, &mut json, &mut count)?;
+                take(&rest[..i], n, &mut pages, &mut count)?;
             } else {
                 partial.extend_from_slice(&rest[..i]);
                 let line = std::mem::take(&mut partial);
-                take(&line, n, &mut json, &mut count)?;
+                take(&line, n, &mut pages, &mut count)?;
             }
             rest = &rest[i + 1..];
         }
@@ -128,7 +129,7 @@ pub async fn gcode(
     if !partial.is_empty() {
         n += 1;
         let line = std::mem::take(&mut partial);
-        take(&line, n, &mut json, &mut count)?;
+        take(&line, n, &mut pages, &mut count)?;
     }
     Ok::<(), ApiError>(())
     }
@@ -139,18 +140,15 @@ pub async fn gcode(
         drain(&mut body).await;
         return Err(e);
     }
-    json.push(b']');
     drop(body);
-    let units_json = String::from_utf8(json)
-        .map_err(|e| ApiError(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
+    let pages = pages.finish()?;
     let rec = st.sched.submit_units(NewJobUnits {
         machine: name.clone(),
         op: "gcode".into(),
         file_name: file.clone(),
         params: serde_json::json!({ "machine": name, "input": { "file_name": file } }),
         post: GCODE_FILE.into(),
-        units_json,
-        total_units: count,
+        pages,
     });
     st.sched.store().release_memory();
     crate::services::memory::give_back();

@@ -207,7 +207,11 @@ pub fn stored<U: machlink_protocols::Unit>(d: &Daemon, id: JobId) -> Vec<U> {
         .expect("a stored program")
         .decode(kind.as_ref())
         .expect("its kind reads it");
-    program.units::<U>().expect("units of this type").to_vec()
+    program
+        .view::<U>()
+        .expect("units of this type")
+        .to_vec()
+        .expect("its units read back")
 }
 
 /// The G-code line numbers (as the simulator counts them) of the lines a resume sent to
