@@ -1050,3 +1050,303 @@ async fn a_machine_default_recipe_plans_a_drawing_submitted_without_an_operation
         "{e}"
     );
 }
+
+/// An Inkscape drawing of a 120 × 80 mm plate: layer "Holes" (four 3 mm circles, two of them
+/// in a nested group), the plate's outline as group `outline` in layer "Cut", a layer
+/// "Notes" with one path, and a path in no group. Y is up in machlink: the SVG's y flips.
+const LAYERED_SVG: &str = r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="120mm" height="80mm" viewBox="0 0 120 80">
+  <g inkscape:groupmode="layer" inkscape:label="Holes" id="layer1">
+    <circle id="h1" cx="10" cy="10" r="1.5"/>
+    <circle id="h2" cx="110" cy="10" r="1.5"/>
+    <g id="right-pair"><circle id="h3" cx="110" cy="70" r="1.5"/><circle id="h4" cx="10" cy="70" r="1.5"/></g>
+  </g>
+  <g inkscape:groupmode="layer" inkscape:label="Cut" id="layer2">
+    <g id="outline"><rect id="plate" x="0" y="0" width="120" height="80"/></g>
+  </g>
+  <g inkscape:groupmode="layer" inkscape:label="Notes" id="layer3">
+    <path id="note" d="M 40 40 L 80 40"/>
+  </g>
+  <path id="stray" d="M 50 50 L 60 60"/>
+</svg>
+"#;
+
+/// A recipe takes an SVG's geometry by Inkscape layer label (`layer = "holes"`) and by group
+/// id (`layers = ["outl*"]`, a glob): the holes are drilled at their circles' centres, the
+/// outline is cut around at the tool's radius, and the paths no operation takes (a layer
+/// of notes, a path in no group) are named; DXF colours on an SVG are refused.
+#[test]
+fn an_svg_recipe_takes_inkscape_layers_and_group_ids_and_names_the_paths_it_leaves() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("plate.svg");
+    std::fs::write(&svg, LAYERED_SVG).unwrap();
+    let recipe = dir.path().join("plate.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = { number = 1, diameter = 3.0 }\n\
+         take = { layer = \"holes\", diameter = [2.9, 3.1] }\ndepth = 4.0\ncycle = \"simple\"\n\n\
+         [[operations]]\nop = \"profile\"\nside = \"outside\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layers = [\"outl*\"] }\ncut = { depth = 2.0, stepdown = 2.0, feed = 800 }\n",
+    )
+    .unwrap();
+    let out_file = dir.path().join("plate.ngc");
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "--post".as_ref(),
+        "linuxcnc".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan plate.svg");
+    let r = read(&std::fs::read_to_string(&out_file).unwrap(), "linuxcnc");
+    // the four holes of layer Holes (the nested group's too), each drilled once at its centre
+    let centres = [[10.0, 70.0], [110.0, 70.0], [110.0, 10.0], [10.0, 10.0]];
+    assert_eq!(r.cycles.len(), 4, "{:?}", r.cycles);
+    for c in centres {
+        let n = r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).count();
+        assert_eq!(n, 1, "the hole at {c:?}: {:?}", r.cycles);
+    }
+    assert!(r.cycles.iter().all(|y| y.g == 81 && y.z == -4.0));
+    assert_eq!(r.m6, vec![1, 2]);
+    // the outline, cut outside the plate at the tool's radius, and nothing else cut
+    let plate = [0.0, 0.0, 120.0, 80.0];
+    let mut cut = 0;
+    for m in r.moves.iter().filter(|m| !m.rapid) {
+        for [x, y, z] in m.samples() {
+            if z < -1e-6 && !centres.iter().any(|&c| near([x, y], c, 1e-6)) {
+                let (d, inside) = to_rect(x, y, plate);
+                assert!(
+                    !inside && (d - 3.0).abs() <= 2e-3,
+                    "({x}, {y}, {z}) is {d} from the plate"
+                );
+                cut += 1;
+            }
+        }
+    }
+    assert!(cut > 100, "the outline was cut in {cut} samples");
+    // what no operation takes is named: the note's layer and the stray path
+    let e = stderr(&o);
+    let untaken: Vec<&str> = e
+        .lines()
+        .filter(|l| l.contains("is taken by no operation"))
+        .collect();
+    assert_eq!(untaken.len(), 2, "{e}");
+    assert!(
+        untaken
+            .iter()
+            .any(|l| l.contains("path \"note\" in group Notes")),
+        "{e}"
+    );
+    assert!(
+        untaken
+            .iter()
+            .any(|l| l.contains("path \"stray\" outside every group")),
+        "{e}"
+    );
+    // an operation whose layer the file does not have takes nothing, with a warning
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"profile\"\nside = \"on\"\nname = \"engrave\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layer = \"Text\" }\n\n\
+         [[operations]]\nop = \"profile\"\nside = \"outside\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layers = [\"Cut\"] }\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan with a layer the file lacks");
+    assert!(
+        stderr(&o).contains("engrave takes nothing from plate.svg"),
+        "{}",
+        stderr(&o)
+    );
+    // DXF colours select nothing in an SVG: refused, saying so
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"profile\"\ntool = { number = 2, diameter = 6.0 }\ntake = { colors = [1] }\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("plate.svg is not a DXF file: take.colors"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// The value of attribute `name` in one SVG element's text.
+fn attr<'a>(element: &'a str, name: &str) -> Option<&'a str> {
+    let key = format!(" {name}=\"");
+    let at = element.find(&key)? + key.len();
+    element[at..].split('"').next()
+}
+
+/// The points an SVG path's data passes (its M, L, H, V and A end points), in the drawing's
+/// own frame.
+fn path_points(d: &str) -> Vec<[f64; 2]> {
+    let mut out = Vec::new();
+    let mut nums: Vec<f64> = Vec::new();
+    let mut cmd = ' ';
+    let flush = |cmd: char, nums: &mut Vec<f64>, out: &mut Vec<[f64; 2]>| {
+        match cmd {
+            'M' | 'L' if nums.len() >= 2 => out.push([nums[0], nums[1]]),
+            'A' if nums.len() >= 7 => out.push([nums[5], nums[6]]),
+            _ => {}
+        }
+        nums.clear();
+    };
+    let mut num = String::new();
+    for ch in d.chars().chain(std::iter::once(' ')) {
+        if ch.is_ascii_alphabetic() {
+            if !num.is_empty() {
+                nums.push(num.parse().unwrap());
+                num.clear();
+            }
+            flush(cmd, &mut nums, &mut out);
+            cmd = ch;
+        } else if ch == ' ' || ch == ',' {
+            if !num.is_empty() {
+                nums.push(num.parse().unwrap());
+                num.clear();
+            }
+        } else if ch == '-' && !num.is_empty() {
+            nums.push(num.parse().unwrap());
+            num = "-".into();
+        } else {
+            num.push(ch);
+        }
+    }
+    flush(cmd, &mut nums, &mut out);
+    out
+}
+
+/// `preview --recipe` draws the sign in one picture: every operation's cuts in its tool's
+/// colour (the drill's plunges at the 3 mm holes in T1's, the bores, the pocket and the
+/// cut-out in T2's), and a legend line per operation naming its tool, the operation and the
+/// time `plan` gives it, beside that colour.
+#[test]
+fn the_sign_preview_draws_each_operation_in_its_tool_colour_with_a_legend_of_tool_operation_and_time(
+) {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, said) = plan("grbl", dir.path());
+    let svg_file = dir.path().join("sign.svg");
+    let o = machlink(&[
+        "preview".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        example("sign.toml").as_os_str(),
+        "-o".as_ref(),
+        svg_file.as_os_str(),
+    ]);
+    ok(&o, "preview --recipe");
+    let svg = std::fs::read_to_string(&svg_file).unwrap();
+    let lines: Vec<&str> = svg.lines().collect();
+    // plan's lines: "  operation 1: drill 3 mm holes with T1 (3 mm drill): cutting …, 22.9 s"
+    let ops: Vec<(String, String, String)> = said
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("operation "))
+        .map(|l| {
+            let (_, rest) = l.split_once(": ").unwrap();
+            let (name, rest) = rest.split_once(" with T").unwrap();
+            let (tool, rest) = rest.split_once("): ").unwrap();
+            let time = rest.rsplit(", ").next().unwrap();
+            (format!("T{tool})"), name.to_string(), time.to_string())
+        })
+        .collect();
+    assert_eq!(ops.len(), 4, "{said}");
+    // each operation's legend line, its colour on the line before it
+    let mut colour_of = std::collections::BTreeMap::new();
+    for (tool, name, time) in &ops {
+        let want = format!(">{tool}: {name}, {time}</text>");
+        let k = lines
+            .iter()
+            .position(|l| l.starts_with("<text") && l.ends_with(&want))
+            .unwrap_or_else(|| panic!("no legend line {want}"));
+        let colour = attr(lines[k - 1], "stroke").expect("a colour beside the legend line");
+        let number = tool[1..].split(' ').next().unwrap().to_string();
+        let was = colour_of.insert(number.clone(), colour.to_string());
+        assert!(
+            was.as_ref().is_none_or(|w| w == colour),
+            "T{number} has two colours: {was:?} and {colour}"
+        );
+    }
+    let (t1, t2) = (&colour_of["1"], &colour_of["2"]);
+    assert_ne!(t1, t2, "one colour for both tools");
+    // the drawing (inside the flipped group): the drill's plunges at the 3 mm holes in T1's
+    // colour; every cut outside the plate (the cut-out) and about the 8 mm holes (the bores)
+    // in T2's
+    let start = lines
+        .iter()
+        .position(|l| l.starts_with("<g transform"))
+        .unwrap();
+    // the drawing's group ends at the last </g> (the swept band's group lies inside it)
+    let end = lines.iter().rposition(|l| *l == "</g>").unwrap();
+    let drawing = &lines[start..end];
+    for c in SMALL_HOLES {
+        let dots: Vec<&&str> = drawing
+            .iter()
+            .filter(|l| {
+                l.starts_with("<circle")
+                    && attr(l, "cx")
+                        .is_some_and(|x| (x.parse::<f64>().unwrap() - c[0]).abs() < 1e-3)
+                    && attr(l, "cy")
+                        .is_some_and(|y| (y.parse::<f64>().unwrap() - c[1]).abs() < 1e-3)
+            })
+            .collect();
+        assert!(
+            dots.iter().any(|l| attr(l, "fill") == Some(t1)),
+            "no plunge in T1's colour at {c:?}: {dots:?}"
+        );
+    }
+    let (mut outside, mut bores) = (0, 0);
+    for l in drawing.iter().filter(|l| l.starts_with("<path")) {
+        let (Some(stroke), Some(d)) = (attr(l, "stroke"), attr(l, "d")) else {
+            continue;
+        };
+        // rapids (red, dashed), the tab marks and the outline are not cuts
+        if ["#d62728", "#e377c2", "#555555", "none"].contains(&stroke)
+            || l.contains("stroke-dasharray")
+        {
+            continue;
+        }
+        let pts = path_points(d);
+        if pts
+            .iter()
+            .all(|p| !to_rect(p[0], p[1], PLATE).1 && to_rect(p[0], p[1], PLATE).0 > 2.9)
+        {
+            assert_eq!(
+                stroke, t2,
+                "a cut outside the plate not in T2's colour: {l}"
+            );
+            outside += 1;
+        }
+        if d.contains('A')
+            && BIG_HOLES
+                .iter()
+                .any(|c| pts.iter().all(|p| near(*p, *c, 1.0 + 1e-3)))
+        {
+            assert_eq!(stroke, t2, "a bore not in T2's colour: {l}");
+            bores += 1;
+        }
+    }
+    assert!(
+        outside >= 8 && bores >= 4,
+        "{outside} cut-out pieces, {bores} bore arcs"
+    );
+}
