@@ -571,6 +571,9 @@ impl GrblLink {
         let mut used = 0usize;
         let mut held = false;
         let mut machine_paused = false;
+        // the machine's own pauses this pass has seen end: the next one is at the program
+        // stop after as many stops from `from`
+        let mut stops_passed = 0usize;
         let mut control_open = true;
         let mut idle_seen = 0u32;
         let mut poll = tokio::time::interval(self.opts.status_interval.max(MIN_STATUS_INTERVAL));
@@ -701,11 +704,16 @@ impl GrblLink {
                             // not the daemon holds it too)
                             if status.state == DeviceState::Held && (!held || machine_paused) {
                                 // a hold nobody here asked for: M0/M1 or the machine's button;
-                                // the last program stop sent may name the tool to load
-                                let reason = lines[..next]
+                                // the program stop it holds at may name the tool to load: the
+                                // first one sent that it has not passed yet (the lines after
+                                // it may be sent already), else the last one sent
+                                let stops: Vec<&String> = lines[from.min(next)..next]
                                     .iter()
-                                    .rev()
-                                    .find(|l| l.starts_with("M0") || l.starts_with("M1"))
+                                    .filter(|l| l.starts_with("M0") || l.starts_with("M1"))
+                                    .collect();
+                                let reason = stops
+                                    .get(stops_passed)
+                                    .or(stops.last())
                                     .and_then(|l| crate::gcode::tool_to_load(l))
                                     .map_or(OperatorReason::ProgramStop, |(number, name)| {
                                         OperatorReason::LoadTool { number, name }
@@ -718,6 +726,9 @@ impl GrblLink {
                                     ));
                                 }
                             } else if status.state != DeviceState::Held {
+                                if machine_paused {
+                                    stops_passed += 1;
+                                }
                                 machine_paused = false;
                             }
                             last_status = status.clone();
@@ -779,6 +790,9 @@ impl GrblLink {
                             if held || machine_paused {
                                 self.write(&[realtime::CYCLE_START]).await?;
                                 held = false;
+                                if machine_paused {
+                                    stops_passed += 1;
+                                }
                                 machine_paused = false;
                             }
                         }
