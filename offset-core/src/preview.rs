@@ -24,6 +24,36 @@ pub const DIRECTION_COLOUR: &str = "#222222";
 /// Where the tool rides over a tab (a profile's holding bridge).
 pub const TAB_COLOUR: &str = "#e377c2";
 
+/// The colours of a job's tools, in the order the tools first appear: every cut of a job of
+/// several operations is drawn in its tool's colour (none of them the rapids' red).
+pub const TOOL_COLOURS: [&str; 8] = [
+    "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#17becf", "#bcbd22", "#7f7f7f",
+];
+
+/// One operation of a job, as the preview colours and names it: the tool path's moves from
+/// `first_move` up to the next operation's are cut with tool `tool`, and the legend shows
+/// `label` (the caller's words: tool, operation, time) beside the tool's colour.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LegendOperation {
+    pub first_move: usize,
+    pub tool: u32,
+    /// The tool's diameter, mm: the width of the band its cuts sweep.
+    pub diameter: f64,
+    pub label: String,
+}
+
+/// The colour of tool `tool` in a job whose operations are `ops`.
+pub fn tool_colour(ops: &[LegendOperation], tool: u32) -> &'static str {
+    let mut seen: Vec<u32> = Vec::new();
+    for o in ops {
+        if !seen.contains(&o.tool) {
+            seen.push(o.tool);
+        }
+    }
+    let k = seen.iter().position(|&t| t == tool).unwrap_or(0);
+    TOOL_COLOURS[k % TOOL_COLOURS.len()]
+}
+
 /// What a preview shows besides the shape and the moves.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PreviewOptions {
@@ -67,6 +97,19 @@ pub fn svg(shape: Option<&Shape>, tp: Option<&Toolpath>, width_px: f64) -> Strin
 /// dots and jumps orange dashed; under the cuts the band the tool sweeps; below the drawing
 /// a scale bar and a legend of what is drawn.
 pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions) -> String {
+    svg_of_job(shape, tp, &[], o)
+}
+
+/// Draws a job of several operations like [`svg_with`], every operation's cuts (lines,
+/// arcs, plunges) in its tool's colour ([`tool_colour`]); the legend has a line for each
+/// operation, its tool's colour beside its label, in place of the kinds of cut. With no
+/// operations it is [`svg_with`].
+pub fn svg_of_job(
+    shape: Option<&Shape>,
+    tp: Option<&Toolpath>,
+    ops: &[LegendOperation],
+    o: &PreviewOptions,
+) -> String {
     let mut b = Bounds::EMPTY;
     if let Some(s) = shape {
         b = b.union(&s.bounds());
@@ -103,20 +146,29 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     // the band below the drawing: a line for the scale bar, then the legend, three to a line
     let line = size / 28.0;
     let mut legend: Vec<(&str, String)> = Vec::new();
+    // a job's operations, a line each, before the marks
+    let op_rows = if o.legend { ops.len() } else { 0 };
     if o.legend {
         if shape.is_some() {
             legend.push(("outline", "outline".into()));
         }
         if swept && (kinds.linear || kinds.arc) {
-            legend.push(("swept", format!("tool width ({} mm)", num(tool))));
+            legend.push((
+                "swept",
+                if ops.is_empty() {
+                    format!("tool width ({} mm)", num(tool))
+                } else {
+                    "tool width".to_string()
+                },
+            ));
         }
         for (on, key, text) in [
             (marks.start.is_some(), "start", "start"),
             (!marks.arrows.is_empty(), "direction", "cut direction"),
             (!marks.tabs.is_empty(), "tab", "tab"),
-            (kinds.linear, "linear", "cut"),
-            (kinds.arc, "arc", "arc cut"),
-            (kinds.plunge, "plunge", "straight down"),
+            (kinds.linear && ops.is_empty(), "linear", "cut"),
+            (kinds.arc && ops.is_empty(), "arc", "arc cut"),
+            (kinds.plunge && ops.is_empty(), "plunge", "straight down"),
             (kinds.rapid, "rapid", "rapid"),
             (kinds.stitch, "stitch", "stitch"),
             (kinds.jump, "jump", "jump"),
@@ -126,7 +178,7 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
             }
         }
     }
-    let rows = usize::from(o.scale_bar) + legend.len().div_ceil(3);
+    let rows = usize::from(o.scale_bar) + op_rows + legend.len().div_ceil(3);
     let band = if rows > 0 {
         line * (rows as f64 + 0.5)
     } else {
@@ -156,7 +208,13 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
     // +Y up: everything below is drawn in the shape's own coordinates
     out.push_str("<g transform=\"scale(1,-1)\" fill=\"none\" stroke-linecap=\"round\" stroke-linejoin=\"round\">\n");
     if let (true, Some(t)) = (swept, tp) {
-        draw_swept(&mut out, t, tool);
+        if ops.is_empty() {
+            draw_swept(&mut out, t, tool);
+        } else {
+            for (part, op) in parts(t, ops) {
+                draw_swept(&mut out, &part, op.diameter);
+            }
+        }
     }
     if let Some(s) = shape {
         for pl in &s.paths {
@@ -169,7 +227,15 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
         }
     }
     if let Some(t) = tp {
-        draw_toolpath(&mut out, t, sw);
+        if ops.is_empty() {
+            draw_toolpath(&mut out, t, sw, P3::default(), None);
+        } else {
+            // each operation's moves in its tool's colour, from where the last one left off
+            let mut pos = P3::default();
+            for (part, op) in parts(t, ops) {
+                pos = draw_toolpath(&mut out, &part, sw, pos, Some(tool_colour(ops, op.tool)));
+            }
+        }
     }
     draw_marks(&mut out, &marks, sw);
     out.push_str("</g>\n");
@@ -200,6 +266,29 @@ pub fn svg_with(shape: Option<&Shape>, tp: Option<&Toolpath>, o: &PreviewOptions
             num(len)
         );
         row_y += line;
+    }
+    if o.legend {
+        for op in ops {
+            let ym = row_y - font * 0.35;
+            let _ = writeln!(
+                out,
+                r#"<path d="M{} {}H{}" fill="none" stroke="{}" stroke-width="{}"/>"#,
+                f(left),
+                f(ym),
+                f(left + line * 1.2),
+                tool_colour(ops, op.tool),
+                f(sw * 4.0)
+            );
+            let _ = writeln!(
+                out,
+                r#"<text x="{}" y="{}" font-family="sans-serif" font-size="{}" fill="{TEXT_COLOUR}">{}</text>"#,
+                f(left + line * 1.5),
+                f(row_y),
+                f(font),
+                xml_text(&op.label)
+            );
+            row_y += line;
+        }
     }
     let col = w / 3.0;
     for (k, (key, text)) in legend.iter().enumerate() {
@@ -521,9 +610,55 @@ fn num(v: f64) -> String {
     s.to_string()
 }
 
-fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
+/// The job's tool path cut into its operations' parts, each with its operation; each part
+/// starts with a rapid to where the last one ended, so it can be walked on its own. Moves
+/// before the first operation go with it.
+fn parts<'a>(t: &Toolpath, ops: &'a [LegendOperation]) -> Vec<(Toolpath, &'a LegendOperation)> {
+    let mut out = Vec::new();
+    let mut pos: Option<P3> = None;
+    for (k, op) in ops.iter().enumerate() {
+        let from = if k == 0 {
+            0
+        } else {
+            op.first_move.min(t.moves.len())
+        };
+        let to = ops
+            .get(k + 1)
+            .map_or(t.moves.len(), |n| n.first_move.min(t.moves.len()))
+            .max(from);
+        let mut part = Toolpath::new("");
+        if let Some(p) = pos {
+            // the tool is already there: a rapid of no length, drawn as nothing
+            part.moves.push(Move::Rapid { to: p });
+        }
+        part.moves.extend_from_slice(&t.moves[from..to]);
+        pos = Some(part.walk(pos.unwrap_or_default(), |_, _, _| {}));
+        out.push((part, op));
+    }
+    out
+}
+
+/// Text for an SVG element: `&`, `<` and `>` escaped.
+fn xml_text(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+/// Draws the moves of `t` from `start`, cuts (lines, arcs, plunges) in `cut_colour` when
+/// given, else each kind in its own colour; returns where the tool ends.
+fn draw_toolpath(
+    out: &mut String,
+    t: &Toolpath,
+    sw: f64,
+    start: P3,
+    cut_colour: Option<&str>,
+) -> P3 {
     let dash = format!("{} {}", f(sw * 6.0), f(sw * 4.0));
-    t.walk(P3::default(), |from, m, to| {
+    let linear = cut_colour.unwrap_or(LINEAR_COLOUR);
+    let arc = cut_colour.unwrap_or(ARC_COLOUR);
+    let plunge = cut_colour.unwrap_or(PLUNGE_COLOUR);
+    t.walk(start, |from, m, to| {
         let (a, b) = (from.xy(), to.xy());
         let same_xy = a.dist(b) < 1e-9;
         match m {
@@ -537,7 +672,7 @@ fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
             Move::Linear { .. } if same_xy && to.z < from.z => {
                 let _ = writeln!(
                     out,
-                    r#"<circle cx="{}" cy="{}" r="{}" fill="{PLUNGE_COLOUR}"/>"#,
+                    r#"<circle cx="{}" cy="{}" r="{}" fill="{plunge}"/>"#,
                     f(b.x),
                     f(b.y),
                     f(sw * 2.5)
@@ -547,7 +682,7 @@ fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
             Move::Linear { .. } => {
                 let _ = writeln!(
                     out,
-                    r#"<path d="M{} {}L{} {}" stroke="{LINEAR_COLOUR}" stroke-width="{}"/>"#,
+                    r#"<path d="M{} {}L{} {}" stroke="{linear}" stroke-width="{}"/>"#,
                     f(a.x), f(a.y), f(b.x), f(b.y), f(sw)
                 );
             }
@@ -555,7 +690,7 @@ fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
                 let seg = arc_segment(a, b, *center, *ccw);
                 let _ = writeln!(
                     out,
-                    r#"<path d="M{} {}{}" stroke="{ARC_COLOUR}" stroke-width="{}"/>"#,
+                    r#"<path d="M{} {}{}" stroke="{arc}" stroke-width="{}"/>"#,
                     f(a.x), f(a.y), arc_d(&seg), f(sw)
                 );
             }
@@ -575,7 +710,7 @@ fn draw_toolpath(out: &mut String, t: &Toolpath, sw: f64) {
             }
             _ => {}
         }
-    });
+    })
 }
 
 /// A number for SVG: short, finite.

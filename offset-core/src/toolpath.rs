@@ -95,6 +95,18 @@ pub enum Move {
         dwell: f64,
         feed: f64,
     },
+    /// Measure the tool just loaded on a touch plate: from `clear` over `at`, probe straight
+    /// down at `feed`, no lower than `lowest`, until the tool touches the plate; the height
+    /// there becomes `thickness` above the work's zero (the plate lies on the stock top), and
+    /// the tool goes back up to `clear` (G38.2, then G10 L20 P0 Z`thickness`). Heights are in
+    /// the work frame the program had before the probe.
+    ProbeToolLength {
+        at: Point,
+        clear: f64,
+        lowest: f64,
+        feed: f64,
+        thickness: f64,
+    },
     /// A note for people; posts may drop it (GRBL never sees comments on the wire).
     Comment {
         text: String,
@@ -108,8 +120,34 @@ pub const PECK_BACKOFF: f64 = 0.254;
 impl Move {
     /// A drilling cycle spelt out in rapids, lines and a dwell, from the tool's position
     /// `from`, moving exactly as a controller runs the canned cycle (G98: back to `clear`);
-    /// any other move as it is.
+    /// a tool-length probe as the moves it makes when the plate is where it should be (down
+    /// to the plate's top, `thickness`); any other move as it is.
     pub fn drill_moves(&self, from: P3) -> Vec<Move> {
+        if let &Move::ProbeToolLength {
+            at,
+            clear,
+            thickness,
+            feed,
+            ..
+        } = self
+        {
+            // as planned: the tool touches the plate at its top, `thickness` above the zero
+            return vec![
+                Move::Rapid {
+                    to: P3::new(from.x, from.y, clear),
+                },
+                Move::Rapid {
+                    to: P3::at_z(at, clear),
+                },
+                Move::Linear {
+                    to: P3::at_z(at, thickness),
+                    feed,
+                },
+                Move::Rapid {
+                    to: P3::at_z(at, clear),
+                },
+            ];
+        }
         let &Move::Drill {
             at,
             clear,
@@ -253,7 +291,7 @@ impl Toolpath {
     pub fn walk(&self, start: P3, mut f: impl FnMut(P3, &Move, P3)) -> P3 {
         let mut pos = start;
         for m in &self.moves {
-            if let Move::Drill { .. } = m {
+            if let Move::Drill { .. } | Move::ProbeToolLength { .. } = m {
                 for d in m.drill_moves(pos) {
                     if let Move::Rapid { to } | Move::Linear { to, .. } = d {
                         f(pos, &d, to);
@@ -274,7 +312,7 @@ impl Toolpath {
     }
 
     /// The path with every drilling cycle spelt out in rapids, lines and dwells, for the
-    /// machines that have no canned cycles.
+    /// machines that have no canned cycles (tool-length probes stay as they are).
     pub fn expanded(&self) -> Toolpath {
         if !self.moves.iter().any(|m| matches!(m, Move::Drill { .. })) {
             return self.clone();
@@ -285,6 +323,12 @@ impl Toolpath {
         };
         let mut pos = P3::default();
         for m in &self.moves {
+            if let Move::ProbeToolLength { at, clear, .. } = m {
+                // a probe is no drilling cycle: it stays one move, for the post to write
+                out.moves.push(m.clone());
+                pos = P3::at_z(*at, *clear);
+                continue;
+            }
             for d in m.drill_moves(pos) {
                 if let Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } = &d {
                     pos = *to;

@@ -662,6 +662,22 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), GcodeError> {
                 known_xy = true;
                 pos = P3::at_z(*at, *clear);
             }
+            Move::ProbeToolLength {
+                at,
+                clear,
+                lowest,
+                feed,
+                thickness,
+            } => {
+                finite(&[at.x, at.y, *clear, *lowest, *feed, *thickness])?;
+                if *feed <= 0.0 {
+                    return Err(GcodeError::BadFeed { index, feed: *feed });
+                }
+                envelope_check(index, [at.x, at.y, *clear], opts)?;
+                envelope_check(index, [at.x, at.y, *lowest], opts)?;
+                known_xy = true;
+                pos = P3::at_z(*at, *clear);
+            }
             Move::Stop | Move::ToolChange { .. } | Move::Comment { .. } => {}
         }
     }
@@ -894,6 +910,29 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
                     }
                     w.push(format!("T{tool} M6"));
                 }
+            }
+            Move::ProbeToolLength {
+                at,
+                clear,
+                lowest,
+                feed,
+                thickness,
+            } => {
+                // up, over the touch plate, down until the tool touches it (G38.2: an alarm
+                // if it never does), that height is the plate's top, and back up
+                if w.pos[2] != Some(q(*clear)) {
+                    // straight up first, wherever the tool is
+                    w.push(format!("G0 Z{}", num(*clear)));
+                    w.pos[2] = Some(q(*clear));
+                }
+                w.rapid([at.x, at.y, *clear]);
+                w.push(format!("G38.2 Z{} F{}", num(*lowest), short(*feed)));
+                w.push(format!("G10 L20 P0 Z{}", num(*thickness)));
+                w.pos[2] = Some(q(*thickness));
+                // the feed word of the next cut is written again: G38.2 set its own
+                w.feed = None;
+                w.rapid([at.x, at.y, *clear]);
+                exact = P3::at_z(*at, *clear);
             }
             Move::Comment { text } => {
                 if !grbl {

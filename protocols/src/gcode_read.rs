@@ -106,9 +106,15 @@ impl Reader {
         let mut target: [Option<f64>; 3] = [None; 3];
         let (mut ci, mut cj, mut cr) = (None, None, None);
         let mut outside_work_frame = false;
+        // G10 sets an offset (its axis words move nothing); G38.2 probes, a feed move for
+        // this line only
+        let mut sets_offset = false;
+        let mut probe = false;
         for &(l, v) in &words {
             match l {
                 'G' if v == 53.0 || v == 28.0 || v == 30.0 => outside_work_frame = true,
+                'G' if v == 10.0 => sets_offset = true,
+                'G' if (v - 38.2).abs() < 1e-9 => probe = true,
                 'G' => match v {
                     v if v == 0.0 || v == 1.0 || v == 2.0 || v == 3.0 => self.motion = v as u8,
                     20.0 => *scale = 25.4,
@@ -127,7 +133,7 @@ impl Reader {
                 _ => {}
             }
         }
-        if target.iter().all(|t| t.is_none()) {
+        if sets_offset || target.iter().all(|t| t.is_none()) {
             return Ok(None);
         }
         let pos = self.pos;
@@ -150,6 +156,7 @@ impl Reader {
         }
         let feed = self.feed;
         let m = match self.motion {
+            _ if probe => Move::Linear { to, feed },
             0 => Move::Rapid { to },
             1 => Move::Linear { to, feed },
             _ => {

@@ -86,7 +86,27 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             let p =
                 machlink::core::intake::recipe::plan_operations(&spec, intake::Target::Post(post))?;
             print_warnings(&p.warnings);
-            let svg = preview::svg_with(Some(&p.shape), Some(&p.toolpath), &opts);
+            // each operation in its tool's colour, named in the legend as `plan` names it
+            let ops: Vec<preview::LegendOperation> = p
+                .figures
+                .iter()
+                .map(|o| {
+                    let f = &o.figures;
+                    preview::LegendOperation {
+                        first_move: f.first_move,
+                        tool: f.tool.number,
+                        diameter: f.tool.diameter,
+                        label: format!(
+                            "T{} ({}): {}, {}",
+                            f.tool.number,
+                            f.tool_name,
+                            f.name,
+                            super::plan::clock(f.seconds)
+                        ),
+                    }
+                })
+                .collect();
+            let svg = preview::svg_of_job(Some(&p.shape), Some(&p.toolpath), &ops, &opts);
             write_drawing(&a.output, &svg)?;
             eprintln!("wrote {}", a.output.display());
             return Ok(());

@@ -288,6 +288,10 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
         }
     };
     warnings.extend(toolpath.warnings.iter().cloned());
+    let toolpath = match target {
+        Target::Machine(m) => with_probes(toolpath, m),
+        Target::Post(_) => toolpath,
+    };
     let post = pick_post(spec, target)?;
     if let Target::Machine(m) = target {
         check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
@@ -325,6 +329,25 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
         toolpath,
         figures,
     })
+}
+
+/// The tool path with a tool-length probe on machine `m`'s touch plate after every tool
+/// change, when the machine probes (`probe = true`): the spindle is still stopped there, and
+/// the next cut comes after it.
+fn with_probes(mut tp: offset_core::Toolpath, m: &MachineConfig) -> offset_core::Toolpath {
+    let (true, Some(plate)) = (m.probe, m.touch_plate) else {
+        return tp;
+    };
+    let mut moves = Vec::with_capacity(tp.moves.len() + 4);
+    for mv in tp.moves.drain(..) {
+        let change = matches!(mv, offset_core::Move::ToolChange { .. });
+        moves.push(mv);
+        if change {
+            moves.push(plate.probe_move());
+        }
+    }
+    tp.moves = moves;
+    tp
 }
 
 /// Reads the job's mesh: an STL, or a surface fitted through a point grid (for roughing,
@@ -608,8 +631,8 @@ pub fn params_of(spec: &JobSpec) -> serde_json::Value {
 /// never import each other.
 pub mod recipe {
     //! Recipes: a job of several operations, each with its own tool (a number from the machine's
-    //! `tools` table, or given inline) and the geometry it takes (DXF layers by name or glob,
-    //! DXF colours, circles of a diameter range), planned in their order into one tool path with
+    //! `tools` table, or given inline) and the geometry it takes (DXF layers and SVG layers or
+    //! groups by name or glob, DXF colours, circles of a diameter range), planned in their order into one tool path with
     //! a tool change wherever the tool differs. A recipe file is that list in TOML, reusable
     //! across parts; `JobSpec.operations` carries the same list in a job.
 
@@ -836,10 +859,16 @@ pub mod recipe {
         file_layers: &[String],
     ) -> Result<(Shape, Vec<String>), IntakeError> {
         let file = &spec.input.file_name;
-        let is_dxf = file.to_ascii_lowercase().ends_with(".dxf");
-        if !is_dxf && !(take.layers.is_empty() && take.colors.is_empty()) {
+        let lower = file.to_ascii_lowercase();
+        let is_dxf = lower.ends_with(".dxf");
+        if !is_dxf && !take.colors.is_empty() {
             return Err(IntakeError::Input(format!(
-                "{file} is not a DXF file: take.layers and take.colors select DXF entities"
+                "{file} is not a DXF file: take.colors selects DXF entities by colour"
+            )));
+        }
+        if !is_dxf && !lower.ends_with(".svg") && !take.layers.is_empty() {
+            return Err(IntakeError::Input(format!(
+                "{file} is neither a DXF nor an SVG file: take.layers selects DXF layers and SVG layers or groups"
             )));
         }
         take.check()
@@ -922,7 +951,14 @@ pub mod recipe {
         } else {
             Vec::new()
         };
-        let mut file_layers: Vec<String> = Vec::new();
+        // the names take.layers' globs match: DXF layers, SVG groups (Inkscape layer labels
+        // and group ids)
+        let mut file_layers: Vec<String> = if file.to_ascii_lowercase().ends_with(".svg") {
+            offset_core::io::svg::layers(&spec.input.bytes()?, file)
+                .map_err(|e| IntakeError::Input(e.to_string()))?
+        } else {
+            Vec::new()
+        };
         for e in &entities {
             if !file_layers.iter().any(|l| l.eq_ignore_ascii_case(&e.layer)) {
                 file_layers.push(e.layer.clone());
@@ -1007,6 +1043,25 @@ pub mod recipe {
                     "{file}: {} is taken by no operation of the job",
                     e.describe()
                 ));
+            }
+        }
+        // an SVG's paths, by the groups they lie in
+        if file.to_ascii_lowercase().ends_with(".svg") {
+            let placed = offset_core::io::svg::paths_in_groups(&spec.input.bytes()?, file)
+                .map_err(|e| IntakeError::Input(e.to_string()))?;
+            for (path, groups) in placed {
+                let taken = spec.operations.iter().any(|op| {
+                    op.take.layers.is_empty() || groups.iter().any(|g| op.take.takes_layer(g))
+                });
+                if !taken {
+                    let place = match groups.first() {
+                        Some(_) => format!(" in group {}", groups.join(" / ")),
+                        None => " outside every group".to_string(),
+                    };
+                    warnings.push(format!(
+                        "{file}: {path}{place} is taken by no operation of the job"
+                    ));
+                }
             }
         }
         if steps.is_empty() {

@@ -30,6 +30,105 @@ pub struct MachineConfig {
     /// The recipe a job for this machine gets when it names no operation (`recipe =
     /// "sign.toml"`, relative to the config file; read and checked when the config is).
     pub recipe: Option<std::path::PathBuf>,
+    /// Measure each tool's length on the touch plate after it is loaded (`probe = true`).
+    pub probe: bool,
+    /// Where the touch plate lies and how to probe it (`touch_plate = { x = …, y = … }`).
+    pub touch_plate: Option<TouchPlate>,
+}
+
+/// The touch plate of a machine that probes its tools' lengths: it lies on the stock top at
+/// (`x`, `y`) in work coordinates, `thickness` mm thick. The probe starts `clear` mm above
+/// the work's zero and goes down at most `travel` mm at `feed` mm/min.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TouchPlate {
+    pub x: f64,
+    pub y: f64,
+    #[serde(default)]
+    pub thickness: f64,
+    #[serde(default = "default_probe_feed")]
+    pub feed: f64,
+    #[serde(default = "default_probe_clear")]
+    pub clear: f64,
+    #[serde(default = "default_probe_travel")]
+    pub travel: f64,
+}
+
+/// 100 mm/min: slow enough that the tool stops within a few micrometres of the touch.
+fn default_probe_feed() -> f64 {
+    100.0
+}
+fn default_probe_clear() -> f64 {
+    10.0
+}
+fn default_probe_travel() -> f64 {
+    30.0
+}
+
+impl TouchPlate {
+    /// The probe move of this plate (offset_core's `Move::ProbeToolLength`).
+    pub fn probe_move(&self) -> offset_core::Move {
+        offset_core::Move::ProbeToolLength {
+            at: offset_core::geom::Point::new(self.x, self.y),
+            clear: self.clear,
+            lowest: self.clear - self.travel,
+            feed: self.feed,
+            thickness: self.thickness,
+        }
+    }
+
+    /// Problems with the plate's numbers, in one sentence naming the key.
+    fn check(&self, max_feed: Option<f64>, area: Option<&WorkArea>) -> Result<(), String> {
+        let p = self;
+        for (k, v) in [
+            ("x", p.x),
+            ("y", p.y),
+            ("thickness", p.thickness),
+            ("feed", p.feed),
+            ("clear", p.clear),
+            ("travel", p.travel),
+        ] {
+            if !v.is_finite() {
+                return Err(format!("key `touch_plate`: {k} must be a number, got {v}"));
+            }
+        }
+        if p.thickness < 0.0 {
+            return Err(format!(
+                "key `touch_plate`: thickness must be 0 or more, got {}",
+                p.thickness
+            ));
+        }
+        if p.feed <= 0.0 || max_feed.is_some_and(|m| p.feed > m) {
+            return Err(format!(
+                "key `touch_plate`: feed must be a positive number{}, got {}",
+                max_feed.map_or(String::new(), |m| format!(" up to max_feed {m}")),
+                p.feed
+            ));
+        }
+        if p.clear <= p.thickness {
+            return Err(format!(
+                "key `touch_plate`: clear ({}) must be above the plate's top (thickness {})",
+                p.clear, p.thickness
+            ));
+        }
+        if p.travel <= p.clear - p.thickness {
+            return Err(format!(
+                "key `touch_plate`: travel ({}) must reach below the plate's top, more than clear − thickness = {}",
+                p.travel,
+                p.clear - p.thickness
+            ));
+        }
+        if let Some(w) = area {
+            let inside = |k: usize, v: f64| v >= w.min[k] && v <= w.max[k];
+            if !(inside(0, p.x) && inside(1, p.y) && inside(2, p.clear)) {
+                return Err(format!(
+                    "key `touch_plate`: the plate at ({}, {}) probed from Z {} lies outside the work_area",
+                    p.x, p.y, p.clear
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// M-codes a G-code job may hold unless a machine says otherwise: program stop and end,
@@ -47,6 +146,8 @@ impl std::fmt::Debug for MachineConfig {
             .field("allowed_m_codes", &self.allowed_m_codes)
             .field("tools", &self.tools)
             .field("recipe", &self.recipe)
+            .field("probe", &self.probe)
+            .field("touch_plate", &self.touch_plate)
             .finish()
     }
 }
@@ -61,6 +162,8 @@ impl PartialEq for MachineConfig {
             && self.allowed_m_codes == o.allowed_m_codes
             && self.tools == o.tools
             && self.recipe == o.recipe
+            && self.probe == o.probe
+            && self.touch_plate == o.touch_plate
     }
 }
 
@@ -88,6 +191,8 @@ impl MachineConfig {
             allowed_m_codes: DEFAULT_M_CODES.to_vec(),
             tools: Vec::new(),
             recipe: None,
+            probe: false,
+            touch_plate: None,
         })
     }
 }
@@ -141,6 +246,21 @@ impl MachineConfig {
                 }
             }
         }
+        if self.probe {
+            if !self.kind.gcode_lines_are_units() {
+                return Err(format!(
+                    "key `probe`: a link = \"{}\" machine runs no G-code, and the tool-length probe is G38.2 then G10 L20; leave probe out",
+                    self.link
+                ));
+            }
+            let Some(p) = &self.touch_plate else {
+                return Err(
+                    "key `probe`: probe = true needs the touch plate: touch_plate = { x = …, y = …, thickness = … }"
+                        .into(),
+                );
+            };
+            p.check(self.max_feed, self.work_area.as_ref())?;
+        }
         for t in &self.tools {
             if !(t.diameter.is_finite() && t.diameter > 0.0) {
                 return Err(format!(
@@ -158,7 +278,7 @@ impl MachineConfig {
 pub const UNNAMED: &str = "a [[machine]] table";
 
 /// The keys every machine table takes, whatever its link.
-const COMMON_KEYS: [&str; 7] = [
+const COMMON_KEYS: [&str; 9] = [
     "name",
     "link",
     "work_area",
@@ -166,6 +286,8 @@ const COMMON_KEYS: [&str; 7] = [
     "allowed_m_codes",
     "tools",
     "recipe",
+    "probe",
+    "touch_plate",
 ];
 
 /// A `[[machine]]` table as written: the common keys typed, every other key kept with its
@@ -178,6 +300,8 @@ pub struct RawMachine {
     allowed_m_codes: Option<Vec<u32>>,
     tools: Vec<ToolConfig>,
     recipe: Option<std::path::PathBuf>,
+    probe: bool,
+    touch_plate: Option<TouchPlate>,
     others: Vec<(toml::Spanned<String>, toml::Spanned<toml::Value>)>,
 }
 
@@ -204,6 +328,8 @@ impl<'de> Visitor<'de> for MachineVisitor {
         let mut allowed_m_codes = None;
         let mut tools = Vec::new();
         let mut recipe = None;
+        let mut probe = false;
+        let mut touch_plate = None;
         let mut others = Vec::new();
         let who = |name: &Option<String>| match name {
             Some(n) => format!("machine `{n}`"),
@@ -229,6 +355,10 @@ impl<'de> Visitor<'de> for MachineVisitor {
                 "recipe" => {
                     recipe = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
                 }
+                "probe" => probe = map.next_value_seed(Named(ctx, std::marker::PhantomData))?,
+                "touch_plate" => {
+                    touch_plate = Some(map.next_value_seed(Named(ctx, std::marker::PhantomData))?)
+                }
                 _ => {
                     let v: toml::Spanned<toml::Value> =
                         map.next_value_seed(Named(ctx, std::marker::PhantomData))?;
@@ -250,6 +380,8 @@ impl<'de> Visitor<'de> for MachineVisitor {
             allowed_m_codes,
             tools,
             recipe,
+            probe,
+            touch_plate,
             others,
         })
     }
@@ -357,6 +489,8 @@ impl RawMachine {
                 .unwrap_or_else(|| DEFAULT_M_CODES.to_vec()),
             tools: self.tools,
             recipe: self.recipe,
+            probe: self.probe,
+            touch_plate: self.touch_plate,
         };
         m.check()
             .map_err(|e| (table, format!("machine `{}`: {e}", m.name)))?;

@@ -1050,3 +1050,465 @@ async fn a_machine_default_recipe_plans_a_drawing_submitted_without_an_operation
         "{e}"
     );
 }
+
+/// An Inkscape drawing of a 120 × 80 mm plate: layer "Holes" (four 3 mm circles, two of them
+/// in a nested group), the plate's outline as group `outline` in layer "Cut", a layer
+/// "Notes" with one path, and a path in no group. Y is up in machlink: the SVG's y flips.
+const LAYERED_SVG: &str = r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="120mm" height="80mm" viewBox="0 0 120 80">
+  <g inkscape:groupmode="layer" inkscape:label="Holes" id="layer1">
+    <circle id="h1" cx="10" cy="10" r="1.5"/>
+    <circle id="h2" cx="110" cy="10" r="1.5"/>
+    <g id="right-pair"><circle id="h3" cx="110" cy="70" r="1.5"/><circle id="h4" cx="10" cy="70" r="1.5"/></g>
+  </g>
+  <g inkscape:groupmode="layer" inkscape:label="Cut" id="layer2">
+    <g id="outline"><rect id="plate" x="0" y="0" width="120" height="80"/></g>
+  </g>
+  <g inkscape:groupmode="layer" inkscape:label="Notes" id="layer3">
+    <path id="note" d="M 40 40 L 80 40"/>
+  </g>
+  <path id="stray" d="M 50 50 L 60 60"/>
+</svg>
+"#;
+
+/// A recipe takes an SVG's geometry by Inkscape layer label (`layer = "holes"`) and by group
+/// id (`layers = ["outl*"]`, a glob): the holes are drilled at their circles' centres, the
+/// outline is cut around at the tool's radius, and the paths no operation takes (a layer
+/// of notes, a path in no group) are named; DXF colours on an SVG are refused.
+#[test]
+fn an_svg_recipe_takes_inkscape_layers_and_group_ids_and_names_the_paths_it_leaves() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("plate.svg");
+    std::fs::write(&svg, LAYERED_SVG).unwrap();
+    let recipe = dir.path().join("plate.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = { number = 1, diameter = 3.0 }\n\
+         take = { layer = \"holes\", diameter = [2.9, 3.1] }\ndepth = 4.0\ncycle = \"simple\"\n\n\
+         [[operations]]\nop = \"profile\"\nside = \"outside\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layers = [\"outl*\"] }\ncut = { depth = 2.0, stepdown = 2.0, feed = 800 }\n",
+    )
+    .unwrap();
+    let out_file = dir.path().join("plate.ngc");
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "--post".as_ref(),
+        "linuxcnc".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan plate.svg");
+    let r = read(&std::fs::read_to_string(&out_file).unwrap(), "linuxcnc");
+    // the four holes of layer Holes (the nested group's too), each drilled once at its centre
+    let centres = [[10.0, 70.0], [110.0, 70.0], [110.0, 10.0], [10.0, 10.0]];
+    assert_eq!(r.cycles.len(), 4, "{:?}", r.cycles);
+    for c in centres {
+        let n = r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).count();
+        assert_eq!(n, 1, "the hole at {c:?}: {:?}", r.cycles);
+    }
+    assert!(r.cycles.iter().all(|y| y.g == 81 && y.z == -4.0));
+    assert_eq!(r.m6, vec![1, 2]);
+    // the outline, cut outside the plate at the tool's radius, and nothing else cut
+    let plate = [0.0, 0.0, 120.0, 80.0];
+    let mut cut = 0;
+    for m in r.moves.iter().filter(|m| !m.rapid) {
+        for [x, y, z] in m.samples() {
+            if z < -1e-6 && !centres.iter().any(|&c| near([x, y], c, 1e-6)) {
+                let (d, inside) = to_rect(x, y, plate);
+                assert!(
+                    !inside && (d - 3.0).abs() <= 2e-3,
+                    "({x}, {y}, {z}) is {d} from the plate"
+                );
+                cut += 1;
+            }
+        }
+    }
+    assert!(cut > 100, "the outline was cut in {cut} samples");
+    // what no operation takes is named: the note's layer and the stray path
+    let e = stderr(&o);
+    let untaken: Vec<&str> = e
+        .lines()
+        .filter(|l| l.contains("is taken by no operation"))
+        .collect();
+    assert_eq!(untaken.len(), 2, "{e}");
+    assert!(
+        untaken
+            .iter()
+            .any(|l| l.contains("path \"note\" in group Notes")),
+        "{e}"
+    );
+    assert!(
+        untaken
+            .iter()
+            .any(|l| l.contains("path \"stray\" outside every group")),
+        "{e}"
+    );
+    // an operation whose layer the file does not have takes nothing, with a warning
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"profile\"\nside = \"on\"\nname = \"engrave\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layer = \"Text\" }\n\n\
+         [[operations]]\nop = \"profile\"\nside = \"outside\"\ntool = { number = 2, diameter = 6.0 }\n\
+         take = { layers = [\"Cut\"] }\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan with a layer the file lacks");
+    assert!(
+        stderr(&o).contains("engrave takes nothing from plate.svg"),
+        "{}",
+        stderr(&o)
+    );
+    // DXF colours select nothing in an SVG: refused, saying so
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"profile\"\ntool = { number = 2, diameter = 6.0 }\ntake = { colors = [1] }\n",
+    )
+    .unwrap();
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("plate.svg is not a DXF file: take.colors"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+/// The value of attribute `name` in one SVG element's text.
+fn attr<'a>(element: &'a str, name: &str) -> Option<&'a str> {
+    let key = format!(" {name}=\"");
+    let at = element.find(&key)? + key.len();
+    element[at..].split('"').next()
+}
+
+/// The points an SVG path's data passes (its M, L, H, V and A end points), in the drawing's
+/// own frame.
+fn path_points(d: &str) -> Vec<[f64; 2]> {
+    let mut out = Vec::new();
+    let mut nums: Vec<f64> = Vec::new();
+    let mut cmd = ' ';
+    let flush = |cmd: char, nums: &mut Vec<f64>, out: &mut Vec<[f64; 2]>| {
+        match cmd {
+            'M' | 'L' if nums.len() >= 2 => out.push([nums[0], nums[1]]),
+            'A' if nums.len() >= 7 => out.push([nums[5], nums[6]]),
+            _ => {}
+        }
+        nums.clear();
+    };
+    let mut num = String::new();
+    for ch in d.chars().chain(std::iter::once(' ')) {
+        if ch.is_ascii_alphabetic() {
+            if !num.is_empty() {
+                nums.push(num.parse().unwrap());
+                num.clear();
+            }
+            flush(cmd, &mut nums, &mut out);
+            cmd = ch;
+        } else if ch == ' ' || ch == ',' {
+            if !num.is_empty() {
+                nums.push(num.parse().unwrap());
+                num.clear();
+            }
+        } else if ch == '-' && !num.is_empty() {
+            nums.push(num.parse().unwrap());
+            num = "-".into();
+        } else {
+            num.push(ch);
+        }
+    }
+    flush(cmd, &mut nums, &mut out);
+    out
+}
+
+/// `preview --recipe` draws the sign in one picture: every operation's cuts in its tool's
+/// colour (the drill's plunges at the 3 mm holes in T1's, the bores, the pocket and the
+/// cut-out in T2's), and a legend line per operation naming its tool, the operation and the
+/// time `plan` gives it, beside that colour.
+#[test]
+fn the_sign_preview_draws_each_operation_in_its_tool_colour_with_a_legend_of_tool_operation_and_time(
+) {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, said) = plan("grbl", dir.path());
+    let svg_file = dir.path().join("sign.svg");
+    let o = machlink(&[
+        "preview".as_ref(),
+        example("sign.dxf").as_os_str(),
+        "--recipe".as_ref(),
+        example("sign.toml").as_os_str(),
+        "-o".as_ref(),
+        svg_file.as_os_str(),
+    ]);
+    ok(&o, "preview --recipe");
+    let svg = std::fs::read_to_string(&svg_file).unwrap();
+    let lines: Vec<&str> = svg.lines().collect();
+    // plan's lines: "  operation 1: drill 3 mm holes with T1 (3 mm drill): cutting …, 22.9 s"
+    let ops: Vec<(String, String, String)> = said
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("operation "))
+        .map(|l| {
+            let (_, rest) = l.split_once(": ").unwrap();
+            let (name, rest) = rest.split_once(" with T").unwrap();
+            let (tool, rest) = rest.split_once("): ").unwrap();
+            let time = rest.rsplit(", ").next().unwrap();
+            (format!("T{tool})"), name.to_string(), time.to_string())
+        })
+        .collect();
+    assert_eq!(ops.len(), 4, "{said}");
+    // each operation's legend line, its colour on the line before it
+    let mut colour_of = std::collections::BTreeMap::new();
+    for (tool, name, time) in &ops {
+        let want = format!(">{tool}: {name}, {time}</text>");
+        let k = lines
+            .iter()
+            .position(|l| l.starts_with("<text") && l.ends_with(&want))
+            .unwrap_or_else(|| panic!("no legend line {want}"));
+        let colour = attr(lines[k - 1], "stroke").expect("a colour beside the legend line");
+        let number = tool[1..].split(' ').next().unwrap().to_string();
+        let was = colour_of.insert(number.clone(), colour.to_string());
+        assert!(
+            was.as_ref().is_none_or(|w| w == colour),
+            "T{number} has two colours: {was:?} and {colour}"
+        );
+    }
+    let (t1, t2) = (&colour_of["1"], &colour_of["2"]);
+    assert_ne!(t1, t2, "one colour for both tools");
+    // the drawing (inside the flipped group): the drill's plunges at the 3 mm holes in T1's
+    // colour; every cut outside the plate (the cut-out) and about the 8 mm holes (the bores)
+    // in T2's
+    let start = lines
+        .iter()
+        .position(|l| l.starts_with("<g transform"))
+        .unwrap();
+    // the drawing's group ends at the last </g> (the swept band's group lies inside it)
+    let end = lines.iter().rposition(|l| *l == "</g>").unwrap();
+    let drawing = &lines[start..end];
+    for c in SMALL_HOLES {
+        let dots: Vec<&&str> = drawing
+            .iter()
+            .filter(|l| {
+                l.starts_with("<circle")
+                    && attr(l, "cx")
+                        .is_some_and(|x| (x.parse::<f64>().unwrap() - c[0]).abs() < 1e-3)
+                    && attr(l, "cy")
+                        .is_some_and(|y| (y.parse::<f64>().unwrap() - c[1]).abs() < 1e-3)
+            })
+            .collect();
+        assert!(
+            dots.iter().any(|l| attr(l, "fill") == Some(t1)),
+            "no plunge in T1's colour at {c:?}: {dots:?}"
+        );
+    }
+    let (mut outside, mut bores) = (0, 0);
+    for l in drawing.iter().filter(|l| l.starts_with("<path")) {
+        let (Some(stroke), Some(d)) = (attr(l, "stroke"), attr(l, "d")) else {
+            continue;
+        };
+        // rapids (red, dashed), the tab marks and the outline are not cuts
+        if ["#d62728", "#e377c2", "#555555", "none"].contains(&stroke)
+            || l.contains("stroke-dasharray")
+        {
+            continue;
+        }
+        let pts = path_points(d);
+        if pts
+            .iter()
+            .all(|p| !to_rect(p[0], p[1], PLATE).1 && to_rect(p[0], p[1], PLATE).0 > 2.9)
+        {
+            assert_eq!(
+                stroke, t2,
+                "a cut outside the plate not in T2's colour: {l}"
+            );
+            outside += 1;
+        }
+        if d.contains('A')
+            && BIG_HOLES
+                .iter()
+                .any(|c| pts.iter().all(|p| near(*p, *c, 1.0 + 1e-3)))
+        {
+            assert_eq!(stroke, t2, "a bore not in T2's colour: {l}");
+            bores += 1;
+        }
+    }
+    assert!(
+        outside >= 8 && bores >= 4,
+        "{outside} cut-out pieces, {bores} bore arcs"
+    );
+}
+
+/// A GRBL machine that probes its tools (`probe = true`, a touch plate 1.5 mm thick at
+/// (30, 20)): after each tool the operator loads and resumes, the tool goes over the plate
+/// and probes down (G38.2) until it touches, the work's Z is set there (G10 L20), and only
+/// then does it cut, at depths counted from the plate's top. Every line reaches the
+/// controller once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_probing_machine_measures_each_tool_on_its_touch_plate_before_it_cuts() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    // the plate's top at machine Z −3: the new tool touches it there
+    let contact = -3.0;
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            touch_plate_z: Some(contact),
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    let table = format!(
+        "[[machine]]\nname = \"router\"\nlink = \"grbl\"\nport = \"{}\"\nprobe = true\n\
+         touch_plate = {{ x = 30.0, y = 20.0, thickness = 1.5, feed = 200.0, clear = 10.0, travel = 30.0 }}\n\
+         tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n",
+        port.display()
+    );
+    proc::write_config(dir.path(), &table);
+    let dxf = dir.path().join("holes.dxf");
+    std::fs::write(&dxf, holes_dxf()).unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = 1\ntake = { diameter = [2.9, 3.1] }\ndepth = 1.0\nfeed = 300\n\n\
+         [[operations]]\nop = \"drill\"\ntool = 2\ntake = { diameter = [4.9, 5.1] }\ndepth = 1.0\nfeed = 300\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let id = submit_recipe(&sock, &dxf, "router", &recipe);
+    for tool in ["load T1 (3 mm drill)", "load T2 (5 mm drill)"] {
+        wait_job_record(&sock, id, "paused for a tool", |j| {
+            j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
+        });
+        machines_show(&sock, &format!("needs operator: {tool}"));
+        // the controller holds at the M0 before the operator resumes it
+        std::thread::sleep(Duration::from_millis(300));
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    let lines = received(&sim);
+    let moves: Vec<machlink_sim::grbl::Executed> = sim
+        .events()
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::Executed(x) => Some(x),
+            _ => None,
+        })
+        .collect();
+    // a probe after each tool stop, at the plate, and the work's Z set there to its top
+    let stops: Vec<usize> = (0..lines.len())
+        .filter(|&i| lines[i].starts_with("M0"))
+        .collect();
+    assert_eq!(stops.len(), 2, "{lines:?}");
+    for &s in &stops {
+        let probe = (s..lines.len())
+            .find(|&i| lines[i].starts_with("G38.2"))
+            .expect("a probe after the tool stop");
+        assert!(
+            lines[s + 1..probe].iter().all(|l| l.starts_with("G0")),
+            "only rapids between the stop and the probe: {:?}",
+            &lines[s..=probe]
+        );
+        assert_eq!(lines[probe + 1], "G10 L20 P0 Z1.500", "{lines:?}");
+        // nothing cuts between the stop and the probe
+        assert!(
+            !lines[s..probe]
+                .iter()
+                .any(|l| l.starts_with("G1") || l.starts_with("M3")),
+            "{:?}",
+            &lines[s..probe]
+        );
+    }
+    let probes: Vec<&machlink_sim::grbl::Executed> = moves
+        .iter()
+        .filter(|m| m.line.starts_with("G38.2"))
+        .collect();
+    assert_eq!(probes.len(), 2, "{probes:?}");
+    for p in &probes {
+        assert_eq!(
+            [p.to[0], p.to[1]],
+            [30.0, 20.0],
+            "probed off the plate: {p:?}"
+        );
+        assert_eq!(p.to[2], contact, "{p:?}");
+    }
+    // the holes go 1 mm below the stock top, the plate's top less its thickness: machine
+    // Z = −3 − 1.5 − 1
+    let low = moves.iter().map(|m| m.to[2]).fold(f64::INFINITY, f64::min);
+    assert!(
+        (low - (contact - 1.5 - 1.0)).abs() < 1e-9,
+        "the deepest cut is at machine Z {low}"
+    );
+    // every line once, in order: the controller's count of lines
+    let numbered: Vec<u64> = sim
+        .events()
+        .iter()
+        .filter_map(|e| match e {
+            TraceEvent::Received { n: Some(n), .. } => Some(*n),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(numbered, (1..=numbered.len() as u64).collect::<Vec<_>>());
+    assert_eq!(numbered.len() as i64, done.total_units as i64, "{done:?}");
+}
+
+/// check-config: `probe = true` needs a touch plate, its numbers are checked, and a machine
+/// that runs no G-code cannot probe; each mistake names the machine and the key.
+#[test]
+fn a_probing_machine_needs_a_touch_plate_whose_numbers_check_config_checks() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    for (link, plate, want) in [
+        ("grbl", "", "probe = true needs the touch plate"),
+        (
+            "grbl",
+            "touch_plate = { x = 30.0, y = 20.0, feed = -5.0 }\n",
+            "key `touch_plate`: feed must be a positive number",
+        ),
+        (
+            "grbl",
+            "touch_plate = { x = 30.0, y = 20.0, clear = 10.0, travel = 5.0 }\n",
+            "key `touch_plate`: travel (5) must reach below the plate's top",
+        ),
+        (
+            "sewing",
+            "touch_plate = { x = 30.0, y = 20.0 }\n",
+            "key `probe`: a link = \"sewing\" machine runs no G-code",
+        ),
+    ] {
+        std::fs::write(
+            dir.path().join("machlink.toml"),
+            format!(
+                "[[machine]]\nname = \"router\"\nlink = \"{link}\"\nport = \"{}\"\nprobe = true\n{plate}",
+                port.display()
+            ),
+        )
+        .unwrap();
+        let o = machlink(&[
+            "check-config".as_ref(),
+            dir.path().join("machlink.toml").as_os_str(),
+        ]);
+        assert!(!o.status.success(), "{plate}");
+        assert!(
+            stderr(&o).contains("machine `router`") && stderr(&o).contains(want),
+            "{plate}: {}",
+            stderr(&o)
+        );
+    }
+}

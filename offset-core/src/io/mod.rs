@@ -18,7 +18,8 @@ pub fn read_shape(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
 /// How to read a shape file, for the readers that take options.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ReadOptions {
-    /// DXF: read only these layers (all when empty).
+    /// DXF: read only these layers; SVG: only the paths under groups with these ids or
+    /// Inkscape layer labels (all when empty).
     pub layers: Vec<String>,
     /// Chaining, curve and arc-fitting tolerance, mm (0: the default, 0.001).
     pub tolerance: f64,
@@ -70,7 +71,7 @@ pub fn read_shape_with(
             (d.shape, d.warnings)
         }
         "svg" => {
-            let d = svg::read_with(bytes, file, tol)?;
+            let d = svg::read_layers(bytes, file, tol, &opts.layers)?;
             (d.shape, d.warnings)
         }
         "json" => {

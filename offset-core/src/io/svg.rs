@@ -8,6 +8,11 @@
 //! `width="100mm"` is 100 mm wide here. Y is flipped about the document's height.
 //! Subpaths that end where they start are closed; open subpaths, crossings and gaps are
 //! warnings, as in the DXF reader. Text and images are skipped.
+//!
+//! Layers: an SVG has groups (`<g>`), and Inkscape's layers are groups with an
+//! `inkscape:label`. [`read_layers`] reads only the paths under groups whose `id` or
+//! `inkscape:label` is one of the names given (case-insensitive), at any depth; [`layers`]
+//! lists the names a file has, for a recipe's globs to match.
 
 use super::chain::{chain, self_intersections};
 use super::ImportError;
@@ -32,6 +37,122 @@ pub fn read(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
 
 /// Reads an SVG file; curves are approximated within `tolerance` mm.
 pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing, ImportError> {
+    read_layers(bytes, file, tolerance, &[])
+}
+
+/// The Inkscape namespace, whose `label` attribute names a layer.
+const INKSCAPE: &str = "http://www.inkscape.org/namespaces/inkscape";
+
+/// The `inkscape:label` of every element with an `id` that has one, from the raw XML
+/// (usvg keeps ids but not Inkscape's attributes); empty when the bytes are not plain XML
+/// (compressed SVG), where only ids name groups.
+fn labels(bytes: &[u8]) -> Vec<(String, String)> {
+    let Ok(text) = std::str::from_utf8(bytes) else {
+        return Vec::new();
+    };
+    let opt = usvg::roxmltree::ParsingOptions {
+        allow_dtd: true,
+        ..Default::default()
+    };
+    let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, opt) else {
+        return Vec::new();
+    };
+    doc.descendants()
+        .filter(|n| n.has_tag_name("g"))
+        .filter_map(|n| {
+            let id = n.attribute("id")?;
+            let label = n.attribute((INKSCAPE, "label"))?;
+            Some((id.to_string(), label.to_string()))
+        })
+        .collect()
+}
+
+/// The names of the file's groups, in document order, each once (case-insensitive): each
+/// group's `inkscape:label` (an Inkscape layer's name) and its `id`.
+pub fn layers(bytes: &[u8], file: &str) -> Result<Vec<String>, ImportError> {
+    let tree = usvg::Tree::from_data(bytes, &usvg::Options::default())
+        .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
+    let labels = labels(bytes);
+    let mut out: Vec<String> = Vec::new();
+    let mut todo: Vec<&usvg::Group> = vec![tree.root()];
+    while let Some(g) = todo.pop() {
+        for name in group_names(g, &labels) {
+            if !out.iter().any(|o| o.eq_ignore_ascii_case(&name)) {
+                out.push(name);
+            }
+        }
+        // children pushed in reverse, so they are named in document order
+        for node in g.children().iter().rev() {
+            if let usvg::Node::Group(c) = node {
+                todo.push(c);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Every path of the file, in document order, as messages name it (`path "hole-3"`, or
+/// `path 4` by its place when it has no id), with the names of the groups it lies in
+/// (labels and ids, outermost first).
+pub fn paths_in_groups(
+    bytes: &[u8],
+    file: &str,
+) -> Result<Vec<(String, Vec<String>)>, ImportError> {
+    let tree = usvg::Tree::from_data(bytes, &usvg::Options::default())
+        .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
+    let labels = labels(bytes);
+    let mut out = Vec::new();
+    // depth first in document order: a stack of the groups entered, each with the rest of
+    // its children and its names
+    let root = tree.root();
+    let mut stack = vec![(root.children().iter(), group_names(root, &labels))];
+    while let Some((children, names)) = stack.last_mut() {
+        let Some(node) = children.next() else {
+            stack.pop();
+            continue;
+        };
+        match node {
+            usvg::Node::Group(c) => {
+                let mut inner = names.clone();
+                inner.extend(group_names(c, &labels));
+                stack.push((c.children().iter(), inner));
+            }
+            usvg::Node::Path(p) => {
+                let name = if p.id().is_empty() {
+                    format!("path {}", out.len() + 1)
+                } else {
+                    format!("path \"{}\"", p.id())
+                };
+                out.push((name, names.clone()));
+            }
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
+/// A group's names: its label (when Inkscape gave it one) and its id.
+fn group_names(g: &usvg::Group, labels: &[(String, String)]) -> Vec<String> {
+    let mut names = Vec::new();
+    if g.id().is_empty() {
+        return names;
+    }
+    if let Some((_, l)) = labels.iter().find(|(id, _)| id == g.id()) {
+        names.push(l.clone());
+    }
+    names.push(g.id().to_string());
+    names
+}
+
+/// Reads an SVG file like [`read_with`], only the paths under the groups named `layers`
+/// (by `id` or `inkscape:label`, case-insensitive; all paths when empty). Naming layers
+/// none of which holds a path is an error that lists the file's group names.
+pub fn read_layers(
+    bytes: &[u8],
+    file: &str,
+    tolerance: f64,
+    layers: &[String],
+) -> Result<SvgDrawing, ImportError> {
     let tol = if tolerance.is_finite() && tolerance > 0.0 {
         tolerance
     } else {
@@ -44,15 +165,39 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
     let mut pieces = Vec::new();
     let mut warnings = Vec::new();
     let mut flattened = 0;
+    let select = Select {
+        layers,
+        labels: if layers.is_empty() {
+            Vec::new()
+        } else {
+            labels(bytes)
+        },
+    };
     collect(
         tree.root(),
         height,
         tol,
+        &select,
         &mut flattened,
         &mut pieces,
         &mut warnings,
     )
     .map_err(|m| ImportError::invalid(file, m))?;
+    if !layers.is_empty() && pieces.is_empty() {
+        let have = self::layers(bytes, file)?;
+        return Err(ImportError::invalid(
+            file,
+            format!(
+                "no geometry in layer(s) or group(s) {} (the file's groups: {})",
+                layers.join(", "),
+                if have.is_empty() {
+                    "none".to_string()
+                } else {
+                    have.join(", ")
+                }
+            ),
+        ));
+    }
     let paths = chain(pieces, tol, &mut warnings);
     for (i, p) in paths.iter().enumerate() {
         if p.closed {
@@ -70,24 +215,43 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
     })
 }
 
-/// The paths under `g` as polylines in mm; `flattened` counts the points curves were
-/// flattened into, against [`flatten::MAX_DRAWING_POINTS`]. Errors name the path. Groups
-/// are walked with a work list, so no depth of nesting can overflow the stack.
+/// Which groups' paths are read: those named `layers` (all when empty), with the file's
+/// Inkscape labels.
+struct Select<'a> {
+    layers: &'a [String],
+    labels: Vec<(String, String)>,
+}
+
+impl Select<'_> {
+    fn takes(&self, g: &usvg::Group) -> bool {
+        group_names(g, &self.labels)
+            .iter()
+            .any(|n| self.layers.iter().any(|l| l.eq_ignore_ascii_case(n)))
+    }
+}
+
+/// The paths under `g` (those of the selected groups) as polylines in mm; `flattened`
+/// counts the points curves were flattened into, against [`flatten::MAX_DRAWING_POINTS`].
+/// Errors name the path. Groups are walked with a work list, so no depth of nesting can
+/// overflow the stack.
 fn collect(
     g: &usvg::Group,
     height: f64,
     tol: f64,
+    select: &Select<'_>,
     flattened: &mut usize,
     out: &mut Vec<Polyline>,
     warnings: &mut Vec<String>,
 ) -> Result<(), String> {
-    let mut todo: Vec<&usvg::Group> = vec![g];
-    while let Some(g) = todo.pop() {
+    let mut todo: Vec<(&usvg::Group, bool)> = vec![(g, select.layers.is_empty())];
+    while let Some((g, taken)) = todo.pop() {
+        let taken = taken || select.takes(g);
         // children in document order: groups are taken up after their siblings' paths,
         // which changes no geometry
         for node in g.children() {
             match node {
-                usvg::Node::Group(g) => todo.push(g),
+                usvg::Node::Group(g) => todo.push((g, taken)),
+                usvg::Node::Path(_) if !taken => {}
                 usvg::Node::Path(p) => path(p, height, tol, flattened, out).map_err(|what| {
                     if p.id().is_empty() {
                         format!("a path {what}")
@@ -95,6 +259,7 @@ fn collect(
                         format!("path \"{}\" {what}", p.id())
                     }
                 })?,
+                _ if !taken => {}
                 usvg::Node::Image(_) => warnings.push(format!("image {} skipped", node.id())),
                 #[allow(unreachable_patterns)]
                 _ => warnings.push(format!("text {} skipped", node.id())),
@@ -275,5 +440,48 @@ mod tests {
         assert!(circle
             .segments()
             .all(|s| matches!(s, crate::geom::Segment::Arc { .. })));
+    }
+
+    /// An Inkscape drawing: two layers (one with a nested group) and a loose path.
+    const LAYERED: &[u8] = br#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="100mm" height="100mm" viewBox="0 0 100 100">
+        <g inkscape:groupmode="layer" inkscape:label="Holes" id="layer1">
+            <circle cx="10" cy="10" r="1.5"/>
+            <g id="more-holes"><circle cx="20" cy="10" r="1.5"/></g>
+        </g>
+        <g inkscape:groupmode="layer" inkscape:label="Outline" id="layer2">
+            <rect x="0" y="0" width="50" height="40"/>
+        </g>
+        <rect id="loose" x="60" y="60" width="5" height="5"/>
+        </svg>"#;
+
+    #[test]
+    fn layers_are_read_by_inkscape_label_or_group_id_nested_groups_included() {
+        assert_eq!(
+            layers(LAYERED, "l.svg").unwrap(),
+            ["Holes", "layer1", "more-holes", "Outline", "layer2"]
+        );
+        let only = |names: &[&str]| {
+            let names: Vec<String> = names.iter().map(|s| s.to_string()).collect();
+            read_layers(LAYERED, "l.svg", 1e-3, &names).map(|d| d.shape.paths.len())
+        };
+        assert_eq!(only(&[]).unwrap(), 4);
+        assert_eq!(only(&["holes"]).unwrap(), 2);
+        assert_eq!(only(&["layer1"]).unwrap(), 2);
+        assert_eq!(only(&["MORE-HOLES"]).unwrap(), 1);
+        assert_eq!(only(&["Outline", "more-holes"]).unwrap(), 2);
+        let placed = paths_in_groups(LAYERED, "l.svg").unwrap();
+        assert_eq!(placed.len(), 4);
+        assert_eq!(
+            placed[3],
+            ("path \"loose\"".to_string(), Vec::<String>::new())
+        );
+        assert!(placed
+            .iter()
+            .any(|(_, g)| g == &["Holes", "layer1", "more-holes"]));
+        let e = only(&["Text"]).unwrap_err().to_string();
+        assert!(
+            e.contains("Text") && e.contains("Holes, layer1, more-holes, Outline, layer2"),
+            "{e}"
+        );
     }
 }

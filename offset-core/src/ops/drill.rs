@@ -148,8 +148,57 @@ pub fn holes_in(shape: &Shape) -> (Vec<Hole>, Vec<Polyline>) {
     (holes, rest)
 }
 
-/// The centre and radius of a closed path that is one full circle.
+/// The centre and radius of a closed path that is one full circle: arcs about one centre,
+/// or (a circle drawn as curves: an SVG `<circle>` is four cubic Béziers, each within
+/// 2.7e-4 of the radius of the circle, fitted into arcs that stray a little) a closed path
+/// all of whose points lie within 1 µm + 3e-4 × r of one circle, taken by a least-squares
+/// fit of points sampled along it.
 pub fn circle_of(p: &Polyline) -> Option<(Point, f64)> {
+    exact_circle_of(p).or_else(|| drawn_circle_of(p))
+}
+
+/// A closed path of curves that stays near one circle (see [`circle_of`]).
+fn drawn_circle_of(p: &Polyline) -> Option<(Point, f64)> {
+    if !p.closed || p.vertices.len() < 3 {
+        return None;
+    }
+    let pts: Vec<Point> = p
+        .segments()
+        .flat_map(|s| (0..16).map(move |k| s.point_at(k as f64 / 16.0)))
+        .collect();
+    // Kåsa's fit: x² + y² + a x + b y + c = 0 in least squares, about the points' mean
+    let n = pts.len() as f64;
+    let m = Point::new(
+        pts.iter().map(|q| q.x).sum::<f64>() / n,
+        pts.iter().map(|q| q.y).sum::<f64>() / n,
+    );
+    let (mut suu, mut svv, mut suv, mut suuu, mut svvv, mut suvv, mut svuu) =
+        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for q in &pts {
+        let (u, v) = (q.x - m.x, q.y - m.y);
+        suu += u * u;
+        svv += v * v;
+        suv += u * v;
+        suuu += u * u * u;
+        svvv += v * v * v;
+        suvv += u * v * v;
+        svuu += v * u * u;
+    }
+    let det = suu * svv - suv * suv;
+    if det.abs() < 1e-18 {
+        return None;
+    }
+    let (ru, rv) = (0.5 * (suuu + suvv), 0.5 * (svvv + svuu));
+    let uc = (ru * svv - rv * suv) / det;
+    let vc = (rv * suu - ru * suv) / det;
+    let c = Point::new(m.x + uc, m.y + vc);
+    let r = pts.iter().map(|q| q.dist(c)).sum::<f64>() / n;
+    let tol = 1e-3 + 3e-4 * r;
+    (r > 0.0 && pts.iter().all(|q| (q.dist(c) - r).abs() <= tol)).then_some((c, r))
+}
+
+/// A closed path of arcs about one centre making one full turn.
+fn exact_circle_of(p: &Polyline) -> Option<(Point, f64)> {
     if !p.closed || p.vertices.len() < 2 {
         return None;
     }

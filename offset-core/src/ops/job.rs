@@ -8,8 +8,14 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Take {
-    /// DXF layers by name or glob (`HOLE*`, `?-CUT`), case-insensitive; empty: every layer.
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    /// DXF layers, or SVG layers and groups (an Inkscape layer's label or a `<g>`'s id), by
+    /// name or glob (`HOLE*`, `?-CUT`), case-insensitive; empty: every layer. Also spelt
+    /// `layer = "HOLES"` for one.
+    #[serde(
+        skip_serializing_if = "Vec::is_empty",
+        alias = "layer",
+        deserialize_with = "one_or_many"
+    )]
     pub layers: Vec<String>,
     /// DXF colour numbers (1 red, 2 yellow, 3 green, 4 cyan, 5 blue, 6 magenta, 7 white…);
     /// empty: every colour.
@@ -68,6 +74,20 @@ impl Take {
     }
 }
 
+/// A list of names, or one name alone (`layer = "HOLES"`).
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum OneOrMany {
+        One(String),
+        Many(Vec<String>),
+    }
+    Ok(match OneOrMany::deserialize(d)? {
+        OneOrMany::One(s) => vec![s],
+        OneOrMany::Many(v) => v,
+    })
+}
+
 /// Whether `name` matches the glob `pattern` (`*` any run, `?` one character),
 /// case-insensitively.
 pub fn glob(pattern: &str, name: &str) -> bool {
@@ -119,6 +139,8 @@ pub struct StepFigures {
     pub seconds: f64,
     /// Whether a tool change comes before it.
     pub tool_change: bool,
+    /// Where its moves (its tool change first) begin in the joined path.
+    pub first_move: usize,
 }
 
 /// A tool as an operator reads it: `6 mm flat end mill`.
@@ -162,6 +184,7 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
     for s in steps {
         let needle = s.tool.kind == ToolKind::Needle;
         let first = last.is_none();
+        let first_move = out.moves.len();
         // the first tool is loaded too (the operator is asked for it before anything moves);
         // the first thread is simply the one on the machine
         let change = match last {
@@ -238,6 +261,7 @@ pub fn join(steps: &[Step]) -> (Toolpath, Vec<StepFigures>) {
             rapid: st.rapid_length,
             seconds: st.time(),
             tool_change: change,
+            first_move,
         });
         last = Some(s);
     }

@@ -44,6 +44,9 @@ impl Unit for Move {
             Move::Drill { at, bottom, .. } => {
                 format!("drill X{:.3} Y{:.3} to Z{bottom:.3}", at.x, at.y)
             }
+            Move::ProbeToolLength { at, .. } => {
+                format!("tool-length probe at X{:.3} Y{:.3}", at.x, at.y)
+            }
             Move::Comment { text } => format!("({text})"),
             Move::Stop => "program stop".into(),
             Move::Stitch { to } => format!("stitch X{:.3} Y{:.3}", to.x, to.y),

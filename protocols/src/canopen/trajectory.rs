@@ -359,7 +359,11 @@ impl Path {
                     operator_stops.push(OperatorReason::ProgramStop);
                     None
                 }
-                Move::Stitch { .. } | Move::Jump { .. } | Move::Trim | Move::ColorChange => {
+                Move::Stitch { .. }
+                | Move::Jump { .. }
+                | Move::Trim
+                | Move::ColorChange
+                | Move::ProbeToolLength { .. } => {
                     return Err(PlanError::Unsupported {
                         unit,
                         what: describe(m),

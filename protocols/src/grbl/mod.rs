@@ -568,12 +568,17 @@ impl GrblLink {
     ) -> Result<PassEnd, LinkError> {
         let n = lines.len();
         let mut next = from;
-        // the last program stop (M0, M1) sent, which may name the tool to load
-        let mut last_stop = lines.last_stop_before(from)?;
+        // the last program stop (M0, M1) before this pass, which may name the tool to load
+        let last_stop = lines.last_stop_before(from)?;
+        // the program stops this pass sent, in order (a program holds few)
+        let mut sent_stops: Vec<String> = Vec::new();
         let mut inflight: VecDeque<(usize, usize)> = VecDeque::new();
         let mut used = 0usize;
         let mut held = false;
         let mut machine_paused = false;
+        // the machine's own pauses this pass has seen end: the next one is at the program
+        // stop after as many stops from `from`
+        let mut stops_passed = 0usize;
         let mut control_open = true;
         let mut idle_seen = 0u32;
         let mut poll = tokio::time::interval(self.opts.status_interval.max(MIN_STATUS_INTERVAL));
@@ -611,7 +616,7 @@ impl GrblLink {
                     break;
                 }
                 if is_program_stop(&line) {
-                    last_stop = Some(line.clone());
+                    sent_stops.push(line.clone());
                 }
                 out.extend_from_slice(line.as_bytes());
                 out.push(b'\n');
@@ -708,10 +713,14 @@ impl GrblLink {
                             // not the daemon holds it too)
                             if status.state == DeviceState::Held && (!held || machine_paused) {
                                 // a hold nobody here asked for: M0/M1 or the machine's button;
-                                // the last program stop sent may name the tool to load
-                                let reason = last_stop
-                                    .as_deref()
-                                    .and_then(crate::gcode::tool_to_load)
+                                // the program stop it holds at may name the tool to load: the
+                                // first one this pass sent that it has not passed yet (the lines
+                                // after it may be sent already), else the last one sent
+                                let reason = sent_stops
+                                    .get(stops_passed)
+                                    .or(sent_stops.last())
+                                    .or(last_stop.as_ref())
+                                    .and_then(|l| crate::gcode::tool_to_load(l))
                                     .map_or(OperatorReason::ProgramStop, |(number, name)| {
                                         OperatorReason::LoadTool { number, name }
                                     });
@@ -723,6 +732,9 @@ impl GrblLink {
                                     ));
                                 }
                             } else if status.state != DeviceState::Held {
+                                if machine_paused {
+                                    stops_passed += 1;
+                                }
                                 machine_paused = false;
                             }
                             last_status = status.clone();
@@ -784,6 +796,9 @@ impl GrblLink {
                             if held || machine_paused {
                                 self.write(&[realtime::CYCLE_START]).await?;
                                 held = false;
+                                if machine_paused {
+                                    stops_passed += 1;
+                                }
                                 machine_paused = false;
                             }
                         }

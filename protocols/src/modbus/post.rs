@@ -154,6 +154,12 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
                     what: "program stop block",
                 })
             }
+            Move::ProbeToolLength { .. } => {
+                return Err(ModbusPostError::Unsupported {
+                    index,
+                    what: "tool-length probe",
+                })
+            }
         };
         if let Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } = m {
             pos = *to;

@@ -78,6 +78,9 @@ pub struct Interpreter {
     /// The work offsets of G54 … G59 (machine position of each work zero), mm; kept
     /// through a reset, as GRBL keeps them in EEPROM.
     pub offsets: [[f64; 3]; 6],
+    /// The machine Z at which a tool going down touches the touch plate (G38.2 stops
+    /// there); None: there is no plate, and a probe is error 20 here (GRBL would alarm).
+    pub touch_plate_z: Option<f64>,
 }
 
 /// GRBL's line cleaning: drops spaces, control characters and comments (`(…)` and `;…`),
@@ -179,6 +182,8 @@ impl Interpreter {
         }
 
         let mut motion_cmd: Option<Option<Motion>> = None;
+        // G38.2: a feed move down that stops where the tool touches the plate
+        let mut probe = false;
         let mut dwell = false;
         let mut g53 = false;
         let mut g10 = false;
@@ -219,6 +224,10 @@ impl Interpreter {
                         40 => {
                             group("non-modal")?;
                             dwell = true;
+                        }
+                        382 => {
+                            group("motion")?;
+                            probe = true;
                         }
                         530 => {
                             group("non-modal")?;
@@ -370,6 +379,39 @@ impl Interpreter {
         let has_axis = axis.iter().any(Option::is_some);
         let offsets = [val(b'I'), val(b'J'), val(b'K')];
         let has_offsets = offsets.iter().any(Option::is_some) || val(b'R').is_some();
+        if probe {
+            // G38.2 Z…: straight down at the feed until the tool touches the plate (the
+            // simulator probes along Z only, as machlink's posts write it)
+            let Some(contact) = self.touch_plate_z else {
+                return Err(20);
+            };
+            if self.modal.feed <= 0.0 {
+                return Err(22);
+            }
+            let (Some(z), None, None) = (axis[2], axis[0], axis[1]) else {
+                return Err(20);
+            };
+            let from = self.pos;
+            let target = if self.modal.relative {
+                from[2] + z * scale
+            } else {
+                z * scale + self.wco()[2]
+            };
+            if target > contact || from[2] < contact {
+                // it would never touch: GRBL raises ALARM:5 (probe fail)
+                return Err(20);
+            }
+            let to = [from[0], from[1], contact];
+            self.pos = to;
+            actions.push(Action::Move {
+                motion: Motion::Linear,
+                from,
+                to,
+                center: None,
+                feed: self.modal.feed,
+            });
+            return Ok(actions);
+        }
         let motion = self.modal.motion;
         if g53 && !matches!(motion, Some(Motion::Rapid | Motion::Linear)) {
             return Err(30);

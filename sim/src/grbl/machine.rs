@@ -176,6 +176,7 @@ impl Machine {
             lost_while_silent: 0,
         };
         m.interp.offsets = m.cfg.work_offsets;
+        m.interp.touch_plate_z = m.cfg.touch_plate_z;
         if m.cfg.homing {
             // with homing enabled GRBL starts locked until it is homed (or unlocked)
             m.settings.insert(22, "1".into());

@@ -69,6 +69,8 @@ pub struct GrblSimConfig {
     /// Append every line received and every move executed to this file, one JSON object
     /// per line (see [`TraceEvent`]).
     pub trace_file: Option<PathBuf>,
+    /// A touch plate whose top is at this machine Z: `G38.2` stops there (None: no plate).
+    pub touch_plate_z: Option<f64>,
 }
 
 /// What the simulated controller did, as its trace (and `--trace FILE`) records it.
@@ -110,6 +112,7 @@ impl Default for GrblSimConfig {
             homing: false,
             work_offsets: [[0.0; 3]; 6],
             trace_file: None,
+            touch_plate_z: None,
         }
     }
 }
