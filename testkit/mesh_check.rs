@@ -157,7 +157,8 @@ fn coplanar_overlap(a: [P; 3], b: [P; 3]) -> bool {
 fn coplanar(a: [P; 3], b: [P; 3]) -> bool {
     let n = cross(sub(a[1], a[0]), sub(a[2], a[0]));
     let nn = norm(n);
-    b.iter().all(|&p| dot(sub(p, a[0]), n).abs() <= 1e-12 * nn * norm(sub(p, a[0])).max(1e-300))
+    b.iter()
+        .all(|&p| dot(sub(p, a[0]), n).abs() <= 1e-12 * nn * norm(sub(p, a[0])).max(1e-300))
 }
 
 /// Two coplanar faces sharing a corner: whether they overlap beyond it (shrunk
@@ -210,7 +211,9 @@ fn faces_meet(v: &[P], fa: [usize; 3], fb: [usize; 3]) -> bool {
         _ => {
             let n = cross(sub(ta[1], ta[0]), sub(ta[2], ta[0]));
             let nn = norm(n);
-            let coplanar = tb.iter().all(|&p| dot(sub(p, ta[0]), n).abs() <= 1e-12 * nn);
+            let coplanar = tb
+                .iter()
+                .all(|&p| dot(sub(p, ta[0]), n).abs() <= 1e-12 * nn);
             if coplanar {
                 return coplanar_overlap(ta, tb);
             }
@@ -343,10 +346,26 @@ pub fn worst_distance_error(part: &[[P; 3]], v: &[P], faces: &[[usize; 3]], d: f
                 s.spawn(move || {
                     let mut worst = (0.0f64, [0.0; 3]);
                     for f in fs {
-                        for p in face_samples(f.map(|i| v[i])) {
-                            let dist = part
+                        let t = f.map(|i| v[i]);
+                        // the samples lie within r of the centroid: only a part triangle
+                        // within (nearest from the centroid) + 2r can be nearest to one
+                        let c = mul(add(add(t[0], t[1]), t[2]), 1.0 / 3.0);
+                        let r = t.iter().map(|&p| norm(sub(p, c))).fold(0.0, f64::max);
+                        let from_c: Vec<f64> = part
+                            .iter()
+                            .map(|pt| point_triangle_distance(c, *pt))
+                            .collect();
+                        let near = from_c.iter().copied().fold(f64::INFINITY, f64::min);
+                        let candidates: Vec<&[P; 3]> = part
+                            .iter()
+                            .zip(&from_c)
+                            .filter(|(_, &dc)| dc <= near + 2.0 * r)
+                            .map(|(pt, _)| pt)
+                            .collect();
+                        for p in face_samples(t) {
+                            let dist = candidates
                                 .iter()
-                                .map(|t| point_triangle_distance(p, *t))
+                                .map(|pt| point_triangle_distance(p, **pt))
                                 .fold(f64::INFINITY, f64::min);
                             let e = (dist - d.abs()).abs();
                             if e > worst.0 {
@@ -368,7 +387,11 @@ pub fn worst_distance_error(part: &[[P; 3]], v: &[P], faces: &[[usize; 3]], d: f
 /// unlikely to graze an edge).
 pub fn inside(part: &[[P; 3]], p: P) -> bool {
     let q = add(p, mul([0.5773, 0.3141, 0.7537], 1e6));
-    part.iter().filter(|t| segment_meets_triangle(p, q, **t)).count() % 2 == 1
+    part.iter()
+        .filter(|t| segment_meets_triangle(p, q, **t))
+        .count()
+        % 2
+        == 1
 }
 
 /// The enclosed volume of a closed, outward-turned mesh.
@@ -391,5 +414,8 @@ pub fn outer_triangles(part: &[[P; 3]]) -> Vec<[P; 3]> {
     for t in part {
         *count.entry(key(t)).or_insert(0) += 1;
     }
-    part.iter().filter(|t| count[&key(t)] == 1).copied().collect()
+    part.iter()
+        .filter(|t| count[&key(t)] == 1)
+        .copied()
+        .collect()
 }

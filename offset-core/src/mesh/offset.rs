@@ -19,8 +19,11 @@
 //!   steps, so the output is closed: every edge is shared by exactly two faces.
 //! - A negative distance offsets the turned-over mesh and turns the result back.
 //!
-//! Concave regions are not trimmed: a distance larger than a concave feature (a slot
-//! narrower than twice it) leaves faces that cross; the measured worst error shows it.
+//! The multiple-normal offset is not trimmed: a distance larger than a concave feature (a
+//! slot narrower than twice it) leaves faces that cross, closer to the part than the
+//! distance. [`offset`] therefore samples its worst error and, past the tolerance (or for
+//! touching bodies, whose edges have four faces), makes the trimmed offset instead: the
+//! exact distance's level set contoured by marching tetrahedra (`offset_field`).
 
 use super::bvh::Bvh;
 use super::topology::Topology;

@@ -88,11 +88,13 @@ fn outer_faces(m: &Mesh) -> Vec<[V3; 3]> {
         // pair faces of opposite turn: a rotation of [a, b, c] turns one way, of [a, c, b]
         // the other
         let turn = |f: &[u32; 3]| {
-            let k = f.iter().position(|&x| x == f.iter().copied().min().unwrap()).unwrap();
+            let k = f
+                .iter()
+                .position(|&x| x == f.iter().copied().min().unwrap())
+                .unwrap();
             f[(k + 1) % 3] < f[(k + 2) % 3]
         };
-        let (fw, bw): (Vec<usize>, Vec<usize>) =
-            list.iter().partition(|&&i| turn(&m.faces[i]));
+        let (fw, bw): (Vec<usize>, Vec<usize>) = list.iter().partition(|&&i| turn(&m.faces[i]));
         for (&a, &b) in fw.iter().zip(&bw) {
             drop[a] = true;
             drop[b] = true;
@@ -390,8 +392,12 @@ fn contour(
                             outward.push(dir);
                         };
                         match (ins.len(), outs.len()) {
-                            (1, 3) => tri([(ins[0], outs[0]), (ins[0], outs[1]), (ins[0], outs[2])]),
-                            (3, 1) => tri([(ins[0], outs[0]), (ins[1], outs[0]), (ins[2], outs[0])]),
+                            (1, 3) => {
+                                tri([(ins[0], outs[0]), (ins[0], outs[1]), (ins[0], outs[2])])
+                            }
+                            (3, 1) => {
+                                tri([(ins[0], outs[0]), (ins[1], outs[0]), (ins[2], outs[0])])
+                            }
                             _ => {
                                 let q = [
                                     (ins[0], outs[0]),
@@ -414,10 +420,7 @@ fn contour(
         .map(|&(a, b)| {
             let (pa, pb) = (f.ijk(a), f.ijk(b));
             let (va, vb) = (values[&a], values[&b]);
-            let (qa, qb) = (
-                f.point(pa[0], pa[1], pa[2]),
-                f.point(pb[0], pb[1], pb[2]),
-            );
+            let (qa, qb) = (f.point(pa[0], pa[1], pa[2]), f.point(pb[0], pb[1], pb[2]));
             if va < 0.0 {
                 f.crossing(qa, va, qb, vb, vertex_tol)
             } else {
@@ -431,19 +434,26 @@ fn contour(
             face.swap(1, 2);
         }
     }
-    Ok((Mesh::new(format!("{} offset {d}", m.name), vertices, faces), points))
+    Ok((
+        Mesh::new(format!("{} offset {d}", m.name), vertices, faces),
+        points,
+    ))
 }
 
 /// The trimmed offset of the closed, oriented mesh `m` by `d` within `tol`: contoured at a
 /// step from the tolerance, refined while the sampled worst error passes it.
 pub(crate) fn offset_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset, MeshError> {
-    let m = if m.volume() < 0.0 { m.flipped() } else { m.clone() };
+    let m = if m.volume() < 0.0 {
+        m.flipped()
+    } else {
+        m.clone()
+    };
     let tris = outer_faces(&m);
     let bvh = Bvh::new(&tris, false);
     let part = Mesh::from_triangles(&m.name, &tris, 1e-9);
     // a flat triangle across a crease strays about a third of its size; across a cylinder
     // of radius |d| about 3h²/(8|d|)
-    let mut h = (2.0 * tol)
+    let mut h = (3.0 * tol)
         .min((8.0 * d.abs() * tol / 3.0).sqrt())
         .min(d.abs() / 2.0);
     let mut last = None;

@@ -420,12 +420,18 @@ pub fn filleted_step(
     // concave fillet about (half + r, step + r): from (half + r, step) to (half, step + r)
     for k in 0..=segments {
         let a = -quarter - quarter * k as f64 / segments as f64;
-        p.push((half + radius + radius * a.cos(), step + radius + radius * a.sin()));
+        p.push((
+            half + radius + radius * a.cos(),
+            step + radius + radius * a.sin(),
+        ));
     }
     // convex fillet about (half − r, height − r): from (half, height − r) to (half − r, height)
     for k in 0..=segments {
         let a = quarter * k as f64 / segments as f64;
-        p.push((half - radius + radius * a.cos(), height - radius + radius * a.sin()));
+        p.push((
+            half - radius + radius * a.cos(),
+            height - radius + radius * a.sin(),
+        ));
     }
     p.push((0.0, height));
     let mut m = prism_y(&p, length);

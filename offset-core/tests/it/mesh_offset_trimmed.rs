@@ -59,9 +59,15 @@ fn check(case: &str, part: &Mesh, d: f64, tol: f64) -> Mesh {
         );
     }
     if d > 0.0 {
-        assert!(vol > part_volume, "{case}: volume {vol} of the grown part, part {part_volume}");
+        assert!(
+            vol > part_volume,
+            "{case}: volume {vol} of the grown part, part {part_volume}"
+        );
     } else {
-        assert!(vol > 0.0 && vol < part_volume, "{case}: volume {vol} of the shrunk part, part {part_volume}");
+        assert!(
+            vol > 0.0 && vol < part_volume,
+            "{case}: volume {vol} of the shrunk part, part {part_volume}"
+        );
     }
     assert!(
         r.report.worst_error <= tol && r.report.faces_out == out.faces.len(),
@@ -82,7 +88,11 @@ fn a_u_channel_whose_slot_is_narrower_than_2d_grown_fills_the_slot() {
     let in_slot = |p: &&offset_core::mesh::V3| {
         p.x > 4.0 && p.x < 6.0 && p.z > 0.0 && p.z < 6.0 && p.y > 0.0 && p.y < 8.0
     };
-    assert_eq!(out.vertices.iter().find(in_slot), None, "a vertex in the slot");
+    assert_eq!(
+        out.vertices.iter().find(in_slot),
+        None,
+        "a vertex in the slot"
+    );
 }
 
 #[test]
@@ -129,7 +139,12 @@ fn where_no_offsets_interfere_the_multiple_normal_offset_is_kept() {
     let part = u_channel(10.0, 6.0, 4.0, 2.0, 8.0);
     // slot 4 wide, d = 1: the floor's and walls' offsets meet at the concave edges exactly
     let r = offset(&part, 1.0, &MeshOffsetOptions { tolerance: TOL }).unwrap();
-    assert_eq!(r.report.method, OffsetMethod::MultipleNormals, "{:?}", r.report);
+    assert_eq!(
+        r.report.method,
+        OffsetMethod::MultipleNormals,
+        "{:?}",
+        r.report
+    );
 }
 
 /// The checks themselves can fail: two boxes that pass through each other are found
@@ -148,7 +163,9 @@ fn the_independent_checks_find_crossing_open_and_distant_meshes() {
     let mut open = a.clone();
     open.faces.pop();
     assert!(mc::closed_manifold(&faces(&open)).is_err());
-    let grown = offset(&a, 1.0, &MeshOffsetOptions { tolerance: TOL }).unwrap().mesh;
+    let grown = offset(&a, 1.0, &MeshOffsetOptions { tolerance: TOL })
+        .unwrap()
+        .mesh;
     let part: Vec<[mc::P; 3]> = a.triangles().map(|t| t.map(|p| [p.x, p.y, p.z])).collect();
     let (err, _) = mc::worst_distance_error(&part, &points(&grown), &faces(&grown), 1.2);
     assert!(err > 0.15, "a box grown by 1 measured against 1.2: {err}");
