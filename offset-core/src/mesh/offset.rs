@@ -125,7 +125,7 @@ pub fn offset(
         });
     }
     let solid = match m.solid() {
-        Ok((solid, topo)) => solid_and_topology(solid, topo),
+        Ok(st) => Some(st),
         // touching bodies (an edge of four faces), still closed and oriented: trimmed
         Err(e @ MeshError::NonManifold { .. }) => {
             if !super::offset_field::oriented_closed(m) {
@@ -165,10 +165,6 @@ pub fn offset(
         },
         mesh,
     })
-}
-
-fn solid_and_topology(solid: Mesh, topo: Topology) -> Option<(Mesh, Topology)> {
-    Some((solid, topo))
 }
 
 /// The multiple-normal offset of the closed solid `solid` (a negative distance offsets the

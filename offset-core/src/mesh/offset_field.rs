@@ -43,6 +43,9 @@ const BLOCK: usize = 8;
 /// The most grid points one contouring may evaluate.
 pub const FIELD_POINTS: usize = 30_000_000;
 
+/// The most vertical lines (columns of the winding number) of one contouring's grid.
+pub const FIELD_COLUMNS: usize = 4_000_000;
+
 /// A contoured offset: the mesh, the grid step and the sampled worst distance error.
 pub(crate) struct FieldOffset {
     pub mesh: Mesh,
@@ -303,6 +306,15 @@ fn contour(
         (span.y / h).ceil() as usize + 2,
         (span.z / h).ceil() as usize + 2,
     ];
+    if n[0] * n[1] > FIELD_COLUMNS {
+        return Err(MeshError::BadParam(format!(
+            "{}: the trimmed offset at a grid step of {h:.4} mm needs {} × {} columns, more than the budget of {}: ask for a larger tolerance",
+            m.name,
+            n[0],
+            n[1],
+            FIELD_COLUMNS
+        )));
+    }
     let cols = Columns::new(tris, origin.x, origin.y, h, n[0], n[1]);
     let f = Field {
         tris,
