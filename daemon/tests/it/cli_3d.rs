@@ -344,3 +344,64 @@ fn roughing_blocks_whose_allowances_overlap_keeps_it_from_both() {
         "only {over_the_part} cutting points over the part"
     );
 }
+
+/// `machlink offset` on a mesh whose offsets interfere: a U-channel with a 2 mm slot grown
+/// by 1.5 mm and shrunk by 1.5 mm, written as STL by the binary and read back. Each result
+/// is closed and manifold, no two faces cross and every sampled point is 1.5 mm from the
+/// channel within the tolerance (testkit/mesh_check.rs, independent of the library).
+#[test]
+fn offset_of_a_u_channel_narrower_than_2d_is_a_valid_solid_at_the_distance() {
+    use common::mesh_check as mc;
+    let dir = tempfile::tempdir().unwrap();
+    let part = shapes::u_channel(10.0, 6.0, 2.0, 2.0, 8.0);
+    let stl = dir.path().join("channel.stl");
+    std::fs::write(&stl, write_stl(&part)).unwrap();
+    let part_tris: Vec<[mc::P; 3]> = part
+        .triangles()
+        .map(|t| t.map(|p| [p.x as f32 as f64, p.y as f32 as f64, p.z as f32 as f64]))
+        .collect();
+    for d in ["1.5", "-1.5"] {
+        let out = dir.path().join(format!("channel{d}.stl"));
+        let o = machlink(&[
+            "offset",
+            stl.to_str().unwrap(),
+            "--distance",
+            d,
+            "--tolerance",
+            "0.1",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        ok(&o, "offset a U-channel");
+        let said = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            said.contains("trimmed") && said.contains("faces out"),
+            "{said}"
+        );
+        let m =
+            offset_core::mesh::read_stl(&std::fs::read(&out).unwrap(), "out", &Default::default())
+                .unwrap();
+        let v: Vec<mc::P> = m.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let f: Vec<[usize; 3]> = m.faces.iter().map(|f| f.map(|i| i as usize)).collect();
+        if let Err(e) = mc::closed_manifold(&f) {
+            panic!("offset by {d} read back: {e}");
+        }
+        let crossing = mc::self_intersections(&v, &f, 3);
+        assert!(
+            crossing.is_empty(),
+            "offset by {d}: faces {crossing:?} cross"
+        );
+        let dist: f64 = d.parse().unwrap();
+        let (err, at) = mc::worst_distance_error(&part_tris, &v, &f, dist);
+        // the STL's single-precision corners add a few microns
+        assert!(
+            err <= 0.1 + 1e-4,
+            "offset by {d}: {at:?} is {err:.4} mm off"
+        );
+        assert_eq!(
+            mc::inside(&part_tris, v[0]),
+            dist < 0.0,
+            "offset by {d} on the wrong side"
+        );
+    }
+}

@@ -7,6 +7,9 @@
   anchors.py meshlib PART.stl DISTANCE VOXELS OUT.stl OUT.json
       MeshLib offsetMesh with a voxel size suggested for about VOXELS voxels; OUT.json
       gets the seconds and the faces.
+  anchors.py meshlib_voxel PART.stl DISTANCE VOXEL_SIZE MODE OUT.stl OUT.json
+      MeshLib at an explicit voxel size, MODE `offset` (offsetMesh) or `sharp`
+      (sharpOffsetMesh, which moves vertices onto sharp edges); OUT.json as above.
 """
 import json
 import sys
@@ -55,10 +58,33 @@ def meshlib_run(stl, distance, voxels, out_stl, out_json):
                    "voxel": p.voxelSize}, f)
 
 
+def meshlib_voxel_run(stl, distance, voxel, mode, out_stl, out_json):
+    import meshlib.mrmeshpy as mm
+
+    m = mm.loadMesh(stl)
+    if mode == "sharp":
+        p = mm.SharpOffsetParameters()
+        p.voxelSize = float(voxel)
+        t = time.perf_counter()
+        r = mm.sharpOffsetMesh(mm.MeshPart(m), float(distance), p)
+    else:
+        p = mm.OffsetParameters()
+        p.voxelSize = float(voxel)
+        t = time.perf_counter()
+        r = mm.offsetMesh(mm.MeshPart(m), float(distance), p)
+    dt = time.perf_counter() - t
+    mm.saveMesh(r, out_stl)
+    with open(out_json, "w") as f:
+        json.dump({"seconds": dt, "faces": r.topology.numValidFaces(),
+                   "voxel": p.voxelSize}, f)
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "ocl":
         ocl_run(*sys.argv[2:8])
     elif sys.argv[1] == "meshlib":
         meshlib_run(*sys.argv[2:7])
+    elif sys.argv[1] == "meshlib_voxel":
+        meshlib_voxel_run(*sys.argv[2:8])
     else:
         raise SystemExit(__doc__)

@@ -10,6 +10,7 @@ pub mod dropcutter;
 pub mod envelope;
 pub mod finish;
 pub mod offset;
+pub mod offset_field;
 pub mod rough;
 pub mod shapes;
 pub mod slice;
@@ -21,7 +22,9 @@ pub mod waterline;
 
 pub use dropcutter::{Cutter, CutterShape, DropCutter};
 pub use finish::{finish3d, Finish3dParams};
-pub use offset::{measure_error, offset, MeshOffsetOptions, OffsetReport, OffsetResult};
+pub use offset::{
+    measure_error, offset, MeshOffsetOptions, OffsetMethod, OffsetReport, OffsetResult,
+};
 pub use rough::{rough3d, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};

@@ -19,8 +19,11 @@
 //!   steps, so the output is closed: every edge is shared by exactly two faces.
 //! - A negative distance offsets the turned-over mesh and turns the result back.
 //!
-//! Concave regions are not trimmed: a distance larger than a concave feature (a slot
-//! narrower than twice it) leaves faces that cross; the measured worst error shows it.
+//! The multiple-normal offset is not trimmed: a distance larger than a concave feature (a
+//! slot narrower than twice it) leaves faces that cross, closer to the part than the
+//! distance. [`offset`] therefore samples its worst error and, past the tolerance (or for
+//! touching bodies, whose edges have four faces), makes the trimmed offset instead: the
+//! exact distance's level set contoured by marching tetrahedra (`offset_field`).
 
 use super::bvh::Bvh;
 use super::topology::Topology;
@@ -55,6 +58,28 @@ pub struct OffsetReport {
     pub corner_blend_faces: usize,
     /// Vertices that kept more than one normal.
     pub split_vertices: usize,
+    /// How the offset was made.
+    #[serde(default)]
+    pub method: OffsetMethod,
+    /// The grid step of a trimmed (contoured) offset, mm; 0 for multiple normals.
+    #[serde(default)]
+    pub grid_step: f64,
+    /// The worst distance error sampled on the output ([`measure_error`], 3 steps a side
+    /// for multiple normals, 2 for the contoured faces), mm.
+    #[serde(default)]
+    pub worst_error: f64,
+}
+
+/// How an offset was made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OffsetMethod {
+    /// Multiple normals per vertex (Kim & Yang 2005), where no offsets interfere.
+    #[default]
+    MultipleNormals,
+    /// Trimmed: the exact distance's level set, contoured by marching tetrahedra
+    /// (`offset_field`), where offsets of different faces interfere or bodies touch.
+    Trimmed,
 }
 
 /// An offset mesh and what made it.
@@ -81,9 +106,9 @@ pub fn offset(
             opts.tolerance
         )));
     }
-    let (solid, topo) = m.solid()?;
-    let faces_in = solid.faces.len();
     if distance == 0.0 {
+        let (solid, _) = m.solid()?;
+        let faces_in = solid.faces.len();
         return Ok(OffsetResult {
             report: OffsetReport {
                 faces_in,
@@ -92,21 +117,67 @@ pub fn offset(
                 edge_blend_faces: 0,
                 corner_blend_faces: 0,
                 split_vertices: 0,
+                method: OffsetMethod::MultipleNormals,
+                grid_step: 0.0,
+                worst_error: 0.0,
             },
             mesh: solid,
         });
     }
+    let solid = match m.solid() {
+        Ok(st) => Some(st),
+        // touching bodies (an edge of four faces), still closed and oriented: trimmed
+        Err(e @ MeshError::NonManifold { .. }) => {
+            if !super::offset_field::oriented_closed(m) {
+                return Err(e);
+            }
+            None
+        }
+        Err(e) => return Err(e),
+    };
+    if let Some((solid, topo)) = solid {
+        let mut r = multiple_normals(&solid, &topo, distance, opts.tolerance);
+        let (worst, _) = measure_error(&solid, &r.mesh, distance, 3);
+        if worst <= opts.tolerance {
+            r.report.worst_error = worst;
+            r.mesh.name = format!("{} offset {distance}", m.name);
+            return Ok(r);
+        }
+    }
+    // offsets of different faces interfere (the multiple-normal faces cross or stray), or
+    // bodies touch: the trimmed offset
+    m.check_finite()?;
+    let faces_in = m.faces.len();
+    let fo = super::offset_field::offset_by_field(m, distance, opts.tolerance)?;
+    let mut mesh = fo.mesh;
+    mesh.name = format!("{} offset {distance}", m.name);
+    Ok(OffsetResult {
+        report: OffsetReport {
+            faces_in,
+            faces_out: mesh.faces.len(),
+            moved_faces: 0,
+            edge_blend_faces: 0,
+            corner_blend_faces: 0,
+            split_vertices: 0,
+            method: OffsetMethod::Trimmed,
+            grid_step: fo.step,
+            worst_error: fo.worst,
+        },
+        mesh,
+    })
+}
+
+/// The multiple-normal offset of the closed solid `solid` (a negative distance offsets the
+/// turned-over solid and turns the result back).
+fn multiple_normals(solid: &Mesh, topo: &Topology, distance: f64, tol: f64) -> OffsetResult {
     if distance < 0.0 {
         let turned = solid.flipped();
         let topo = Topology::new(&turned);
-        let mut r = Offsetter::new(&turned, &topo, -distance, opts.tolerance).run();
+        let mut r = Offsetter::new(&turned, &topo, -distance, tol).run();
         r.mesh = r.mesh.flipped();
-        r.mesh.name = format!("{} offset {distance}", m.name);
-        return Ok(r);
+        return r;
     }
-    let mut r = Offsetter::new(&solid, &topo, distance, opts.tolerance).run();
-    r.mesh.name = format!("{} offset {distance}", m.name);
-    Ok(r)
+    Offsetter::new(solid, topo, distance, tol).run()
 }
 
 /// The worst distance error of an offset: `out`'s faces sampled (corners, edge points and
@@ -272,6 +343,9 @@ impl<'a> Offsetter<'a> {
                 edge_blend_faces: edge_blends,
                 corner_blend_faces: corner_blends,
                 split_vertices: split,
+                method: OffsetMethod::MultipleNormals,
+                grid_step: 0.0,
+                worst_error: 0.0,
             },
             mesh,
         }

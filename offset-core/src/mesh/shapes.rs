@@ -307,3 +307,145 @@ mod tests {
         assert_closed_out(&cb, 8000.0 + boss, 1e-6);
     }
 }
+
+/// A prism: the simple polygon `profile` (x, z), either turn, swept along Y from 0 to
+/// `length`; closed, normals out, its ends triangulated by ear clipping.
+pub fn prism_y(profile: &[(f64, f64)], length: f64) -> Mesh {
+    let n = profile.len();
+    let area: f64 = (0..n)
+        .map(|i| {
+            let (a, b) = (profile[i], profile[(i + 1) % n]);
+            a.0 * b.1 - b.0 * a.1
+        })
+        .sum();
+    // counter-clockwise in (x, z)
+    let p: Vec<(f64, f64)> = if area > 0.0 {
+        profile.to_vec()
+    } else {
+        profile.iter().rev().copied().collect()
+    };
+    let mut vertices = Vec::with_capacity(2 * n);
+    for y in [0.0, length] {
+        for &(x, z) in &p {
+            vertices.push(V3::new(x, y, z));
+        }
+    }
+    let n32 = n as u32;
+    let mut faces = Vec::new();
+    // (x, z) counter-clockwise seen from -Y: the y = 0 end faces -Y as listed
+    for [a, b, c] in ear_clip(&p) {
+        faces.push([a, c, b]);
+        faces.push([a + n32, b + n32, c + n32]);
+    }
+    for i in 0..n32 {
+        let j = (i + 1) % n32;
+        faces.push([i, j, j + n32]);
+        faces.push([i, j + n32, i + n32]);
+    }
+    let mut m = Mesh::new("prism", vertices, faces);
+    if m.volume() < 0.0 {
+        m = m.flipped();
+    }
+    m
+}
+
+/// The triangles of a simple counter-clockwise polygon, by ear clipping.
+fn ear_clip(p: &[(f64, f64)]) -> Vec<[u32; 3]> {
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    let mut idx: Vec<usize> = (0..p.len()).collect();
+    let mut out = Vec::new();
+    while idx.len() > 3 {
+        let m = idx.len();
+        let ear = (0..m).find(|&k| {
+            let (a, b, c) = (idx[(k + m - 1) % m], idx[k], idx[(k + 1) % m]);
+            if cross(p[a], p[b], p[c]) <= 0.0 {
+                return false;
+            }
+            idx.iter().all(|&q| {
+                q == a
+                    || q == b
+                    || q == c
+                    || !(cross(p[a], p[b], p[q]) >= 0.0
+                        && cross(p[b], p[c], p[q]) >= 0.0
+                        && cross(p[c], p[a], p[q]) >= 0.0)
+            })
+        });
+        let Some(k) = ear else { break };
+        let (a, b, c) = (idx[(k + m - 1) % m], idx[k], idx[(k + 1) % m]);
+        out.push([a as u32, b as u32, c as u32]);
+        idx.remove(k);
+    }
+    if idx.len() == 3 {
+        out.push([idx[0] as u32, idx[1] as u32, idx[2] as u32]);
+    }
+    out
+}
+
+/// A U-channel `length` long (along Y): `width` wide, `height` high, a slot `slot` wide
+/// down to `floor` above the bottom, in the middle.
+pub fn u_channel(width: f64, height: f64, slot: f64, floor: f64, length: f64) -> Mesh {
+    let (a, b) = ((width - slot) / 2.0, (width + slot) / 2.0);
+    let profile = [
+        (0.0, 0.0),
+        (width, 0.0),
+        (width, height),
+        (b, height),
+        (b, floor),
+        (a, floor),
+        (a, height),
+        (0.0, height),
+    ];
+    let mut m = prism_y(&profile, length);
+    m.name = "u-channel".into();
+    m
+}
+
+/// A stepped block `length` long (along Y): `width` wide and `height` high on its left
+/// half, `step` high on its right; the inner corner of the step rounded by a concave fillet
+/// and the top's outer edge by a convex one, both of `radius`, each in `segments` steps.
+pub fn filleted_step(
+    width: f64,
+    height: f64,
+    step: f64,
+    radius: f64,
+    segments: usize,
+    length: f64,
+) -> Mesh {
+    let half = width / 2.0;
+    let segments = segments.max(1);
+    let quarter = std::f64::consts::FRAC_PI_2;
+    let mut p = vec![(0.0, 0.0), (width, 0.0), (width, step)];
+    // concave fillet about (half + r, step + r): from (half + r, step) to (half, step + r)
+    for k in 0..=segments {
+        let a = -quarter - quarter * k as f64 / segments as f64;
+        p.push((
+            half + radius + radius * a.cos(),
+            step + radius + radius * a.sin(),
+        ));
+    }
+    // convex fillet about (half − r, height − r): from (half, height − r) to (half − r, height)
+    for k in 0..=segments {
+        let a = quarter * k as f64 / segments as f64;
+        p.push((
+            half - radius + radius * a.cos(),
+            height - radius + radius * a.sin(),
+        ));
+    }
+    p.push((0.0, height));
+    let mut m = prism_y(&p, length);
+    m.name = "filleted step".into();
+    m
+}
+
+/// Two cubes of side `size`: the second beside the first along X, sharing a whole face
+/// (`edge_only` false) or only an edge (`edge_only` true: moved by `size` along Y too);
+/// one mesh, vertices welded, so the shared edges have four faces.
+pub fn touching_cubes(size: f64, edge_only: bool) -> Mesh {
+    let a = cuboid(V3::ZERO, V3::new(size, size, size));
+    let o = V3::new(size, if edge_only { size } else { 0.0 }, 0.0);
+    let b = cuboid(o, o + V3::new(size, size, size));
+    let tris: Vec<[V3; 3]> = a.triangles().chain(b.triangles()).collect();
+    Mesh::from_triangles("touching cubes", &tris, 1e-9)
+}

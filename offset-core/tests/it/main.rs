@@ -20,6 +20,7 @@ mod import_dxf;
 mod import_hatch;
 mod mesh_input;
 mod mesh_offset;
+mod mesh_offset_trimmed;
 mod offset_closed;
 mod offset_closure;
 mod offset_closure_sliced;

@@ -2,6 +2,10 @@
 //! Clipper2, and the distance checker's verdict.
 #![allow(dead_code)]
 
+/// Independent checks of solid meshes (testkit/README.md).
+#[path = "../../../../testkit/mesh_check.rs"]
+pub mod mesh_check;
+
 use offset_core::check::{check_offset, first_crossing, Report};
 use offset_core::geom::{Point, Polyline, Region, Vertex};
 use offset_core::offset::seg::Seg;
