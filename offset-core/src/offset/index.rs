@@ -288,10 +288,10 @@ impl BoxIndex {
 
 impl BoxIndex {
     /// The one nearest item to (x, y) by `dist(item)` (an exact distance no smaller than
-    /// the box distance) and its distance, if any lies within `max`: a branch and bound that
-    /// descends only into boxes nearer than the best item found so far. Same answer as
-    /// `nearest` stopped at its first item, with far fewer boxes visited (the checkers ask it
-    /// once per sample point).
+    /// the box distance) and its distance, if any lies within `max`: a depth-first branch
+    /// and bound, nearest child first, that descends only into boxes nearer than the best
+    /// item found so far. Same answer as `nearest` stopped at its first item, with far fewer
+    /// boxes visited and no heap (the checkers ask it once per sample point).
     pub fn nearest_one(
         &self,
         x: f64,
@@ -299,19 +299,6 @@ impl BoxIndex {
         max: f64,
         mut dist: impl FnMut(usize) -> f64,
     ) -> Option<(usize, f64)> {
-        #[derive(PartialEq)]
-        struct E(f64, usize, usize); // box distance, level, slot
-        impl Eq for E {}
-        impl PartialOrd for E {
-            fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-                Some(self.cmp(o))
-            }
-        }
-        impl Ord for E {
-            fn cmp(&self, o: &Self) -> Ordering {
-                o.0.partial_cmp(&self.0).unwrap_or(Ordering::Equal)
-            }
-        }
         if self.items.is_empty() {
             return None;
         }
@@ -336,25 +323,35 @@ impl BoxIndex {
             }
             return best;
         }
-        let mut heap = BinaryHeap::new();
-        heap.push(E(0.0, top, self.levels[top]));
-        while let Some(E(d, lvl, slot)) = heap.pop() {
+        // (box distance, level, slot); children go on nearest last, so popped first
+        let mut stack: Vec<(f64, usize, usize)> = Vec::with_capacity(NODE * top);
+        stack.push((0.0, top, self.levels[top]));
+        let mut children: [(f64, usize); NODE] = [(0.0, 0); NODE];
+        while let Some((d, lvl, slot)) = stack.pop() {
             if !beats(d, &best) {
-                break;
+                continue;
             }
-            let cs = self.levels[lvl - 1];
-            let first = cs + (slot - self.levels[lvl]) * NODE;
+            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
             let last = (first + NODE).min(self.levels[lvl]);
+            let mut k = 0;
             for c in first..last {
                 let bd = box_dist2(&self.boxes[c], x, y).sqrt();
-                if !beats(bd, &best) {
-                    continue;
+                if beats(bd, &best) {
+                    children[k] = (bd, c);
+                    k += 1;
                 }
-                if lvl == 1 {
+            }
+            let near = &mut children[..k];
+            near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+            if lvl == 1 {
+                for &(bd, c) in near.iter() {
+                    if !beats(bd, &best) {
+                        break;
+                    }
                     visit_item(c, &mut best);
-                } else {
-                    heap.push(E(bd, lvl - 1, c));
                 }
+            } else {
+                stack.extend(near.iter().rev().map(|&(bd, c)| (bd, lvl - 1, c)));
             }
         }
         best
