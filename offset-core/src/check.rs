@@ -307,16 +307,17 @@ pub fn first_crossing(paths: &[Polyline], tolerance: f64) -> Option<(usize, Poin
     crate::offset::first_crossing(paths, tolerance)
 }
 
-/// How many cases a property test runs: `default` (its count in a plain run, relative to
-/// proptest's standard 256) scaled by `PROPTEST_CASES / 256`, at least one. Unset, each test
-/// runs its default; `PROPTEST_CASES=2560` runs ten times as many of each (docs/testing.md).
+/// How many cases a property test runs: `default` in a plain run, and `PROPTEST_CASES` when
+/// that is set, because proptest reads the variable itself and it overrides the count a
+/// `proptest!` block configures (`.ci/run` sets 256, so CI runs 256 cases of every property
+/// test; docs/testing.md). This says the same for the tests that count their own cases.
 pub fn proptest_cases(default: u32) -> u32 {
-    scaled_cases(default, std::env::var("PROPTEST_CASES").ok().as_deref())
+    cases_for(default, std::env::var("PROPTEST_CASES").ok().as_deref())
 }
 
-fn scaled_cases(default: u32, env: Option<&str>) -> u32 {
-    match env.and_then(|v| v.trim().parse::<u64>().ok()) {
-        Some(n) => ((u64::from(default) * n).div_ceil(256)).clamp(1, u64::from(u32::MAX)) as u32,
+fn cases_for(default: u32, env: Option<&str>) -> u32 {
+    match env.and_then(|v| v.trim().parse::<u32>().ok()) {
+        Some(n) => n.max(1),
         None => default.max(1),
     }
 }
@@ -409,12 +410,12 @@ mod tests {
     }
 
     #[test]
-    fn case_counts_scale_with_proptest_cases() {
-        assert_eq!(scaled_cases(64, None), 64);
-        assert_eq!(scaled_cases(64, Some("256")), 64);
-        assert_eq!(scaled_cases(64, Some("2560")), 640);
-        assert_eq!(scaled_cases(12, Some("32")), 2);
-        assert_eq!(scaled_cases(1, Some("1")), 1);
-        assert_eq!(scaled_cases(5, Some("junk")), 5);
+    fn case_counts_are_proptest_cases_when_set() {
+        assert_eq!(cases_for(64, None), 64);
+        assert_eq!(cases_for(64, Some("256")), 256);
+        assert_eq!(cases_for(16, Some("2560")), 2560);
+        assert_eq!(cases_for(1, Some("0")), 1);
+        assert_eq!(cases_for(5, Some("junk")), 5);
     }
+
 }

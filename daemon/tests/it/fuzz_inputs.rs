@@ -9,7 +9,7 @@ use machlink::core::intake::{self, Input, JobSpec};
 use machlink::core::machine::{MachineConfig, WorkArea};
 use proptest::prelude::*;
 
-/// 4000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).
+/// 4000 cases, or `PROPTEST_CASES` when set, like every property test (docs/testing.md).
 fn cases() -> u32 {
     offset_core::check::proptest_cases(4000)
 }

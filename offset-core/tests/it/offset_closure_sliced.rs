@@ -21,7 +21,7 @@ use offset_core::Tool;
 use proptest::prelude::*;
 use std::f64::consts::TAU;
 
-/// `default` cases, scaled by `PROPTEST_CASES / 256` (docs/testing.md).
+/// `default` cases, or `PROPTEST_CASES` when set (docs/testing.md).
 fn cases(default: u32) -> u32 {
     offset_core::check::proptest_cases(default)
 }

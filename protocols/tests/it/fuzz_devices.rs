@@ -9,7 +9,7 @@ use machlink_protocols::sewing::wire::{self, Decoded, Decoder, Frame};
 use machlink_protocols::untrusted::{printable, LineSplitter};
 use proptest::prelude::*;
 
-/// 5000 cases, scaled by `PROPTEST_CASES / 256` like every property test (docs/testing.md).
+/// 5000 cases, or `PROPTEST_CASES` when set, like every property test (docs/testing.md).
 fn cases() -> u32 {
     offset_core::check::proptest_cases(5000)
 }
