@@ -495,7 +495,6 @@ pub fn prune(
                 && keeps_distance(&piece_at(r, best.1).seg)
         })
         .collect();
-
     let collect = |r: &Run, out: &mut Vec<Seg>, wj: &mut Vec<bool>| {
         for k in 0..r.count {
             let pc = piece_at(r, k);
@@ -545,10 +544,50 @@ pub fn prune(
         }
     };
     let match_eps = eps * 16.0;
+    // the run that goes on along run `k`'s curve where it ends (None at an open curve's end)
+    let mut path_first_run = vec![usize::MAX; closed.len()];
+    for (ri, r) in runs.iter().enumerate().rev() {
+        path_first_run[r.path] = ri;
+    }
+    let straight_on = |k: usize| -> Option<usize> {
+        let p = runs[k].path;
+        match runs.get(k + 1) {
+            Some(n) if n.path == p => Some(k + 1),
+            _ if closed[p] => Some(path_first_run[p]),
+            _ => None,
+        }
+    };
+    // whether a valid run other than `cur` ends at `e`
+    let another_arrives = |cur: usize, e: Point| -> bool {
+        let mut found = false;
+        near(&ends, e, &mut |k| {
+            found |= k != cur && run_end(&runs[k]).dist(e) <= match_eps;
+        });
+        found
+    };
+    // of the runs `cands` starting at `e`, one of `cur`'s own curve first, then the nearest
+    let nearest = |cur: usize, e: Point, cands: &[usize]| -> Option<usize> {
+        let mut best: Option<(usize, f64, bool)> = None;
+        for &k in cands {
+            let d = run_start(&runs[k]).dist(e);
+            let same = runs[k].path == runs[cur].path;
+            let better = match best {
+                None => true,
+                Some((_, bd, bs)) => (same && !bs) || (same == bs && d < bd),
+            };
+            if better {
+                best = Some((k, d, same));
+            }
+        }
+        best.map(|(k, _, _)| k)
+    };
     // Open chains first start where no valid run ends. A closed curve's run that no valid
     // run leads into is a spur (half of a zig-zag whose other half was pruned, where raw
     // curves overlap along a line): it cannot close, so it goes last, after the loops it
-    // would otherwise have robbed of the run it leads into.
+    // would otherwise have robbed of the run it leads into. So does a run that one valid
+    // run leads into when that run goes on along its own curve there (see the stitch's
+    // choice below): started first, it would close a sliver of a loop through the pieces
+    // the real loop needs.
     let mut order: Vec<usize> = Vec::new();
     let mut spurs: Vec<usize> = Vec::new();
     let mut is_spur = vec![false; runs.len()];
@@ -557,23 +596,27 @@ pub fn prune(
             continue;
         }
         let s = run_start(r);
-        let mut has_pred = false;
+        let (mut preds, mut pred) = (0, 0);
         near(&ends, s, &mut |k| {
             if k != ri && run_end(&runs[k]).dist(s) <= match_eps {
-                has_pred = true;
+                preds += 1;
+                pred = k;
             }
         });
-        if !has_pred {
-            if closed[r.path] {
-                spurs.push(ri);
-                is_spur[ri] = true;
-            } else {
-                order.push(ri);
-            }
+        let forked_off = preds == 1
+            && straight_on(pred).is_some_and(|n| {
+                n != ri && valid[n] && !used[n] && run_start(&runs[n]).dist(s) <= match_eps
+            });
+        if preds == 0 && !closed[r.path] {
+            order.push(ri);
+        } else if forked_off || (preds == 0 && closed[r.path]) {
+            spurs.push(ri);
+            is_spur[ri] = true;
         }
     }
     order.extend((0..runs.len()).filter(|&ri| !is_spur[ri]));
     order.extend(spurs);
+    let mut cands: Vec<usize> = Vec::new();
     for &ri in &order {
         if !valid[ri] || used[ri] {
             continue;
@@ -591,26 +634,27 @@ pub fn prune(
                 is_loop = true;
                 break;
             }
-            let mut best: Option<(usize, f64, bool)> = None;
+            cands.clear();
             near(&starts, e, &mut |k| {
-                if used[k] {
-                    return;
-                }
-                let d = run_start(&runs[k]).dist(e);
-                if d > match_eps {
-                    return;
-                }
-                let same = runs[k].path == runs[cur].path;
-                let better = match best {
-                    None => true,
-                    Some((_, bd, bs)) => (same && !bs) || (same == bs && d < bd),
-                };
-                if better {
-                    best = Some((k, d, same));
+                if !used[k] && run_start(&runs[k]).dist(e) <= match_eps {
+                    cands.push(k);
                 }
             });
+            // Where one valid run arrives and two leave, the one that goes on along the
+            // arriving run's own curve is taken: at a crossing the curves divide the plane,
+            // so the arriving curve's next piece lies inside the other and is invalid; two
+            // valid pieces of one curve on either side of a cut mean the other curve only
+            // touched it there, or was a bridge. What leaves along the other curve is then a
+            // piece of a local loop too thin for the distance test (a collapsed arc's chord
+            // grazing the next offset arc within ε), and taking it strands the chain.
+            let best = if cands.len() > 1 && !another_arrives(cur, e) {
+                cands.iter().copied().find(|&k| Some(k) == straight_on(cur))
+            } else {
+                None
+            }
+            .or_else(|| nearest(cur, e, &cands));
             match best {
-                Some((k, _, _)) => {
+                Some(k) => {
                     used[k] = true;
                     collect(&runs[k], &mut segs, &mut whole_join);
                     cur = k;
