@@ -202,7 +202,21 @@ async fn a_daemon_killed_mid_job_writes_nothing_until_resume_then_finishes_witho
         .unwrap();
     // nobody says resume: the restarted daemon asks the device, watches it run the
     // blocks its ring holds and writes nothing; the job waits at the consumed sequence
-    let waits = wait_for(&d, id, |j| j.state == JobState::Interrupted).await;
+    // (the restart marks the job interrupted at once and moves its count on as it watches
+    // the device drain its ring: wait until the two agree and stay so)
+    let mut waits = None;
+    for _ in 0..100 {
+        let j = wait_for(&d, id, |j| {
+            j.state == JobState::Interrupted && j.acked_units == sim.registers().2 as usize
+        })
+        .await;
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        if sim.registers().2 as usize == j.acked_units {
+            waits = Some(j);
+            break;
+        }
+    }
+    let waits = waits.expect("the device's ring drained and the job stood at its end");
     let written_before_resume = sim.events_from(0).len();
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (_, _, consumed, _) = sim.registers();
