@@ -417,5 +417,4 @@ mod tests {
         assert_eq!(cases_for(1, Some("0")), 1);
         assert_eq!(cases_for(5, Some("junk")), 5);
     }
-
 }
