@@ -92,24 +92,44 @@ fn a_gear_with_islands_shrunk_from_a_hundredth_to_ten_mm_nests() {
     assert_eq!(made, ds.len(), "every shrink up to 40 mm leaves something");
 }
 
-proptest! {
-    #![proptest_config(ProptestConfig::with_cases(offset_core::check::proptest_cases(4)))]
-
-    /// Dense wavy outlines, with or without an island, shrunk or grown at five distances
-    /// over three decades.
-    #[test]
-    #[ignore = "minutes in the test profile (the two-way distance check at 1e-3 over three decades); run: cargo test --release -p offset-core --test it offset_distances:: -- --ignored"]
-    fn offsets_over_three_decades_are_valid_and_nested(
-        n in 200usize..800,
-        r0 in 30.0f64..60.0,
-        waves in proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
-        island in proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
-        d0 in 0.005f64..0.03,
-        grow in any::<bool>(),
-    ) {
+/// Dense wavy outlines, with or without an island, shrunk or grown at five distances over
+/// three decades.
+///
+/// One case costs about as much as a hundred cases of the other properties (five offsets
+/// and two-way distance checks at 1e-3 on each), so this property runs a 32nd of the case
+/// count every other property runs: 8 at CI's `PROPTEST_CASES=256`, 80 at the deep run's
+/// 2560, 4 at least. Seed, regression file and failure report are proptest's as for the
+/// `proptest!` tests (its runner is built from the same environment).
+#[test]
+fn offsets_over_three_decades_are_valid_and_nested() {
+    use proptest::test_runner::{contextualize_config, TestError, TestRunner};
+    let mut config = contextualize_config(ProptestConfig {
+        cases: offset_core::check::proptest_cases(128),
+        source_file: Some(file!()),
+        ..ProptestConfig::default()
+    });
+    config.cases = (config.cases / 32).max(4);
+    config.test_name = Some("offset_distances::offsets_over_three_decades_are_valid_and_nested");
+    let strategy = (
+        200usize..800,
+        30.0f64..60.0,
+        proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
+        proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
+        0.005f64..0.03,
+        any::<bool>(),
+    );
+    let mut runner = TestRunner::new(config);
+    let result = runner.run(&strategy, |(n, r0, waves, island, d0, grow)| {
         let amp: f64 = waves.iter().map(|w| w.0).sum();
         prop_assume!(amp < r0 * 0.3);
-        let g = gear(n, r0, &waves.iter().map(|&(a, f, p)| (a, f.round(), p)).collect::<Vec<_>>());
+        let g = gear(
+            n,
+            r0,
+            &waves
+                .iter()
+                .map(|&(a, f, p)| (a, f.round(), p))
+                .collect::<Vec<_>>(),
+        );
         let islands = island
             .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
             .into_iter()
@@ -117,5 +137,11 @@ proptest! {
         let sign = if grow { 1.0 } else { -1.0 };
         let ds: Vec<f64> = three_decades(d0, 5).iter().map(|d| sign * d).collect();
         offsets_nest(&Region::new(g, islands), &ds, 1e-3).map_err(TestCaseError::fail)?;
+        Ok(())
+    });
+    match result {
+        Ok(()) => {}
+        Err(TestError::Fail(why, draw)) => panic!("{why}\nminimal failing input: {draw:?}"),
+        Err(TestError::Abort(why)) => panic!("aborted: {why}"),
     }
 }
