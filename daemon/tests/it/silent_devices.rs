@@ -224,7 +224,7 @@ async fn a_modbus_device_that_stops_replying_pauses_its_job_at_its_consumed_bloc
     .await;
     let back = wait_job(&daemon, j.id, "waiting after the device came back", |j| {
         let note = j.note.as_deref().unwrap_or("");
-        !note.contains("reconnecting") && note.contains("resume")
+        j.state == JobState::Paused && !note.contains("reconnecting") && note.contains("resume")
     })
     .await;
     assert_eq!(
@@ -316,7 +316,7 @@ async fn a_sewing_machine_that_stops_answering_status_pauses_its_job_and_resume_
     .await;
     let back = wait_job(&daemon, j.id, "waiting after the machine came back", |j| {
         let note = j.note.as_deref().unwrap_or("");
-        !note.contains("reconnecting") && note.contains("resume")
+        j.state == JobState::Paused && !note.contains("reconnecting") && note.contains("resume")
     })
     .await;
     assert_eq!(

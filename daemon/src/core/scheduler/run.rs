@@ -453,10 +453,14 @@ impl Job<'_> {
         match r {
             Ok(Reattach::Running { acked }) => {
                 self.set_acked(acked);
-                inner.set_state(id, JobState::Running, None);
-                if *self.control.borrow() == Control::Hold {
-                    inner.set_state(id, JobState::Paused, None);
-                }
+                // one write: a held job never reads `running` in between (a resume that came
+                // then was refused as "nothing to resume")
+                let state = if *self.control.borrow() == Control::Hold {
+                    JobState::Paused
+                } else {
+                    JobState::Running
+                };
+                inner.set_state(id, state, None);
                 if !std::mem::replace(&mut self.told_following, true) {
                     let _ = inner.events.send(Event::Message {
                         machine: m.config.name.clone(),
