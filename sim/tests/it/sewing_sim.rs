@@ -100,8 +100,16 @@ async fn stream_resuming_breaks(
                 }
                 LinkEvent::Message(m) => {
                     if m.contains("thread break") {
-                        // the operator rethreads and resumes
-                        let _ = ctx.send(Control::Run);
+                        // the operator rethreads and resumes, or, in a job to be
+                        // cancelled, cancels there (the break stops the machine, so the
+                        // cancel cannot arrive after the last stitch however late the
+                        // operator is scheduled)
+                        let next = if cancel_after.is_some() {
+                            Control::Cancel
+                        } else {
+                            Control::Run
+                        };
+                        let _ = ctx.send(next);
                     }
                     messages.push(m);
                 }
@@ -190,7 +198,14 @@ async fn a_power_loss_uploads_the_pattern_again_and_sews_on_from_the_counter() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancel_then_resume_from_the_last_acknowledged_stitch() {
     let recs = pattern();
-    let sim = spawn_on_pty(fast(SewingSimConfig::default())).unwrap();
+    // The cancel goes out once stitch 100 is acknowledged; a thread break at 130 stops the
+    // machine in case it comes late (a loaded machine sews the rest before the operator
+    // task runs), and the operator cancels there instead.
+    let sim = spawn_on_pty(fast(SewingSimConfig {
+        thread_break_at: vec![130],
+        ..SewingSimConfig::default()
+    }))
+    .unwrap();
     let mut link = SewingLink::open(&sim.path, 115_200, timing()).unwrap();
     let program = recs.clone();
     let (end, _, _) = stream_resuming_breaks(&mut link, &program, 0, Some(100)).await;
