@@ -15,10 +15,14 @@ use offset_core::ops::{Cutting, PocketParams, Stepover};
 /// Counts per mm of every axis (the drives' encoder resolution).
 const COUNTS: f64 = 100_000.0;
 
+/// The gantry's config. Heartbeats every 50 ms, taken as lost after 1.5 s: these tests are
+/// about set-points, pauses and drive faults, and a machine loaded by other test threads
+/// once let a heartbeat run 403 ms late (heartbeat loss has its own test:
+/// `canopen_disable::a_silent_drive_mid_job_leaves_every_drive_disabled` in sim/).
 fn machine(faults: &str) -> String {
     format!(
         "[[machine]]\nname = \"gantry\"\nlink = \"sim-canopen\"\ntransport = \"slcan\"\n\
-         period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\n{faults}\
+         period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\n{faults}\
          axes = [\n  {{ axis = \"x\", node = 1, counts_per_mm = {COUNTS}, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
          {{ axis = \"y\", node = 2, counts_per_mm = {COUNTS}, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \
          {{ axis = \"z\", node = 3, counts_per_mm = {COUNTS}, max_velocity = 15, max_acceleration = 400, max_jerk = 20000 }},\n]\n"
