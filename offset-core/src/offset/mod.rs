@@ -344,13 +344,18 @@ fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
     (tol * 1e-4).max(m * 1e-14)
 }
 
-/// The path's segments with the ones shorter than `eps` left out (their ends merged).
+/// The path's segments with the ones shorter than `eps` left out (their ends merged). The
+/// segment after a short one keeps its shape: a vertex within `eps` of the one kept before
+/// it goes, and the kept one takes its bulge (the bulge of the vertex that goes is the
+/// segment leaving it; the kept one's was the short segment's), so an arc that starts a
+/// nanometre after a vertex stays an arc rather than becoming its chord.
 fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
     let n = pl.vertices.len();
     let mut pts: Vec<Vertex> = Vec::with_capacity(n);
     for v in &pl.vertices {
         if let Some(last) = pts.last_mut() {
             if last.pos().dist(v.pos()) <= eps {
+                last.bulge = v.bulge;
                 continue;
             }
         }
@@ -924,4 +929,71 @@ fn merge(s1: &Seg, s2: &Seg, eps: f64) -> Option<Seg> {
         });
     }
     None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cleaning_keeps_an_arc_that_starts_within_eps_of_the_vertex_before_it() {
+        // what `zigzag::remove` left of a shrink by 0.2 (grown_blob_386_…): a line, a
+        // 0.4 nm line, then a concave arc of radius 0.2035 and sweep 0.639 rad (sagitta
+        // 0.0103 mm); the 0.4 nm line goes, the arc after it must stay an arc
+        let eps = 1e-7;
+        let arc = Seg::arc(
+            Point::new(-21.572587720103957, -7.444997710648487),
+            0.20345217907695698,
+            Point::new(-21.419196973490408, -7.3113411806004),
+            Point::new(-21.36974897259746, -7.429210637419051),
+            -0.6390830870277823,
+        );
+        let v = |p: Point, bulge: f64| Vertex::new(p.x, p.y, bulge);
+        let pl = Polyline::new(
+            vec![
+                v(Point::new(-21.87098600542156, -5.954168590876454), 0.0),
+                v(Point::new(-21.41919697374588, -7.31134118030719), 0.0),
+                v(arc.a, arc.bulge()),
+                v(arc.b, 0.0),
+            ],
+            false,
+        );
+        let segs = clean(&pl, eps);
+        assert_eq!(segs.len(), 2, "the 0.4 nm line goes: {segs:?}");
+        let kept = segs[1];
+        assert!(kept.is_arc(), "the arc became its chord: {kept:?}");
+        assert!((kept.sw - arc.sw).abs() < 1e-6, "{kept:?}");
+        // every point of the arc given lies within eps of what is kept
+        for i in 0..=100 {
+            let q = arc.point_at(i as f64 / 100.0);
+            assert!(
+                kept.dist(q) <= eps,
+                "({}, {}) is {} off",
+                q.x,
+                q.y,
+                kept.dist(q)
+            );
+        }
+    }
+
+    #[test]
+    fn cleaning_a_closed_path_keeps_the_arc_after_a_vertex_within_eps() {
+        // a half disc whose arc starts 1e-9 after the diameter's end, as a closed path
+        let eps = 1e-7;
+        let pl = Polyline::new(
+            vec![
+                Vertex::new(-1.0, 0.0, 0.0),
+                Vertex::new(1.0, 0.0, 0.0),
+                Vertex::new(1.0 + 1e-9, 0.0, 1.0),
+            ],
+            true,
+        );
+        let segs = clean(&pl, eps);
+        assert_eq!(segs.len(), 2, "{segs:?}");
+        let area: f64 = segs.iter().map(|s| s.area2()).sum::<f64>() * 0.5;
+        assert!(
+            (area - std::f64::consts::FRAC_PI_2).abs() < 1e-6,
+            "the half disc's area is {area}"
+        );
+    }
 }

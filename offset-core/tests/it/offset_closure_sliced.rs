@@ -379,3 +379,30 @@ fn grown_blob_366_two_waves_keeps_its_first_shrink() {
         0.01,
     );
 }
+
+#[test]
+fn grown_blob_386_two_waves_keeps_its_last_shrink_at_its_distance() {
+    // a fresh draw found this one: the last shrink, by 0.2, kept a piece 0.003-0.010 mm
+    // nearer the part than the distance at about (-21.4, -7.4). The prune's result was
+    // right; cutting off a sub-nanometre zig-zag there cleaned the path again, and the
+    // clean dropped a concave arc's start vertex (0.4 nm after the vertex before it) with
+    // its bulge, so the arc (radius 0.2035) became its chord, 0.0103 mm nearer the part.
+    // `offset_checked` holds the result to the distance both ways and to no crossing
+    grown_blob_case(
+        386,
+        &[
+            (0.2, 11.753221566545935, 0.0),
+            (1.4563856247188114, 2.0, 0.0),
+        ],
+        0.20487766170755387,
+        7929963168660584278,
+        0.05,
+        &[
+            2.0102274499961013,
+            -1.950779462034881,
+            1.9473272829783745,
+            -0.2,
+        ],
+        0.001,
+    );
+}
