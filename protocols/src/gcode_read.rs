@@ -542,7 +542,10 @@ mod tests {
             .unwrap_err()
             .message
             .contains("incremental"));
-        assert!(read("G81 X5 Y5 R2").unwrap_err().message.contains("Z (bottom)"));
+        assert!(read("G81 X5 Y5 R2")
+            .unwrap_err()
+            .message
+            .contains("Z (bottom)"));
     }
 
     #[test]
@@ -550,7 +553,11 @@ mod tests {
         for (text, line, says) in [
             ("G0 X0\nG18\nG2 X10 Z0 I5 K0", 3, "XZ plane (G18)"),
             ("G19 G3 Y10 Z0 J5 K0", 1, "YZ plane (G19)"),
-            ("G0 X0\nG41 D1 G1 X10 F100", 2, "cutter radius compensation (G41)"),
+            (
+                "G0 X0\nG41 D1 G1 X10 F100",
+                2,
+                "cutter radius compensation (G41)",
+            ),
             ("G42 X1", 1, "(G42)"),
             ("G0 Z5\nG0 X1\nG84 X1 Y1 Z-5 R1", 3, "G84 is not read"),
             ("G81 X1 Y1 Z-1 R1\nG80\nX5", 3, "without a motion"),
