@@ -50,6 +50,7 @@ impl Dialect {
                 }
                 let what = match g {
                     g if (73.0..=89.0).contains(&g) => " (a canned cycle)",
+                    98.0 | 99.0 => " (a canned cycle's return height)",
                     41.0 | 42.0 => " (cutter radius compensation)",
                     43.0 => " (a tool length offset from a tool table; GRBL has G43.1)",
                     64.0 => " (path blending)",
