@@ -27,6 +27,55 @@ pub enum Dialect {
     Generic,
 }
 
+impl Dialect {
+    /// Why a controller of this dialect cannot run word `letter``value` of a G-code file (as
+    /// written, `value` the number's text), or None. GRBL 1.1 runs the G-codes of its
+    /// documentation (docs/grbl.md) and the words F I J K L N P R S T X Y Z (A B C where
+    /// compiled in); anything else is its error:20 or error:22 in the middle of a job, so it
+    /// is refused before. M-codes are each machine's `allowed_m_codes`. Other dialects: None.
+    pub fn refuses(&self, letter: char, value: &str) -> Option<String> {
+        if *self != Dialect::Grbl {
+            return None;
+        }
+        const GRBL_G: &[f64] = &[
+            0.0, 1.0, 2.0, 3.0, 4.0, 10.0, 17.0, 18.0, 19.0, 20.0, 21.0, 28.0, 28.1, 30.0, 30.1,
+            38.2, 38.3, 38.4, 38.5, 40.0, 43.1, 49.0, 53.0, 54.0, 55.0, 56.0, 57.0, 58.0, 59.0,
+            61.0, 80.0, 90.0, 91.0, 91.1, 92.0, 92.1, 93.0, 94.0,
+        ];
+        match letter {
+            'G' => {
+                let g: f64 = value.parse().ok()?;
+                if GRBL_G.iter().any(|c| (c - g).abs() < 1e-9) {
+                    return None;
+                }
+                let what = match g {
+                    g if (73.0..=89.0).contains(&g) => " (a canned cycle)",
+                    98.0 | 99.0 => " (a canned cycle's return height)",
+                    41.0 | 42.0 => " (cutter radius compensation)",
+                    43.0 => " (a tool length offset from a tool table; GRBL has G43.1)",
+                    64.0 => " (path blending)",
+                    _ => "",
+                };
+                Some(format!("G{value}{what} is not a G-code GRBL 1.1 runs"))
+            }
+            'F' | 'I' | 'J' | 'K' | 'L' | 'N' | 'P' | 'R' | 'S' | 'T' | 'X' | 'Y' | 'Z' | 'A'
+            | 'B' | 'C' | 'M' => None,
+            other => {
+                let what = match other {
+                    'H' => " (a tool length offset number)",
+                    'D' => " (a cutter compensation number)",
+                    'Q' => " (a canned cycle's peck)",
+                    'O' => " (a subroutine or a program number)",
+                    _ => "",
+                };
+                Some(format!(
+                    "the word {other}{value}{what} is not one GRBL 1.1 takes"
+                ))
+            }
+        }
+    }
+}
+
 /// Settings of one post run.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

@@ -66,6 +66,12 @@ pub trait MachineKind: Send + Sync + 'static {
     fn gcode_lines_are_units(&self) -> bool {
         false
     }
+    /// The dialect whose G-codes this kind's controller reads from a G-code file line by
+    /// line (GRBL), checked word by word before a job is stored; None: the file goes as its
+    /// moves, so what the reader follows is what runs.
+    fn gcode_dialect(&self) -> Option<crate::gcode::Dialect> {
+        None
+    }
     /// Prepares machine `machine` when the daemon starts: starts its simulator, warns of a
     /// port that is not there yet.
     fn start(
@@ -238,6 +244,8 @@ pub trait AnyKind: Send + Sync {
     fn gcode(&self, lines: &[String], moves: &Toolpath) -> Option<Result<Program, PostError>>;
     /// See [`MachineKind::gcode_lines_are_units`].
     fn gcode_lines_are_units(&self) -> bool;
+    /// See [`MachineKind::gcode_dialect`].
+    fn gcode_dialect(&self) -> Option<crate::gcode::Dialect>;
     fn start(
         &self,
         machine: &str,
@@ -350,6 +358,9 @@ impl<K: MachineKind> AnyKind for K {
     }
     fn gcode_lines_are_units(&self) -> bool {
         MachineKind::gcode_lines_are_units(self)
+    }
+    fn gcode_dialect(&self) -> Option<crate::gcode::Dialect> {
+        MachineKind::gcode_dialect(self)
     }
     fn start(
         &self,

@@ -7,6 +7,7 @@ use crate::grbl::{GrblSim, GrblSimConfig, GrblSimHandle};
 use crate::modbus::{ModbusSim, SimConfig};
 use crate::sewing::{spawn_on_pty, SewingSim, SewingSimConfig};
 use futures::future::BoxFuture;
+use machlink_protocols::gcode::Dialect;
 use machlink_protocols::grbl::kind::{
     check_dwell, check_silent_timeout, default_silent_timeout, default_spindle_dwell,
     gcode_file_units, gcode_time, grbl_posts, grbl_resume_plan, open_machine, ESTIMATE_RAPID,
@@ -93,6 +94,9 @@ impl MachineKind for SimGrblKind {
     }
     fn gcode_lines_are_units(&self) -> bool {
         true
+    }
+    fn gcode_dialect(&self) -> Option<Dialect> {
+        Some(Dialect::Grbl)
     }
     fn start(
         &self,

@@ -47,6 +47,7 @@ impl<'m> MoveCheck<'m> {
         let to = match m {
             Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } => *to,
             Move::Stitch { to } | Move::Jump { to } => P3::at_z(*to, from.z),
+            Move::Drill { at, clear, .. } => P3::at_z(*at, *clear),
             _ => return Ok(()),
         };
         let machine = self.machine;
@@ -72,12 +73,26 @@ impl<'m> MoveCheck<'m> {
                 pts.push(P3::new(b.min.x, b.min.y, to.z.min(from.z)));
                 pts.push(P3::new(b.max.x, b.max.y, to.z.max(from.z)));
             }
+            if let Move::Drill {
+                at,
+                retract,
+                bottom,
+                ..
+            } = m
+            {
+                // a hole goes down to its bottom; from a tool below the R plane, up to it
+                pts.push(P3::at_z(*at, *bottom));
+                pts.push(P3::at_z(*at, *retract));
+                pts.push(P3::at_z(from.xy(), from.z.max(*retract)));
+            }
             for p in pts {
                 let v = [p.x, p.y, p.z];
                 for (k, axis) in ["X", "Y", "Z"].iter().enumerate() {
                     if v[k] < w.min[k] - 1e-9 || v[k] > w.max[k] + 1e-9 || !v[k].is_finite() {
                         let what = if matches!(m, Move::Arc { .. }) {
                             "the arc reaches"
+                        } else if matches!(m, Move::Drill { .. }) {
+                            "the hole reaches"
                         } else {
                             "it goes to"
                         };
@@ -211,7 +226,7 @@ impl<'m> GcodeCheck<'m> {
                 "{file}, line {p}: a `%` in the middle of the program (only the first and last lines may be `%`)"
             ));
         }
-        let words = words(&line);
+        let words = gcode_read::words(&line);
         for (letter, value) in &words {
             match (letter, value.parse::<f64>().ok()) {
                 ('G', Some(20.0)) => self.mm_per_unit = 25.4,
@@ -219,8 +234,15 @@ impl<'m> GcodeCheck<'m> {
                 _ => {}
             }
         }
+        let dialect = machine.kind.gcode_dialect();
         for (letter, value) in words {
             let code = || value.parse::<f64>().ok();
+            if let Some(why) = dialect.and_then(|d| d.refuses(letter, &value)) {
+                return Err(format!(
+                    "{file}, line {n} `{line}`: {why} (machine `{}`, link = \"{}\")",
+                    machine.name, machine.link
+                ));
+            }
             match letter {
                 'M' => {
                     let ok = code().is_some_and(|m| {
@@ -273,40 +295,8 @@ impl<'m> GcodeCheck<'m> {
     }
 }
 
-/// A line without its `( … )` and `;` comments, trimmed.
+/// A line as it is sent: without its `( … )` and `;` comments, `*NN` checksum and `/` block
+/// delete, trimmed (`gcode_read::clean`).
 pub fn strip_comments(raw: &str) -> String {
-    let mut line = String::new();
-    let mut in_paren = false;
-    for c in raw.chars() {
-        match c {
-            _ if in_paren => in_paren = c != ')',
-            '(' => in_paren = true,
-            ';' => break,
-            c => line.push(c),
-        }
-    }
-    line.trim().to_string()
-}
-
-/// The words of a line: letter (upper case) and the number as written.
-fn words(line: &str) -> Vec<(char, String)> {
-    let mut out = Vec::new();
-    let mut chars = line.chars().peekable();
-    while let Some(c) = chars.next() {
-        if c.is_ascii_alphabetic() {
-            let mut v = String::new();
-            while let Some(&d) = chars.peek() {
-                if d.is_ascii_digit() || matches!(d, '.' | '-' | '+') {
-                    v.push(d);
-                    chars.next();
-                } else if d == ' ' && v.is_empty() {
-                    chars.next();
-                } else {
-                    break;
-                }
-            }
-            out.push((c.to_ascii_uppercase(), v));
-        }
-    }
-    out
+    gcode_read::clean(raw)
 }

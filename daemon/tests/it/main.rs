@@ -22,6 +22,7 @@ mod metrics;
 mod nothing_moves_without_the_operator;
 mod offset_cmd;
 mod operator_cli;
+mod other_cam_cli;
 mod plan_preview_cli;
 mod posts_cli;
 mod screens_cli;

@@ -152,6 +152,9 @@ impl MachineKind for GrblKind {
     fn gcode_lines_are_units(&self) -> bool {
         true
     }
+    fn gcode_dialect(&self) -> Option<Dialect> {
+        Some(Dialect::Grbl)
+    }
     fn start(&self, machine: &str, s: &GrblSettings) -> BoxFuture<'static, std::io::Result<()>> {
         warn_missing_port(machine, &s.port);
         started(())

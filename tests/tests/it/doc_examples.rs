@@ -293,6 +293,9 @@ impl Cell {
         std::fs::copy(root.join("docs/examples/sign.dxf"), d.join("part.dxf")).unwrap();
         std::fs::create_dir_all(d.join("docs")).unwrap();
         copy_dir(&root.join("docs/examples"), &d.join("docs/examples"));
+        // the other CAM programs docs/daemon.md names
+        std::fs::create_dir_all(d.join("tests/data")).unwrap();
+        copy_dir(&root.join("tests/data/gcode"), &d.join("tests/data/gcode"));
         std::fs::write(d.join("part.svg"), PART_SVG).unwrap();
         std::fs::write(d.join("part.nc"), PART_NC).unwrap();
         std::fs::write(d.join("mould.stl"), pyramid_stl()).unwrap();

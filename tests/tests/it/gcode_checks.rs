@@ -7,7 +7,7 @@ use crate::common;
 use common::*;
 use machlink::core::store::JobState;
 use machlink::daemon::StartOptions;
-use machlink_sim::grbl::{GrblSim, GrblSimConfig};
+use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
 
 /// A GRBL machine on a simulator with a 600 × 400 × 50 mm work area and a 3000 mm/min limit.
 async fn limited_cell() -> (
@@ -98,4 +98,52 @@ async fn refused_gcode_names_the_line_and_sends_nothing() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("line 2") && e.contains('%'), "{e}");
+}
+
+/// bCNC's program from tests/data/gcode (lower-case words, words without spaces, a G91
+/// block of R arcs) streamed to the simulated GRBL: every program line reaches it once, in
+/// order, every move runs once, and the tool ends where the file's last move puts it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_program_from_bcnc_reaches_the_machine_line_by_line_once() {
+    let (sim, _dir, d) = limited_cell().await;
+    let c = client(&d);
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/gcode/bcnc_rounded_square.nc");
+    let text = std::fs::read_to_string(&path).unwrap();
+    // its comments are whole lines: the program is every other line, as written
+    let program: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('('))
+        .collect();
+    let moves = program
+        .iter()
+        .filter(|l| l.to_ascii_uppercase().contains(['X', 'Y', 'Z']))
+        .count();
+    assert_eq!(
+        moves, 21,
+        "the file has 21 moves: 3 in, 8 a pass, 1 down, 1 up"
+    );
+    let j = c
+        .submit(&job("mill", "bcnc_rounded_square.nc", &text))
+        .await
+        .unwrap();
+    assert_eq!(j.total_units, program.len());
+    let done = wait_end(&c, j.id).await;
+    assert_eq!(done.state, JobState::Completed, "{:?}", done.error);
+    let received: Vec<String> = sim
+        .events()
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::Received { n: Some(_), line } => Some(line),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(received, program, "every line once, in order");
+    assert_eq!(sim.trace().len(), moves, "every move ran once");
+    let at = sim.position();
+    assert!(
+        (at[0] - 20.0).abs() < 1e-3 && (at[1] - 30.0).abs() < 1e-3 && (at[2] - 3.0).abs() < 1e-3,
+        "the square closes where it began, 3 mm up: {at:?}"
+    );
 }

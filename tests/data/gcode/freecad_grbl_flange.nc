@@ -1,0 +1,39 @@
+(Exported by FreeCAD)
+(Post Processor: grbl_post)
+(Output Time:2026-11-20 14:02:11.532118)
+(begin preamble)
+G17 G90
+G21
+(begin operation: TC: Endmill 6mm)
+(Path: TC: Endmill 6mm)
+(begin toolchange)
+; M6 T1
+M3 S10000
+(finish operation: TC: Endmill 6mm)
+(begin operation: Bore)
+(Path: Bore)
+G0 Z5.0000
+G0 X47.0000 Y40.0000
+G0 Z2.0000
+G1 X47.0000 Y40.0000 Z-2.0000 F180.00
+G2 X33.0000 Y40.0000 Z-2.0000 I-7.0000 J0.0000 F600.00
+G2 X47.0000 Y40.0000 Z-2.0000 I7.0000 J0.0000 F600.00
+G0 Z5.0000
+(finish operation: Bore)
+(begin operation: Profile)
+(Path: Profile)
+G0 Z5.0000
+G0 X73.0000 Y40.0000
+G0 Z2.0000
+G1 X73.0000 Y40.0000 Z-1.0000 F180.00
+G2 X7.0000 Y40.0000 Z-1.0000 I-33.0000 J0.0000 F600.00
+G2 X73.0000 Y40.0000 Z-1.0000 I33.0000 J0.0000 F600.00
+G1 X73.0000 Y40.0000 Z-2.0000 F180.00
+G2 X7.0000 Y40.0000 Z-2.0000 I-33.0000 J0.0000 F600.00
+G2 X73.0000 Y40.0000 Z-2.0000 I33.0000 J0.0000 F600.00
+G0 Z5.0000
+(finish operation: Profile)
+(begin postamble)
+M5
+G17 G90
+; M2
