@@ -634,6 +634,111 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
     );
 }
 
+/// The sign recipe planned (`plan -o`), previewed (`preview --program`) and submitted to
+/// the simulated GRBL through the daemon is one program, byte for byte: the file `plan`
+/// writes, the program `preview` wrote beside its drawing, the program the daemon stored
+/// for the job (written out by the post) and the lines the controller received.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_sign_recipe_planned_previewed_and_submitted_is_one_program_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"router\"\nlink = \"grbl\"\nport = \"{}\"\ntools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 6.0 }} ]\n",
+            port.display()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let (planned, _) = plan("grbl", dir.path());
+    let sign = example("sign.dxf");
+    let recipe = example("sign.toml");
+
+    // preview writes the program of the plan it drew
+    let drawing = dir.path().join("sign.svg");
+    let previewed = dir.path().join("sign-preview.nc");
+    let o = machlink(&[
+        "preview".as_ref(),
+        sign.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        drawing.as_os_str(),
+        "--program".as_ref(),
+        previewed.as_os_str(),
+    ]);
+    ok(&o, "preview --program");
+    let svg = std::fs::read_to_string(&drawing).unwrap();
+    assert!(svg.contains("T2 (6 mm flat end mill): cut out"), "{svg}");
+    let previewed = std::fs::read(&previewed).unwrap();
+
+    // submitted, and run to its end through both tool changes
+    let id = submit_recipe(&sock, &sign, "router", &recipe);
+    let until = Instant::now() + Duration::from_secs(120);
+    let mut resumed = 0;
+    loop {
+        let j = common::cli::job_record(&sock, id);
+        if j.state.is_final() {
+            assert_eq!(j.state, JobState::Completed, "{j:?}");
+            break;
+        }
+        if j.state == JobState::Paused {
+            let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            resumed += 1;
+            wait_job_record(&sock, id, "resumed", |j| j.state != JobState::Paused);
+        }
+        assert!(Instant::now() < until, "job {id} never ended: {j:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(resumed, 2, "one resume per tool change");
+
+    // the program as the daemon stored it, written out by the grbl post
+    let registry = machlink::core::registry::standard();
+    let store = machlink::core::store::Store::open(&daemon.dir.join("jobs.db")).unwrap();
+    let stored = store
+        .program(id)
+        .unwrap()
+        .decode(registry.kind("grbl").unwrap().as_ref())
+        .unwrap();
+    let stored = registry
+        .post("grbl")
+        .unwrap()
+        .file(&stored, "sign")
+        .unwrap();
+    // the lines the controller received, each ended as the file ends its lines
+    let sent: String = received(&sim).iter().map(|l| format!("{l}\n")).collect();
+
+    let planned = planned.into_bytes();
+    assert!(planned.len() > 1000, "{} bytes planned", planned.len());
+    for (what, got) in [
+        ("preview --program", &previewed),
+        ("the stored job", &stored),
+        ("the controller's lines", &sent.into_bytes()),
+    ] {
+        let at = planned.iter().zip(got.iter()).position(|(a, b)| a != b);
+        assert!(
+            got == &planned,
+            "{what}: {} bytes against plan's {}, first difference at byte {at:?}: {:?}",
+            got.len(),
+            planned.len(),
+            at.map(|k| String::from_utf8_lossy(
+                &got[k.saturating_sub(40)..(k + 40).min(got.len())]
+            )
+            .into_owned())
+        );
+    }
+}
+
 /// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
 /// TRIM 2, STOP 3, END 4, COLOR_CHANGE 5). Fails (never skips) without pyembroidery.
 fn pyembroidery_commands(path: &Path) -> Vec<u32> {
