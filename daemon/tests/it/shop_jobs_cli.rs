@@ -1295,6 +1295,76 @@ fn an_svg_recipe_takes_inkscape_layers_and_group_ids_and_names_the_paths_it_leav
     );
 }
 
+/// A drill operation that takes an SVG's circles by diameter leaves the circles of other
+/// sizes and the shapes that are no circle: each is named (its element and id, or its kind
+/// and place without one, with the size of a circle), never silently dropped, and only the
+/// circles of the tool's size are drilled.
+#[test]
+fn an_svg_drill_by_diameter_names_each_circle_and_shape_of_another_size_it_leaves() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("holes.svg");
+    std::fs::write(
+        &svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="100mm" height="50mm" viewBox="0 0 100 50">
+  <g inkscape:groupmode="layer" inkscape:label="Holes" id="layer1">
+    <circle id="h1" cx="10" cy="10" r="1.5"/>
+    <circle id="big" cx="30" cy="10" r="2.5"/>
+    <circle cx="50" cy="10" r="1.5"/>
+    <circle cx="70" cy="10" r="2"/>
+    <rect id="slot" x="80" y="5" width="10" height="3"/>
+    <path d="M 10 40 A 1.5 1.5 0 1 0 13 40 A 1.5 1.5 0 1 0 10 40 Z"/>
+  </g>
+</svg>
+"#,
+    )
+    .unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = { number = 1, diameter = 3.0 }\n\
+         take = { layer = \"holes\", diameter = [2.9, 3.1] }\ndepth = 2.0\ncycle = \"simple\"\n",
+    )
+    .unwrap();
+    let out_file = dir.path().join("holes.ngc");
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "--post".as_ref(),
+        "linuxcnc".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan holes.svg");
+    // the three 3 mm circles (one a <path> of two arcs) are drilled, at their centres
+    let r = read(&std::fs::read_to_string(&out_file).unwrap(), "linuxcnc");
+    let centres = [[10.0, 40.0], [50.0, 40.0], [11.5, 10.0]];
+    assert_eq!(r.cycles.len(), 3, "{:?}", r.cycles);
+    for c in centres {
+        assert_eq!(
+            r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).count(),
+            1,
+            "the hole at {c:?}: {:?}",
+            r.cycles
+        );
+    }
+    // the 5 mm and 4 mm circles and the slot are each named, and nothing else is
+    let e = stderr(&o);
+    let untaken: Vec<&str> = e
+        .lines()
+        .filter(|l| l.contains("is taken by no operation"))
+        .collect();
+    assert_eq!(untaken.len(), 3, "{e}");
+    for want in [
+        "holes.svg: circle \"big\" (a circle of 5.000 mm) in group Holes / layer1 is taken by no operation of the job",
+        "holes.svg: circle #4 (a circle of 4.000 mm) in group Holes / layer1 is taken by no operation of the job",
+        "holes.svg: rect \"slot\" in group Holes / layer1 is taken by no operation of the job",
+    ] {
+        assert!(untaken.iter().any(|l| l.ends_with(want)), "{want}: {e}");
+    }
+}
+
 /// The value of attribute `name` in one SVG element's text.
 fn attr<'a>(element: &'a str, name: &str) -> Option<&'a str> {
     let key = format!(" {name}=\"");
