@@ -1022,13 +1022,13 @@ async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes()
     assert_eq!(dips, 3, "the Z drive reached the hole depth {dips} times");
 }
 
-/// A Modbus device has no block to stop for a tool change: a program that changes tools
-/// after it has moved is refused naming the move and the tool (it would cut on with the
-/// wrong tool), while a job of one tool plans.
+/// The sign recipe for the Modbus post: a tool block (move type 7, the tool's number in the
+/// feed field) at each change, T1 first and T2 after the drilling, every one where the
+/// program's tool changes, and the program ends with its end block.
 #[test]
-fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
+fn a_modbus_program_holds_a_tool_block_at_each_tool_change() {
     let dir = tempfile::tempdir().unwrap();
-    let out_file = dir.path().join("sign.mb");
+    let out_file = dir.path().join("sign.blocks");
     let o = machlink(&[
         "plan".as_ref(),
         example("sign.dxf").as_os_str(),
@@ -1039,44 +1039,145 @@ fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
         "-o".as_ref(),
         out_file.as_os_str(),
     ]);
-    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    let e = stderr(&o);
-    assert!(
-        e.contains("a change to tool T2 (6 mm flat end mill) after the program has moved")
-            && e.contains("submit one job per tool"),
-        "{e}"
-    );
-    assert!(!out_file.exists(), "a refused program was written");
-    // the same plate with T2 only: the pocket and the cut-out
-    let recipe = dir.path().join("t2.toml");
-    std::fs::write(
-        &recipe,
-        "[[operations]]\nop = \"pocket\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"POCKET\"] }\n\
-         cut = { depth = 3.0, stepdown = 1.5, feed = 1000, plunge_feed = 300 }\n\n\
-         [[operations]]\nop = \"profile\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"OUTLINE\"] }\n\
-         side = \"outside\"\ncut = { depth = 6.0, stepdown = 2.0, feed = 1000, plunge_feed = 300 }\n",
-    )
-    .unwrap();
-    let o = machlink(&[
-        "plan".as_ref(),
-        example("sign.dxf").as_os_str(),
-        "--recipe".as_ref(),
-        recipe.as_os_str(),
-        "--post".as_ref(),
-        "modbus".as_ref(),
-        "-o".as_ref(),
-        out_file.as_os_str(),
-    ]);
-    ok(&o, "plan of one tool for the modbus post");
+    ok(&o, "plan sign --post modbus");
     let blocks = std::fs::read_to_string(&out_file).unwrap();
+    let lines: Vec<&str> = blocks.lines().collect();
+    let tools: Vec<(usize, &str)> = lines
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.starts_with("tool "))
+        .map(|(i, l)| (i, *l))
+        .collect();
+    assert_eq!(
+        tools.iter().map(|t| t.1).collect::<Vec<_>>(),
+        ["tool T1", "tool T2"],
+        "{blocks}"
+    );
+    assert_eq!(tools[0].0, 0, "T1 is loaded before any move");
+    // the change to T2 comes with the tool up, after the last hole of T1 and before any cut
+    // of T2: above the stock, every block before it at or above the depth of the holes
+    let z = |l: &str| -> Option<f64> {
+        l.split_whitespace()
+            .find_map(|w| w.strip_prefix('Z'))
+            .and_then(|v| v.parse().ok())
+    };
+    let before = z(lines[tools[1].0 - 1]).expect("a move before the change");
+    assert!(before > 0.0, "the tool is at Z{before} at the change");
     assert!(
-        blocks
-            .lines()
+        lines
+            .iter()
             .filter(|l| l.starts_with("linear") || l.starts_with("arc"))
             .count()
             > 50
     );
-    assert_eq!(blocks.lines().last(), Some("end"));
+    assert_eq!(lines.last(), Some(&"end"));
+}
+
+/// A two-tool job to the simulated Modbus PLC through the daemon: the device holds at each
+/// tool block, `machines` and the job name the tool to load (from the machine's tools
+/// table), the consumed sequence does not move until `resume`, and then every block of the
+/// program is executed once, in order.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulated_modbus_plc_stops_at_each_tool_change_until_the_operator_resumes() {
+    use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
+    let dir = tempfile::tempdir().unwrap();
+    let press = ModbusSim::spawn_tcp(
+        SimConfig {
+            time_scale: 20.0,
+            capacity: 16,
+            ..Default::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\
+             tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n",
+            press.addr().port()
+        ),
+    );
+    let dxf = dir.path().join("holes.dxf");
+    std::fs::write(&dxf, holes_dxf()).unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = 1\ntake = { diameter = [2.9, 3.1] }\ndepth = 1.0\nfeed = 300\n\n\
+         [[operations]]\nop = \"drill\"\ntool = 2\ntake = { diameter = [4.9, 5.1] }\ndepth = 1.0\nfeed = 300\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let id = submit_recipe(&sock, &dxf, "press", &recipe);
+    let stops = |press: &ModbusSim| -> Vec<(u32, u32)> {
+        press
+            .events_from(0)
+            .into_iter()
+            .filter_map(|e| match e {
+                ModbusEvent::ToolStop { seq, tool } => Some((seq, tool)),
+                _ => None,
+            })
+            .collect()
+    };
+    for (k, (n, tool)) in [(1, "load T1 (3 mm drill)"), (2, "load T2 (5 mm drill)")]
+        .into_iter()
+        .enumerate()
+    {
+        let j = wait_job_record(&sock, id, "paused for a tool", |j| {
+            j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
+        });
+        assert_eq!(
+            j.note.as_deref(),
+            Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
+        );
+        machines_show(&sock, &format!("needs operator: {tool}"));
+        // the device holds at the tool block of tool n, that block not yet finished
+        let s = stops(&press);
+        assert_eq!(s.len(), k + 1, "{s:?}");
+        let (at, t) = s[k];
+        assert_eq!(t, n);
+        let (state, _, consumed, _) = press.registers();
+        assert_eq!((state, consumed), (2, at - 1), "held before block {at}");
+        // nothing moves while the operator changes the tool
+        let executed = press.trace().len();
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!(
+            press.registers().2,
+            consumed,
+            "consumed moved during the change to {tool}"
+        );
+        assert_eq!(
+            press.trace().len(),
+            executed,
+            "a block ran during the change to {tool}"
+        );
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // every block once, in order, the tool blocks included
+    let trace = press.trace();
+    let seqs: Vec<u32> = trace.iter().map(|e| e.seq).collect();
+    assert_eq!(
+        seqs,
+        (1..=done.total_units as u32).collect::<Vec<_>>(),
+        "the executed sequence"
+    );
+    let tools: Vec<u32> = trace
+        .iter()
+        .filter(|e| e.block.kind == machlink_protocols::modbus::map::BlockKind::ToolChange)
+        .map(|e| e.block.feed)
+        .collect();
+    assert_eq!(tools, [1, 2]);
+    // and the holes: the Z axis went down to −1 mm three times
+    let dips = trace
+        .windows(2)
+        .filter(|w| w[0].block.target[2] > -999 && w[1].block.target[2] <= -999)
+        .count();
+    assert_eq!(dips, 3, "Z reached the hole depth {dips} times");
 }
 
 /// A machine's default recipe (`recipe = "sign.toml"` in its table): a drawing submitted
