@@ -64,7 +64,7 @@ pub fn blocks_seconds(blocks: &[crate::modbus::MotionBlock], rapid: f64) -> f64 
             BlockKind::Dwell => Move::Dwell {
                 seconds: b.feed as f64 / 1000.0,
             },
-            BlockKind::End => continue,
+            BlockKind::End | BlockKind::ToolChange => continue,
         };
         let (dt, end) = move_seconds(pos, &m, rapid);
         t += dt;

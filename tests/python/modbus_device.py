@@ -30,7 +30,7 @@ WRITE_SEQ, CONSUMED_SEQ, POS = 6, 8, 10
 RING, BLOCK = 32, 16
 IDLE, RUNNING, HOLD, FAULTED = 0, 1, 2, 3
 START, HOLD_CMD, RESUME, STOP, CLEAR_FAULT, SYNC = 1, 2, 3, 4, 5, 6
-END = 6
+END, TOOL_CHANGE = 6, 7
 SEQUENCE_FAULT, BAD_BLOCK_FAULT = 1, 2
 
 
@@ -41,6 +41,8 @@ class Device:
         self.capacity = capacity
         self.high_first = high_first
         self.trace = trace
+        # the tool change block the device held at (rule 10a): after the resume it runs
+        self.tool_stop = None
 
     def get32(self, regs, at):
         a, b = regs[at], regs[at + 1]
@@ -105,6 +107,7 @@ class Device:
             if state == HOLD:
                 regs[STATE] = RUNNING
         elif c == STOP:
+            self.tool_stop = None
             if state != FAULTED:
                 regs[STATE] = IDLE
                 self.put32(regs, WRITE_SEQ, self.get32(regs, CONSUMED_SEQ))
@@ -115,6 +118,7 @@ class Device:
         elif c == SYNC:
             if state != IDLE:
                 return ExcCodes.ILLEGAL_VALUE
+            self.tool_stop = None
             self.put32(regs, CONSUMED_SEQ, self.get32(regs, WRITE_SEQ))
         else:
             return ExcCodes.ILLEGAL_VALUE
@@ -132,8 +136,13 @@ class Device:
             if self.get32(regs, b) != seq:
                 regs[STATE], regs[FAULT] = FAULTED, SEQUENCE_FAULT
                 break
-            if not 1 <= kind <= 6:
+            if not 1 <= kind <= 7:
                 regs[STATE], regs[FAULT] = FAULTED, BAD_BLOCK_FAULT
+                break
+            if kind == TOOL_CHANGE and self.tool_stop != seq:
+                # hold here, the block unfinished, until the operator resumes (rule 10a)
+                self.tool_stop = seq
+                regs[STATE] = HOLD
                 break
             rec = {
                 "seq": seq,

@@ -32,6 +32,13 @@ pub struct PreviewArgs {
     /// Z changes, as 3D finishing does; meshes are always drawn so).
     #[arg(long)]
     pub iso: bool,
+    /// Also write the program of the plan drawn (a shape file with --op or --recipe), as
+    /// `plan --post POST -o FILE` writes it: the drawing is of that very program's moves.
+    #[arg(long, value_name = "FILE")]
+    pub program: Option<PathBuf>,
+    /// The post the plan is made for, and --program written with (as for `plan`).
+    #[arg(long, default_value = "grbl")]
+    pub post: String,
     /// Plan options, as for `machlink plan`; with --op the plan is drawn over the part.
     #[command(flatten)]
     pub job: JobArgs,
@@ -79,6 +86,45 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             post: None,
             ..a.job.spec(&a.file, None, None)?
         };
+        if let Some(program) = &a.program {
+            // the plan `plan --post` makes, drawn, and its program written beside the drawing
+            let registry = machlink::core::registry::standard();
+            let post = registry.post(&a.post).with_context(|| {
+                format!(
+                    "there is no post `{}` (known: {})",
+                    a.post,
+                    registry.post_names().join(", ")
+                )
+            })?;
+            if spec.operation.is_none() && spec.operations.is_empty() {
+                anyhow::bail!(
+                    "preview --program writes the program of a plan: give --op or --recipe for {}",
+                    a.file.display()
+                );
+            }
+            let spec = a.job.spec(&a.file, None, Some(a.post.clone()))?;
+            let planned = intake::plan(&spec, intake::Target::Post(post))?;
+            print_warnings(&planned.warnings);
+            let svg = if planned.figures.is_empty() {
+                preview::svg_with(planned.shape.as_ref(), Some(&planned.toolpath), &opts)
+            } else {
+                let ops = legend(&planned.figures);
+                preview::svg_of_job(planned.shape.as_ref(), Some(&planned.toolpath), &ops, &opts)
+            };
+            let bytes = post.file(&planned.program, &super::plan::label(&a.file))?;
+            std::fs::write(program, &bytes)
+                .with_context(|| format!("cannot write {}", program.display()))?;
+            write_drawing(&a.output, &svg)?;
+            eprintln!(
+                "wrote {} and {} ({} post: {} units, {} bytes)",
+                a.output.display(),
+                program.display(),
+                post.name(),
+                planned.program.len(),
+                bytes.len()
+            );
+            return Ok(());
+        }
         if !spec.operations.is_empty() {
             // a job of operations: planned as `plan` plans it (tools given inline)
             let registry = machlink::core::registry::standard();
@@ -87,25 +133,7 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
                 machlink::core::intake::recipe::plan_operations(&spec, intake::Target::Post(post))?;
             print_warnings(&p.warnings);
             // each operation in its tool's colour, named in the legend as `plan` names it
-            let ops: Vec<preview::LegendOperation> = p
-                .figures
-                .iter()
-                .map(|o| {
-                    let f = &o.figures;
-                    preview::LegendOperation {
-                        first_move: f.first_move,
-                        tool: f.tool.number,
-                        diameter: f.tool.diameter,
-                        label: format!(
-                            "T{} ({}): {}, {}",
-                            f.tool.number,
-                            f.tool_name,
-                            f.name,
-                            super::plan::clock(f.seconds)
-                        ),
-                    }
-                })
-                .collect();
+            let ops = legend(&p.figures);
             let svg = preview::svg_of_job(Some(&p.shape), Some(&p.toolpath), &ops, &opts);
             write_drawing(&a.output, &svg)?;
             eprintln!("wrote {}", a.output.display());
@@ -124,6 +152,30 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
     write_drawing(&a.output, &svg)?;
     eprintln!("wrote {}", a.output.display());
     Ok(())
+}
+
+/// The legend of a job of operations: each in its tool's colour, named as `plan` names it.
+fn legend(
+    figures: &[machlink::core::intake::recipe::OperationFigures],
+) -> Vec<preview::LegendOperation> {
+    figures
+        .iter()
+        .map(|o| {
+            let f = &o.figures;
+            preview::LegendOperation {
+                first_move: f.first_move,
+                tool: f.tool.number,
+                diameter: f.tool.diameter,
+                label: format!(
+                    "T{} ({}): {}, {}",
+                    f.tool.number,
+                    f.tool_name,
+                    f.name,
+                    super::plan::clock(f.seconds)
+                ),
+            }
+        })
+        .collect()
 }
 
 /// Writes a drawing as SVG, or rendered to PNG, by the output's extension.

@@ -1045,21 +1045,42 @@ pub mod recipe {
                 ));
             }
         }
-        // an SVG's paths, by the groups they lie in
+        // an SVG's elements, by the groups they lie in and, for operations that take
+        // circles (drilling, a diameter range), by what they draw: a circle of another
+        // size than every drill's range is named, never silently left out
         if file.to_ascii_lowercase().ends_with(".svg") {
-            let placed = offset_core::io::svg::paths_in_groups(&spec.input.bytes()?, file)
-                .map_err(|e| IntakeError::Input(e.to_string()))?;
-            for (path, groups) in placed {
+            let placed = offset_core::io::svg::placed_paths(
+                &spec.input.bytes()?,
+                file,
+                spec.tolerance.unwrap_or(DEFAULT_TOLERANCE),
+            )
+            .map_err(|e| IntakeError::Input(e.to_string()))?;
+            for p in placed {
+                let diameter = match p.paths.as_slice() {
+                    [one] => offset_core::ops::drill::circle_of(one).map(|(_, r)| 2.0 * r),
+                    _ => None,
+                };
                 let taken = spec.operations.iter().any(|op| {
-                    op.take.layers.is_empty() || groups.iter().any(|g| op.take.takes_layer(g))
+                    let in_group = op.take.layers.is_empty()
+                        || p.groups.iter().any(|g| op.take.takes_layer(g));
+                    let drill = matches!(op.operation, Operation::Drill(_));
+                    in_group
+                        && match diameter {
+                            Some(d) => op.take.takes_diameter(d),
+                            None => !drill && op.take.diameter.is_none(),
+                        }
                 });
                 if !taken {
-                    let place = match groups.first() {
-                        Some(_) => format!(" in group {}", groups.join(" / ")),
+                    let what = match diameter {
+                        Some(d) => format!("{} (a circle of {d:.3} mm)", p.name),
+                        None => p.name.clone(),
+                    };
+                    let place = match p.groups.first() {
+                        Some(_) => format!(" in group {}", p.groups.join(" / ")),
                         None => " outside every group".to_string(),
                     };
                     warnings.push(format!(
-                        "{file}: {path}{place} is taken by no operation of the job"
+                        "{file}: {what}{place} is taken by no operation of the job"
                     ));
                 }
             }

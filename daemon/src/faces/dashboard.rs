@@ -143,7 +143,7 @@ pub fn unit_moves(program: &Program) -> Option<Vec<Option<Move>>> {
                         ccw: b.kind == BlockKind::ArcCcw,
                         feed,
                     }),
-                    BlockKind::Dwell | BlockKind::End => None,
+                    BlockKind::Dwell | BlockKind::End | BlockKind::ToolChange => None,
                 };
                 if m.is_some() {
                     at = to;

@@ -634,6 +634,111 @@ async fn the_simulated_grbl_stops_at_each_tool_change_until_the_operator_resumes
     );
 }
 
+/// The sign recipe planned (`plan -o`), previewed (`preview --program`) and submitted to
+/// the simulated GRBL through the daemon is one program, byte for byte: the file `plan`
+/// writes, the program `preview` wrote beside its drawing, the program the daemon stored
+/// for the job (written out by the post) and the lines the controller received.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_sign_recipe_planned_previewed_and_submitted_is_one_program_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"router\"\nlink = \"grbl\"\nport = \"{}\"\ntools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 6.0 }} ]\n",
+            port.display()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let (planned, _) = plan("grbl", dir.path());
+    let sign = example("sign.dxf");
+    let recipe = example("sign.toml");
+
+    // preview writes the program of the plan it drew
+    let drawing = dir.path().join("sign.svg");
+    let previewed = dir.path().join("sign-preview.nc");
+    let o = machlink(&[
+        "preview".as_ref(),
+        sign.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "-o".as_ref(),
+        drawing.as_os_str(),
+        "--program".as_ref(),
+        previewed.as_os_str(),
+    ]);
+    ok(&o, "preview --program");
+    let svg = std::fs::read_to_string(&drawing).unwrap();
+    assert!(svg.contains("T2 (6 mm flat end mill): cut out"), "{svg}");
+    let previewed = std::fs::read(&previewed).unwrap();
+
+    // submitted, and run to its end through both tool changes
+    let id = submit_recipe(&sock, &sign, "router", &recipe);
+    let until = Instant::now() + Duration::from_secs(120);
+    let mut resumed = 0;
+    loop {
+        let j = common::cli::job_record(&sock, id);
+        if j.state.is_final() {
+            assert_eq!(j.state, JobState::Completed, "{j:?}");
+            break;
+        }
+        if j.state == JobState::Paused {
+            let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            resumed += 1;
+            wait_job_record(&sock, id, "resumed", |j| j.state != JobState::Paused);
+        }
+        assert!(Instant::now() < until, "job {id} never ended: {j:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(resumed, 2, "one resume per tool change");
+
+    // the program as the daemon stored it, written out by the grbl post
+    let registry = machlink::core::registry::standard();
+    let store = machlink::core::store::Store::open(&daemon.dir.join("jobs.db")).unwrap();
+    let stored = store
+        .program(id)
+        .unwrap()
+        .decode(registry.kind("grbl").unwrap().as_ref())
+        .unwrap();
+    let stored = registry
+        .post("grbl")
+        .unwrap()
+        .file(&stored, "sign")
+        .unwrap();
+    // the lines the controller received, each ended as the file ends its lines
+    let sent: String = received(&sim).iter().map(|l| format!("{l}\n")).collect();
+
+    let planned = planned.into_bytes();
+    assert!(planned.len() > 1000, "{} bytes planned", planned.len());
+    for (what, got) in [
+        ("preview --program", &previewed),
+        ("the stored job", &stored),
+        ("the controller's lines", &sent.into_bytes()),
+    ] {
+        let at = planned.iter().zip(got.iter()).position(|(a, b)| a != b);
+        assert!(
+            got == &planned,
+            "{what}: {} bytes against plan's {}, first difference at byte {at:?}: {:?}",
+            got.len(),
+            planned.len(),
+            at.map(|k| String::from_utf8_lossy(
+                &got[k.saturating_sub(40)..(k + 40).min(got.len())]
+            )
+            .into_owned())
+        );
+    }
+}
+
 /// What pyembroidery reads from `path`: the command of each record (STITCH 0, JUMP 1,
 /// TRIM 2, STOP 3, END 4, COLOR_CHANGE 5). Fails (never skips) without pyembroidery.
 fn pyembroidery_commands(path: &Path) -> Vec<u32> {
@@ -917,13 +1022,13 @@ async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes()
     assert_eq!(dips, 3, "the Z drive reached the hole depth {dips} times");
 }
 
-/// A Modbus device has no block to stop for a tool change: a program that changes tools
-/// after it has moved is refused naming the move and the tool (it would cut on with the
-/// wrong tool), while a job of one tool plans.
+/// The sign recipe for the Modbus post: a tool block (move type 7, the tool's number in the
+/// feed field) at each change, T1 first and T2 after the drilling, every one where the
+/// program's tool changes, and the program ends with its end block.
 #[test]
-fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
+fn a_modbus_program_holds_a_tool_block_at_each_tool_change() {
     let dir = tempfile::tempdir().unwrap();
-    let out_file = dir.path().join("sign.mb");
+    let out_file = dir.path().join("sign.blocks");
     let o = machlink(&[
         "plan".as_ref(),
         example("sign.dxf").as_os_str(),
@@ -934,44 +1039,145 @@ fn a_modbus_program_that_changes_tools_is_refused_and_one_of_one_tool_plans() {
         "-o".as_ref(),
         out_file.as_os_str(),
     ]);
-    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    let e = stderr(&o);
-    assert!(
-        e.contains("a change to tool T2 (6 mm flat end mill) after the program has moved")
-            && e.contains("submit one job per tool"),
-        "{e}"
-    );
-    assert!(!out_file.exists(), "a refused program was written");
-    // the same plate with T2 only: the pocket and the cut-out
-    let recipe = dir.path().join("t2.toml");
-    std::fs::write(
-        &recipe,
-        "[[operations]]\nop = \"pocket\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"POCKET\"] }\n\
-         cut = { depth = 3.0, stepdown = 1.5, feed = 1000, plunge_feed = 300 }\n\n\
-         [[operations]]\nop = \"profile\"\ntool = { number = 2, diameter = 6.0 }\ntake = { layers = [\"OUTLINE\"] }\n\
-         side = \"outside\"\ncut = { depth = 6.0, stepdown = 2.0, feed = 1000, plunge_feed = 300 }\n",
-    )
-    .unwrap();
-    let o = machlink(&[
-        "plan".as_ref(),
-        example("sign.dxf").as_os_str(),
-        "--recipe".as_ref(),
-        recipe.as_os_str(),
-        "--post".as_ref(),
-        "modbus".as_ref(),
-        "-o".as_ref(),
-        out_file.as_os_str(),
-    ]);
-    ok(&o, "plan of one tool for the modbus post");
+    ok(&o, "plan sign --post modbus");
     let blocks = std::fs::read_to_string(&out_file).unwrap();
+    let lines: Vec<&str> = blocks.lines().collect();
+    let tools: Vec<(usize, &str)> = lines
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.starts_with("tool "))
+        .map(|(i, l)| (i, *l))
+        .collect();
+    assert_eq!(
+        tools.iter().map(|t| t.1).collect::<Vec<_>>(),
+        ["tool T1", "tool T2"],
+        "{blocks}"
+    );
+    assert_eq!(tools[0].0, 0, "T1 is loaded before any move");
+    // the change to T2 comes with the tool up, after the last hole of T1 and before any cut
+    // of T2: above the stock, every block before it at or above the depth of the holes
+    let z = |l: &str| -> Option<f64> {
+        l.split_whitespace()
+            .find_map(|w| w.strip_prefix('Z'))
+            .and_then(|v| v.parse().ok())
+    };
+    let before = z(lines[tools[1].0 - 1]).expect("a move before the change");
+    assert!(before > 0.0, "the tool is at Z{before} at the change");
     assert!(
-        blocks
-            .lines()
+        lines
+            .iter()
             .filter(|l| l.starts_with("linear") || l.starts_with("arc"))
             .count()
             > 50
     );
-    assert_eq!(blocks.lines().last(), Some("end"));
+    assert_eq!(lines.last(), Some(&"end"));
+}
+
+/// A two-tool job to the simulated Modbus PLC through the daemon: the device holds at each
+/// tool block, `machines` and the job name the tool to load (from the machine's tools
+/// table), the consumed sequence does not move until `resume`, and then every block of the
+/// program is executed once, in order.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_simulated_modbus_plc_stops_at_each_tool_change_until_the_operator_resumes() {
+    use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
+    let dir = tempfile::tempdir().unwrap();
+    let press = ModbusSim::spawn_tcp(
+        SimConfig {
+            time_scale: 20.0,
+            capacity: 16,
+            ..Default::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\
+             tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n",
+            press.addr().port()
+        ),
+    );
+    let dxf = dir.path().join("holes.dxf");
+    std::fs::write(&dxf, holes_dxf()).unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = 1\ntake = { diameter = [2.9, 3.1] }\ndepth = 1.0\nfeed = 300\n\n\
+         [[operations]]\nop = \"drill\"\ntool = 2\ntake = { diameter = [4.9, 5.1] }\ndepth = 1.0\nfeed = 300\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let id = submit_recipe(&sock, &dxf, "press", &recipe);
+    let stops = |press: &ModbusSim| -> Vec<(u32, u32)> {
+        press
+            .events_from(0)
+            .into_iter()
+            .filter_map(|e| match e {
+                ModbusEvent::ToolStop { seq, tool } => Some((seq, tool)),
+                _ => None,
+            })
+            .collect()
+    };
+    for (k, (n, tool)) in [(1, "load T1 (3 mm drill)"), (2, "load T2 (5 mm drill)")]
+        .into_iter()
+        .enumerate()
+    {
+        let j = wait_job_record(&sock, id, "paused for a tool", |j| {
+            j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(tool))
+        });
+        assert_eq!(
+            j.note.as_deref(),
+            Some(format!("needs operator: {tool}, then `machlink resume {id}`").as_str())
+        );
+        machines_show(&sock, &format!("needs operator: {tool}"));
+        // the device holds at the tool block of tool n, that block not yet finished
+        let s = stops(&press);
+        assert_eq!(s.len(), k + 1, "{s:?}");
+        let (at, t) = s[k];
+        assert_eq!(t, n);
+        let (state, _, consumed, _) = press.registers();
+        assert_eq!((state, consumed), (2, at - 1), "held before block {at}");
+        // nothing moves while the operator changes the tool
+        let executed = press.trace().len();
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!(
+            press.registers().2,
+            consumed,
+            "consumed moved during the change to {tool}"
+        );
+        assert_eq!(
+            press.trace().len(),
+            executed,
+            "a block ran during the change to {tool}"
+        );
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // every block once, in order, the tool blocks included
+    let trace = press.trace();
+    let seqs: Vec<u32> = trace.iter().map(|e| e.seq).collect();
+    assert_eq!(
+        seqs,
+        (1..=done.total_units as u32).collect::<Vec<_>>(),
+        "the executed sequence"
+    );
+    let tools: Vec<u32> = trace
+        .iter()
+        .filter(|e| e.block.kind == machlink_protocols::modbus::map::BlockKind::ToolChange)
+        .map(|e| e.block.feed)
+        .collect();
+    assert_eq!(tools, [1, 2]);
+    // and the holes: the Z axis went down to −1 mm three times
+    let dips = trace
+        .windows(2)
+        .filter(|w| w[0].block.target[2] > -999 && w[1].block.target[2] <= -999)
+        .count();
+    assert_eq!(dips, 3, "Z reached the hole depth {dips} times");
 }
 
 /// A machine's default recipe (`recipe = "sign.toml"` in its table): a drawing submitted
@@ -1188,6 +1394,76 @@ fn an_svg_recipe_takes_inkscape_layers_and_group_ids_and_names_the_paths_it_leav
         "{}",
         stderr(&o)
     );
+}
+
+/// A drill operation that takes an SVG's circles by diameter leaves the circles of other
+/// sizes and the shapes that are no circle: each is named (its element and id, or its kind
+/// and place without one, with the size of a circle), never silently dropped, and only the
+/// circles of the tool's size are drilled.
+#[test]
+fn an_svg_drill_by_diameter_names_each_circle_and_shape_of_another_size_it_leaves() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("holes.svg");
+    std::fs::write(
+        &svg,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape" width="100mm" height="50mm" viewBox="0 0 100 50">
+  <g inkscape:groupmode="layer" inkscape:label="Holes" id="layer1">
+    <circle id="h1" cx="10" cy="10" r="1.5"/>
+    <circle id="big" cx="30" cy="10" r="2.5"/>
+    <circle cx="50" cy="10" r="1.5"/>
+    <circle cx="70" cy="10" r="2"/>
+    <rect id="slot" x="80" y="5" width="10" height="3"/>
+    <path d="M 10 40 A 1.5 1.5 0 1 0 13 40 A 1.5 1.5 0 1 0 10 40 Z"/>
+  </g>
+</svg>
+"#,
+    )
+    .unwrap();
+    let recipe = dir.path().join("holes.toml");
+    std::fs::write(
+        &recipe,
+        "[[operations]]\nop = \"drill\"\ntool = { number = 1, diameter = 3.0 }\n\
+         take = { layer = \"holes\", diameter = [2.9, 3.1] }\ndepth = 2.0\ncycle = \"simple\"\n",
+    )
+    .unwrap();
+    let out_file = dir.path().join("holes.ngc");
+    let o = machlink(&[
+        "plan".as_ref(),
+        svg.as_os_str(),
+        "--recipe".as_ref(),
+        recipe.as_os_str(),
+        "--post".as_ref(),
+        "linuxcnc".as_ref(),
+        "-o".as_ref(),
+        out_file.as_os_str(),
+    ]);
+    ok(&o, "plan holes.svg");
+    // the three 3 mm circles (one a <path> of two arcs) are drilled, at their centres
+    let r = read(&std::fs::read_to_string(&out_file).unwrap(), "linuxcnc");
+    let centres = [[10.0, 40.0], [50.0, 40.0], [11.5, 10.0]];
+    assert_eq!(r.cycles.len(), 3, "{:?}", r.cycles);
+    for c in centres {
+        assert_eq!(
+            r.cycles.iter().filter(|y| near(y.xy, c, 1e-6)).count(),
+            1,
+            "the hole at {c:?}: {:?}",
+            r.cycles
+        );
+    }
+    // the 5 mm and 4 mm circles and the slot are each named, and nothing else is
+    let e = stderr(&o);
+    let untaken: Vec<&str> = e
+        .lines()
+        .filter(|l| l.contains("is taken by no operation"))
+        .collect();
+    assert_eq!(untaken.len(), 3, "{e}");
+    for want in [
+        "holes.svg: circle \"big\" (a circle of 5.000 mm) in group Holes / layer1 is taken by no operation of the job",
+        "holes.svg: circle #4 (a circle of 4.000 mm) in group Holes / layer1 is taken by no operation of the job",
+        "holes.svg: rect \"slot\" in group Holes / layer1 is taken by no operation of the job",
+    ] {
+        assert!(untaken.iter().any(|l| l.ends_with(want)), "{want}: {e}");
+    }
 }
 
 /// The value of attribute `name` in one SVG element's text.

@@ -91,17 +91,87 @@ pub fn layers(bytes: &[u8], file: &str) -> Result<Vec<String>, ImportError> {
     Ok(out)
 }
 
-/// Every path of the file, in document order, as messages name it (`path "hole-3"`, or
-/// `path 4` by its place when it has no id), with the names of the groups it lies in
-/// (labels and ids, outermost first).
+/// Every path of the file, in document order, as messages name it (see [`placed_paths`]),
+/// with the names of the groups it lies in (labels and ids, outermost first).
 pub fn paths_in_groups(
     bytes: &[u8],
     file: &str,
 ) -> Result<Vec<(String, Vec<String>)>, ImportError> {
+    Ok(placed_paths(bytes, file, 1e-3)?
+        .into_iter()
+        .map(|p| (p.name, p.groups))
+        .collect())
+}
+
+/// One drawn element of an SVG file (a `<path>`, `<circle>`, `<rect>`, … as usvg hands it
+/// over), where it lies and what it draws.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlacedPath {
+    /// The element as messages name it: its kind and id (`circle "h5"`), or, without an id,
+    /// its kind and place among the file's elements of that kind (`circle #3`, the third
+    /// `<circle>`; `path #4` when the file's elements cannot be matched to what usvg drew,
+    /// as with `<use>`).
+    pub name: String,
+    /// The groups it lies in (labels and ids, outermost first).
+    pub groups: Vec<String>,
+    /// Its subpaths in mm, +Y up, curves within `tolerance` (before the reader chains the
+    /// file's pieces into contours).
+    pub paths: Vec<Polyline>,
+}
+
+/// The drawing elements of the raw XML in document order, each with its tag and id
+/// (outside `<defs>` and the other containers that draw nothing by themselves); empty when
+/// the bytes are not plain XML.
+fn shape_elements(bytes: &[u8]) -> Vec<(String, String)> {
+    const SHAPES: [&str; 7] = [
+        "path", "rect", "circle", "ellipse", "line", "polyline", "polygon",
+    ];
+    const HIDDEN: [&str; 7] = [
+        "defs", "symbol", "clipPath", "mask", "marker", "pattern", "metadata",
+    ];
+    let Ok(text) = std::str::from_utf8(bytes) else {
+        return Vec::new();
+    };
+    let opt = usvg::roxmltree::ParsingOptions {
+        allow_dtd: true,
+        ..Default::default()
+    };
+    let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, opt) else {
+        return Vec::new();
+    };
+    doc.descendants()
+        .filter(|n| n.is_element() && SHAPES.contains(&n.tag_name().name()))
+        .filter(|n| {
+            !n.ancestors()
+                .any(|a| a.is_element() && HIDDEN.contains(&a.tag_name().name()))
+        })
+        .map(|n| {
+            (
+                n.tag_name().name().to_string(),
+                n.attribute("id").unwrap_or_default().to_string(),
+            )
+        })
+        .collect()
+}
+
+/// Every drawn element of the file, in document order: its name, groups and geometry
+/// ([`PlacedPath`]).
+pub fn placed_paths(
+    bytes: &[u8],
+    file: &str,
+    tolerance: f64,
+) -> Result<Vec<PlacedPath>, ImportError> {
+    let tol = if tolerance.is_finite() && tolerance > 0.0 {
+        tolerance
+    } else {
+        1e-3
+    };
     let tree = usvg::Tree::from_data(bytes, &usvg::Options::default())
         .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
+    let height = tree.size().height() as f64;
     let labels = labels(bytes);
-    let mut out = Vec::new();
+    let mut found: Vec<(String, Vec<String>, Vec<Polyline>)> = Vec::new();
+    let mut flattened = 0;
     // depth first in document order: a stack of the groups entered, each with the rest of
     // its children and its names
     let root = tree.root();
@@ -118,15 +188,46 @@ pub fn paths_in_groups(
                 stack.push((c.children().iter(), inner));
             }
             usvg::Node::Path(p) => {
-                let name = if p.id().is_empty() {
-                    format!("path {}", out.len() + 1)
-                } else {
-                    format!("path \"{}\"", p.id())
-                };
-                out.push((name, names.clone()));
+                let mut paths = Vec::new();
+                path(p, height, tol, &mut flattened, &mut paths).map_err(|what| {
+                    ImportError::invalid(file, format!("path \"{}\" {what}", p.id()))
+                })?;
+                found.push((p.id().to_string(), names.clone(), paths));
             }
             _ => {}
         }
+    }
+    // the elements usvg drew, matched to the file's by place when they are as many
+    let elements = shape_elements(bytes);
+    let by_place = elements.len() == found.len()
+        && elements
+            .iter()
+            .zip(&found)
+            .all(|((_, id), (drawn, _, _))| id.is_empty() || id == drawn);
+    let mut out = Vec::with_capacity(found.len());
+    for (k, (id, groups, paths)) in found.into_iter().enumerate() {
+        let name = if by_place {
+            let (kind, _) = &elements[k];
+            if id.is_empty() {
+                let nth = elements[..=k].iter().filter(|(t, _)| t == kind).count();
+                format!("{kind} #{nth}")
+            } else {
+                format!("{kind} \"{id}\"")
+            }
+        } else if id.is_empty() {
+            format!("path #{}", k + 1)
+        } else {
+            let kind = elements
+                .iter()
+                .find(|(_, i)| *i == id)
+                .map_or("path", |(t, _)| t.as_str());
+            format!("{kind} \"{id}\"")
+        };
+        out.push(PlacedPath {
+            name,
+            groups,
+            paths,
+        });
     }
     Ok(out)
 }
@@ -473,7 +574,17 @@ mod tests {
         assert_eq!(placed.len(), 4);
         assert_eq!(
             placed[3],
-            ("path \"loose\"".to_string(), Vec::<String>::new())
+            ("rect \"loose\"".to_string(), Vec::<String>::new())
+        );
+        // without ids, elements are named by their kind and place among those of the kind
+        assert_eq!(placed[0].0, "circle #1");
+        assert_eq!(placed[1].0, "circle #2");
+        assert_eq!(placed[2].0, "rect #1");
+        let drawn = placed_paths(LAYERED, "l.svg", 1e-3).unwrap();
+        let d = crate::ops::drill::circle_of(&drawn[1].paths[0]).map(|(c, r)| (c, 2.0 * r));
+        assert!(
+            d.is_some_and(|(c, d)| c.dist(Point::new(20.0, 90.0)) < 1e-6 && (d - 3.0).abs() < 1e-3),
+            "{d:?}"
         );
         assert!(placed
             .iter()

@@ -131,6 +131,9 @@ pub enum BlockKind {
     Dwell = 5,
     /// The program's last block: the device goes idle once it is executed.
     End = 6,
+    /// A tool change: the device holds at it (before finishing it) until the operator has
+    /// loaded tool `feed` and resumes; no motion (its target repeats the last target).
+    ToolChange = 7,
 }
 
 impl BlockKind {
@@ -142,6 +145,7 @@ impl BlockKind {
             4 => BlockKind::ArcCcw,
             5 => BlockKind::Dwell,
             6 => BlockKind::End,
+            7 => BlockKind::ToolChange,
             _ => return None,
         })
     }
@@ -153,6 +157,7 @@ impl BlockKind {
             BlockKind::ArcCcw => "arc ccw",
             BlockKind::Dwell => "dwell",
             BlockKind::End => "end",
+            BlockKind::ToolChange => "tool",
         }
     }
 }
@@ -164,7 +169,8 @@ pub struct MotionBlock {
     pub kind: BlockKind,
     /// Target position, µm (absolute, work frame). Dwell and end blocks repeat the last target.
     pub target: [i32; 3],
-    /// mm/min × 1000 for moves (0 for rapids: the machine's rapid rate); ms for a dwell.
+    /// mm/min × 1000 for moves (0 for rapids: the machine's rapid rate); ms for a dwell;
+    /// the tool's number for a tool change.
     pub feed: u32,
     /// Arc centre relative to the start point, µm (I, J); zero for other kinds.
     pub center: [i32; 2],
@@ -213,6 +219,7 @@ impl fmt::Display for MotionBlock {
         match self.kind {
             BlockKind::Dwell => write!(f, "dwell {} ms", self.feed),
             BlockKind::End => write!(f, "end"),
+            BlockKind::ToolChange => write!(f, "tool T{}", self.feed),
             BlockKind::Rapid => write!(f, "rapid X{x:.3} Y{y:.3} Z{z:.3}"),
             BlockKind::Linear => write!(
                 f,

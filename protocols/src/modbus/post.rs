@@ -22,17 +22,6 @@ pub enum ModbusPostError {
         "move {index}: a motion-block device has no {what}; plan this job for a sewing machine"
     )]
     Unsupported { index: usize, what: &'static str },
-    #[error(
-        "move {index}: a change to tool T{tool}{name} after the program has moved; a Modbus \
-         motion-block device cannot stop for the operator to change tools (docs/modbus.md has \
-         no such block): submit one job per tool"
-    )]
-    ToolChange {
-        index: usize,
-        tool: u32,
-        /// " (6 mm flat end mill)", or empty.
-        name: String,
-    },
 }
 
 fn um(index: usize, axis: &'static str, mm: f64) -> Result<i32, ModbusPostError> {
@@ -66,9 +55,9 @@ fn target(index: usize, p: P3) -> Result<[i32; 3], ModbusPostError> {
 }
 
 /// Turns a tool path into motion blocks. Spindle and comment moves have no block (a drive or
-/// PLC handles them itself) and are left out, and so is the tool the program starts with;
-/// a change to another tool after the program has moved, sewing moves and program stops are
-/// refused. The last block is always `End`.
+/// PLC handles them itself) and are left out; a tool change is a tool block, at which the
+/// device holds for the operator (docs/modbus.md); sewing moves, program stops and probes
+/// are refused. The last block is always `End`.
 pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
     // drilling cycles go as the rapids, lines and dwells they make
     let expanded = tp.expanded();
@@ -76,26 +65,15 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
     let mut out = Vec::with_capacity(tp.moves.len() + 1);
     let mut pos = P3::default();
     let mut last = [0i32; 3];
-    // the tool the program starts with is the operator's to load before the start; a change
-    // after that would cut with the wrong tool, so it is refused
-    let mut tool: Option<u32> = None;
     for (index, m) in tp.moves.iter().enumerate() {
         let block = match m {
-            Move::ToolChange { tool: t, name, .. } => {
-                if !out.is_empty() && tool.is_some_and(|now| now != *t) {
-                    return Err(ModbusPostError::ToolChange {
-                        index,
-                        tool: *t,
-                        name: if name.is_empty() {
-                            String::new()
-                        } else {
-                            format!(" ({name})")
-                        },
-                    });
-                }
-                tool = Some(*t);
-                continue;
-            }
+            // the device holds at it until the operator has loaded the tool and resumes
+            Move::ToolChange { tool, .. } => MotionBlock {
+                kind: BlockKind::ToolChange,
+                target: last,
+                feed: *tool,
+                center: [0, 0],
+            },
             Move::Rapid { to } => MotionBlock {
                 kind: BlockKind::Rapid,
                 target: target(index, *to)?,
@@ -250,5 +228,50 @@ mod tests {
             }
         );
         assert!(e.to_string().starts_with("move 0: Y = 3000000 mm"), "{e}");
+    }
+
+    #[test]
+    fn a_tool_change_is_a_tool_block_in_place_with_the_tool_number() {
+        let mut tp = Toolpath::new("t");
+        tp.push(Move::ToolChange {
+            tool: 1,
+            name: "3 mm drill".into(),
+            geometry: None,
+        });
+        tp.push(Move::Rapid {
+            to: P3::new(10.0, 5.0, 2.0),
+        });
+        tp.push(Move::ToolChange {
+            tool: 2,
+            name: String::new(),
+            geometry: None,
+        });
+        tp.push(Move::Linear {
+            to: P3::new(10.0, 5.0, -1.0),
+            feed: 300.0,
+        });
+        let b = post_blocks(&tp).unwrap();
+        let kinds: Vec<BlockKind> = b.iter().map(|b| b.kind).collect();
+        assert_eq!(
+            kinds,
+            [
+                BlockKind::ToolChange,
+                BlockKind::Rapid,
+                BlockKind::ToolChange,
+                BlockKind::Linear,
+                BlockKind::End
+            ]
+        );
+        assert_eq!((b[0].feed, b[0].target), (1, [0, 0, 0]));
+        assert_eq!((b[2].feed, b[2].target), (2, [10_000, 5_000, 2_000]));
+        assert_eq!(b[2].to_string(), "tool T2");
+        // the registers: move type 7, the tool in the feed field, I and J 0
+        let r = b[2].encode(3, super::super::map::WordOrder::HighFirst);
+        assert_eq!(r[2], 7);
+        assert_eq!(&r[10..12], &[0, 2]);
+        assert_eq!(
+            MotionBlock::decode(&r, super::super::map::WordOrder::HighFirst),
+            Ok((3, b[2]))
+        );
     }
 }

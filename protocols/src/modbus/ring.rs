@@ -2,12 +2,12 @@
 
 use super::frame::{exception, Request, Response};
 use super::map::{
-    fault_name, reg, Command, Layout, ModbusState, MotionBlock, Status, WordOrder, BLOCK_REGISTERS,
-    MAP_VERSION, MAX_READ_REGISTERS, STATUS_REGISTERS,
+    fault_name, reg, BlockKind, Command, Layout, ModbusState, MotionBlock, Status, WordOrder,
+    BLOCK_REGISTERS, MAP_VERSION, MAX_READ_REGISTERS, STATUS_REGISTERS,
 };
 use super::session::{Backoff, Session};
 use super::settings::{ModbusError, ModbusSettings};
-use crate::link::{Control, LinkEvent, MachineStatus, StreamEnd};
+use crate::link::{Control, DeviceState, LinkEvent, MachineStatus, OperatorReason, StreamEnd};
 
 /// How long the device may leave requests unanswered before the link reports it as not
 /// answering (it gives up after `retries` failed attempts in a row).
@@ -35,6 +35,16 @@ struct Progress {
     answered: Instant,
     /// A header read moments ago together with a write (FC23), for the next round.
     status: Option<Status>,
+    /// The tool block the device holds at for the operator, and whether the operator's
+    /// hold has come since (only a resume after it releases the device).
+    tool_stop: Option<(u32, bool)>,
+}
+
+/// The tool the device holds at for the operator: it holds, and its next block is a tool
+/// block (docs/modbus.md, rule 10a).
+fn tool_stop(s: &Status, blocks: &[MotionBlock]) -> Option<u32> {
+    let next = blocks.get(s.consumed_seq as usize)?;
+    (s.state == ModbusState::Hold as u16 && next.kind == BlockKind::ToolChange).then_some(next.feed)
 }
 
 /// The ring protocol's side of one link: the map's place and the device's abilities.
@@ -391,10 +401,21 @@ impl Ring {
         let due = p
             .last_status
             .is_none_or(|t| t.elapsed() >= Duration::from_millis(200));
-        if p.last_state != Some(s.state) || due {
+        let mut seen = s.to_status();
+        if let Some(number) = tool_stop(s, blocks) {
+            // holding at a tool block: the operator loads the tool, then resumes
+            seen.state = DeviceState::NeedsOperator {
+                reason: OperatorReason::LoadTool {
+                    number,
+                    name: String::new(),
+                },
+            };
+            seen.detail = format!("holding at block {} for tool T{number}", s.consumed_seq + 1);
+        }
+        if p.last_state != Some(s.state) || seen.state != p.seen.state || due {
             p.last_state = Some(s.state);
             p.last_status = Some(Instant::now());
-            p.seen = s.to_status();
+            p.seen = seen;
             let _ = events.send(LinkEvent::Status(p.seen.clone()));
         }
         if s.state == ModbusState::Fault as u16 {
@@ -506,6 +527,22 @@ impl Ring {
         }
         let command = self.base + reg::COMMAND;
         let want = *control.borrow_and_update();
+        // at a tool block the device waits for the operator: the daemon's hold (which the
+        // job's pause sends) and then the operator's resume release it, never the run the
+        // link had before the stop
+        let at_tool = tool_stop(&s, blocks).map(|_| s.consumed_seq + 1);
+        match at_tool {
+            Some(seq) => {
+                if p.tool_stop.is_none_or(|(at, _)| at != seq) {
+                    p.tool_stop = Some((seq, false));
+                }
+                if want == Control::Hold {
+                    p.tool_stop = Some((seq, true));
+                }
+            }
+            None => p.tool_stop = None,
+        }
+        let waits_for_operator = p.tool_stop.is_some_and(|(_, held)| !held);
         match want {
             Control::Cancel => {
                 let s = self
@@ -521,7 +558,7 @@ impl Ring {
                 p.status = Some(self.write_then_status(session, command, words).await?);
                 return Ok(None);
             }
-            Control::Run if state == Some(ModbusState::Hold) => {
+            Control::Run if state == Some(ModbusState::Hold) && !waits_for_operator => {
                 let words = vec![Command::Resume as u16];
                 p.status = Some(self.write_then_status(session, command, words).await?);
                 return Ok(None);
@@ -614,6 +651,7 @@ impl Ring {
             seen: MachineStatus::default(),
             answered: Instant::now(),
             status: None,
+            tool_stop: None,
         };
         let mut resync = false;
         loop {

@@ -115,6 +115,9 @@ pub enum TraceEvent {
     Executed { seq: u32, block: MotionBlock },
     /// A sync command set the consumed sequence to `at` (a job starts there).
     Synced { at: u32 },
+    /// The device reached tool block `seq` and holds there, unfinished, for the operator to
+    /// load tool `tool` (docs/modbus.md, rule 10a).
+    ToolStop { seq: u32, tool: u32 },
 }
 
 /// What the device has seen, for tests to check that the faults really happened.
@@ -140,6 +143,8 @@ struct Device {
     events: Vec<TraceEvent>,
     /// Bumped by stop and fault: a block in motion under an older epoch is abandoned.
     epoch: u64,
+    /// The tool block the device has held at: after the resume it finishes it.
+    tool_stop: Option<u32>,
 }
 
 struct Shared {
@@ -214,6 +219,7 @@ impl Shared {
                 trace: Vec::new(),
                 events: Vec::new(),
                 epoch: 0,
+                tool_stop: None,
             }),
             wake: Notify::new(),
             stats: Mutex::new(SimStats::default()),
@@ -354,6 +360,10 @@ impl Shared {
         if h.synced {
             dev.events.push(TraceEvent::Synced { at: h.consumed });
         }
+        if h.synced || h.abandon {
+            // a new job, or this one stopped: a tool block holds again when it comes
+            dev.tool_stop = None;
+        }
         dev.put32(order, reg::CONSUMED_SEQ, h.consumed);
         if h.abandon {
             dev.epoch += 1;
@@ -372,7 +382,7 @@ impl Shared {
         let (a, t) = (p(from), p(b.target));
         let (len, feed) = match b.kind {
             BlockKind::Dwell => return b.feed as f64 / 1000.0,
-            BlockKind::End => return 0.0,
+            BlockKind::End | BlockKind::ToolChange => return 0.0,
             BlockKind::Rapid => (a.dist(t), self.cfg.rapid_feed),
             BlockKind::Linear => (a.dist(t), b.feed as f64 / 1000.0),
             BlockKind::ArcCw | BlockKind::ArcCcw => {
@@ -452,6 +462,16 @@ fn next_block(shared: &Shared, dev: &mut Device) -> Option<(u32, MotionBlock, u6
         {
             let code = shared.cfg.faults.fault_at_block.map_or(0, |f| f.1);
             dev.set_fault(code);
+            None
+        }
+        Ok((_, block)) if block.kind == BlockKind::ToolChange && dev.tool_stop != Some(seq) => {
+            // a tool change: hold here, the block unfinished, until the operator resumes
+            dev.tool_stop = Some(seq);
+            dev.set_state(ModbusState::Hold);
+            dev.events.push(TraceEvent::ToolStop {
+                seq,
+                tool: block.feed,
+            });
             None
         }
         Ok((_, block)) => {

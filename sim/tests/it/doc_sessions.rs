@@ -185,6 +185,11 @@ fn the_modbus_document_shows_what_the_post_writes() {
         feed: 600.0,
     });
     tp.push(Move::Dwell { seconds: 1.5 });
+    tp.push(Move::ToolChange {
+        tool: 2,
+        name: "6 mm flat end mill".into(),
+        geometry: None,
+    });
     let blocks = ModbusPost.units(&tp).unwrap();
     let text = String::from_utf8(ModbusPost.file(&blocks, "doc").unwrap()).unwrap();
     document_holds("modbus.md", &text).unwrap();

@@ -327,3 +327,127 @@ fn settings_outside_the_protocol_are_refused_by_name() {
     s.unit_id = 0;
     assert!(ModbusLink::new(s).is_err());
 }
+
+/// docs/modbus.md rule 10a: the simulated device holds at each tool change block with the
+/// block unfinished; the link reports the tool to load and resumes only after the operator's
+/// hold and run; a job stopped there and started again from that block holds there again;
+/// and every block runs once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_device_holds_at_a_tool_block_until_the_operator_and_again_after_a_stop() {
+    use machlink_protocols::modbus::{post_blocks, BlockKind};
+    use machlink_protocols::{DeviceState, OperatorReason};
+    use machlink_sim::modbus::TraceEvent;
+    use offset_core::{Move, Toolpath, P3};
+    let sim = ModbusSim::spawn_tcp(
+        SimConfig {
+            time_scale: 50.0,
+            capacity: 8,
+            ..SimConfig::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    let mut tp = Toolpath::new("tools");
+    for (k, tool) in [1u32, 2].into_iter().enumerate() {
+        tp.push(Move::ToolChange {
+            tool,
+            name: String::new(),
+            geometry: None,
+        });
+        for i in 0..12 {
+            tp.push(Move::Linear {
+                to: P3::new(k as f64 * 10.0 + i as f64 * 0.5, 1.0, -0.5),
+                feed: 900.0,
+            });
+        }
+    }
+    let blocks = post_blocks(&tp).unwrap();
+    let at = |tool: u32| {
+        blocks
+            .iter()
+            .position(|b| b.kind == BlockKind::ToolChange && b.feed == tool)
+            .unwrap() as u32
+    };
+    let asks = |tool: u32| DeviceState::NeedsOperator {
+        reason: OperatorReason::LoadTool {
+            number: tool,
+            name: String::new(),
+        },
+    };
+    async fn until(rx: &mut mpsc::UnboundedReceiver<LinkEvent>, want: &DeviceState) {
+        tokio::time::timeout(Duration::from_secs(20), async {
+            loop {
+                match rx.recv().await {
+                    Some(LinkEvent::Status(s)) if &s.state == want => break,
+                    Some(_) => {}
+                    None => panic!("the stream ended before {want}"),
+                }
+            }
+        })
+        .await
+        .unwrap_or_else(|_| panic!("the link never reported {want}"));
+    }
+    let stops = |sim: &ModbusSim| -> Vec<u32> {
+        sim.events_from(0)
+            .into_iter()
+            .filter_map(|e| match e {
+                TraceEvent::ToolStop { seq, .. } => Some(seq),
+                _ => None,
+            })
+            .collect()
+    };
+
+    // the first stream: held at T1, released by hold + run, held at T2, cancelled there
+    let mut link =
+        ModbusLink::new(fast(ModbusSettings::tcp("127.0.0.1", sim.addr().port()))).unwrap();
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (ctl, ctl_rx) = watch::channel(Control::Run);
+    let program = blocks.clone();
+    let run = tokio::spawn(async move {
+        let r = link.stream(&program, 0, tx, ctl_rx).await;
+        (r, link)
+    });
+    until(&mut rx, &asks(1)).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (state, _, consumed, _) = sim.registers();
+    assert_eq!((state, consumed), (2, at(1)), "held before the T1 block");
+    assert!(sim.trace().is_empty(), "{:?}", sim.trace());
+    ctl.send(Control::Hold).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    assert_eq!(sim.registers().2, at(1), "the hold alone released it");
+    ctl.send(Control::Run).unwrap();
+    until(&mut rx, &asks(2)).await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(sim.registers().2, at(2), "held before the T2 block");
+    assert_eq!(stops(&sim), [at(1) + 1, at(2) + 1]);
+    ctl.send(Control::Cancel).unwrap();
+    let (r, mut link) = run.await.unwrap();
+    assert_eq!(
+        r.unwrap(),
+        StreamEnd::Cancelled {
+            acked: at(2) as usize
+        }
+    );
+
+    // started again from the T2 block: the device holds there again
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (ctl, ctl_rx) = watch::channel(Control::Run);
+    let program = blocks.clone();
+    let from = at(2) as usize;
+    let run = tokio::spawn(async move { link.stream(&program, from, tx, ctl_rx).await });
+    until(&mut rx, &asks(2)).await;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(sim.registers().2, at(2));
+    assert_eq!(stops(&sim), [at(1) + 1, at(2) + 1, at(2) + 1]);
+    ctl.send(Control::Hold).unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    ctl.send(Control::Run).unwrap();
+    let r = tokio::time::timeout(Duration::from_secs(30), run)
+        .await
+        .expect("the stream ends")
+        .unwrap();
+    assert_eq!(r.unwrap(), StreamEnd::Completed);
+    let seqs: Vec<u32> = sim.trace().iter().map(|e| e.seq).collect();
+    assert_eq!(seqs, (1..=blocks.len() as u32).collect::<Vec<_>>());
+}

@@ -1,6 +1,8 @@
 //! Interoperability: the Modbus link streams a job into a device written with pymodbus
 //! (tests/python/modbus_device.py), over TCP and over RTU on a pty, and the blocks the Python
-//! device recorded are the job's blocks, once each, in order.
+//! device recorded are the job's blocks, once each, in order; at a tool change block the
+//! device holds (docs/modbus.md, rule 10a) and the link reports the tool and resumes it only
+//! after the operator's hold and run.
 
 use machlink_protocols::modbus::{post_blocks, ModbusLink, ModbusSettings, MotionBlock};
 use machlink_protocols::{Control, Link, StreamEnd};
@@ -182,4 +184,95 @@ async fn pymodbus_rtu_device_records_the_job() {
     assert_recorded(&trace, &blocks);
     cable.abort();
     drop((sa, sb));
+}
+
+/// A job with a tool change in the middle, into the pymodbus device: the device holds at the
+/// tool block, the link reports the tool to load and does not resume it on its own (the
+/// device records nothing more while the control stays at run), and after the operator's
+/// hold and resume every block is recorded once, in order.
+#[tokio::test]
+async fn pymodbus_device_holds_at_a_tool_change_until_the_operator_resumes() {
+    require_pymodbus();
+    let dir = tempfile::tempdir().unwrap();
+    let trace = dir.path().join("trace.jsonl");
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let _dev = start_device(&["--tcp", &port.to_string(), "--capacity", "8"], &trace).await;
+    let mut tp = Toolpath::new("tools");
+    for (k, tool) in [1u32, 2].into_iter().enumerate() {
+        tp.push(Move::ToolChange {
+            tool,
+            name: String::new(),
+            geometry: None,
+        });
+        for i in 0..20 {
+            tp.push(Move::Linear {
+                to: P3::new(k as f64 * 10.0 + i as f64 * 0.5, 1.0, -0.5),
+                feed: 600.0,
+            });
+        }
+    }
+    let blocks = post_blocks(&tp).unwrap();
+    let at = |tool: u32| {
+        blocks
+            .iter()
+            .position(|b| {
+                b.kind == machlink_protocols::modbus::map::BlockKind::ToolChange && b.feed == tool
+            })
+            .unwrap()
+    };
+    let mut link = ModbusLink::new(settings(ModbusSettings::tcp("127.0.0.1", port))).unwrap();
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let (ctl, ctl_rx) = watch::channel(Control::Run);
+    let program = blocks.clone();
+    let run = tokio::spawn(async move { link.stream(&program, 0, tx, ctl_rx).await });
+    let recorded = |trace: &Path| {
+        std::fs::read_to_string(trace)
+            .unwrap_or_default()
+            .lines()
+            .count()
+    };
+    for tool in [1u32, 2] {
+        // the link says which tool to load
+        let want = machlink_protocols::DeviceState::NeedsOperator {
+            reason: machlink_protocols::OperatorReason::LoadTool {
+                number: tool,
+                name: String::new(),
+            },
+        };
+        tokio::time::timeout(Duration::from_secs(20), async {
+            loop {
+                match rx.recv().await.expect("the link reports") {
+                    machlink_protocols::LinkEvent::Status(s) if s.state == want => break,
+                    _ => {}
+                }
+            }
+        })
+        .await
+        .unwrap_or_else(|_| panic!("the link never asked for T{tool}"));
+        // held before the tool block: nothing more runs while the control stays at run
+        let before = recorded(&trace);
+        assert_eq!(before, at(tool), "blocks run before the change to T{tool}");
+        tokio::time::sleep(Duration::from_millis(400)).await;
+        assert_eq!(
+            recorded(&trace),
+            before,
+            "the device ran on past the change to T{tool}"
+        );
+        // the operator's pause, then resume
+        ctl.send(Control::Hold).unwrap();
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        assert_eq!(recorded(&trace), before);
+        ctl.send(Control::Run).unwrap();
+    }
+    let end = tokio::time::timeout(Duration::from_secs(30), run)
+        .await
+        .expect("the stream ends")
+        .unwrap()
+        .expect("the stream succeeds");
+    assert_eq!(end, StreamEnd::Completed);
+    assert_recorded(&trace, &blocks);
 }

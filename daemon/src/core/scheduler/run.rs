@@ -754,6 +754,7 @@ impl Job<'_> {
             tokio::select! {
                 biased;
                 Some(ev) = ev_rx.recv() => {
+                    let ev = with_tool_name(ev, &self.m.config.tools);
                     // a machine that stopped itself for the operator (a thread break, a
                     // program stop, an open door) pauses the job: `machlink resume JOB`
                     // continues it
@@ -1102,5 +1103,41 @@ fn describe_failure(e: &LinkError, program: &Program, acked: usize) -> String {
             "{other} (after {acked} of {} lines were acknowledged)",
             program.len()
         ),
+    }
+}
+
+/// A device that asks for a tool by number alone (a Modbus tool block carries only the
+/// number) is told the tool's name from the machine's `tools` table, as `machines` and the
+/// job's note show it: `load T2 (6 mm flat end mill)`.
+fn with_tool_name(ev: LinkEvent, tools: &[crate::core::machine::ToolConfig]) -> LinkEvent {
+    use machlink_protocols::{MachineStatus, OperatorReason};
+    match ev {
+        LinkEvent::Status(MachineStatus {
+            state:
+                DeviceState::NeedsOperator {
+                    reason: OperatorReason::LoadTool { number, name },
+                },
+            detail,
+            position,
+            feed,
+        }) if name.is_empty() => {
+            let name = tools
+                .iter()
+                .find(|t| t.number == number)
+                .map(|t| match &t.name {
+                    Some(n) => n.clone(),
+                    None => format!("{} mm", t.diameter),
+                })
+                .unwrap_or_default();
+            LinkEvent::Status(MachineStatus {
+                state: DeviceState::NeedsOperator {
+                    reason: OperatorReason::LoadTool { number, name },
+                },
+                detail,
+                position,
+                feed,
+            })
+        }
+        ev => ev,
     }
 }
