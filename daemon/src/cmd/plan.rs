@@ -69,7 +69,7 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
 }
 
 /// The `--timings` line: each stage's milliseconds in the order they ran, then the total
-/// since `main` began and the part of it outside the geometry (all but `plan` and `fit`).
+/// since `main` began and the part of it outside planning and fitting (all but `plan` and `fit`).
 pub fn timings(stages: &Stages, started: Option<Instant>) -> String {
     let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
     let mut out = String::from("  timings (ms):");
@@ -84,7 +84,7 @@ pub fn timings(stages: &Stages, started: Option<Instant>) -> String {
         .map(|(_, t)| *t)
         .sum();
     out.push_str(&format!(
-        " total {:.3}, outside the geometry {:.3}",
+        " total {:.3}, outside plan and fit {:.3}",
         ms(total),
         ms(total.saturating_sub(geometry))
     ));
