@@ -85,6 +85,7 @@ const EXIT_FAILED: i32 = 1;
 const EXIT_UNREACHABLE: i32 = 3;
 
 fn main() {
+    cmd::STARTED.get_or_init(std::time::Instant::now);
     // a reader that closes stdout early (`machlink jobs --json | head -c 600`) ends the
     // command quietly with status 0, whichever command was printing: no panic message
     let default_hook = std::panic::take_hook();

@@ -211,9 +211,10 @@ impl Segment {
             Segment::Arc {
                 a, b, center, ccw, ..
             } => {
-                let sa = (a - center).y.atan2((a - center).x);
-                let sb = (b - center).y.atan2((b - center).x);
-                let mut s = sb - sa;
+                // the turn from a to b in (-π, π], from their cross and dot products (one
+                // atan2, not one per end)
+                let (va, vb) = (a - center, b - center);
+                let mut s = va.cross(vb).atan2(va.dot(vb));
                 if ccw {
                     while s <= 0.0 {
                         s += 2.0 * PI;
@@ -240,9 +241,16 @@ impl Segment {
             Segment::Arc {
                 a, center, radius, ..
             } => {
-                let sa = (a - center).y.atan2((a - center).x);
-                let ang = sa + self.sweep() * t;
-                center + Point::new(ang.cos(), ang.sin()) * radius
+                // the start's direction turned by the swept part (no angle of the start)
+                let u = a - center;
+                let l = u.len();
+                let u = if l > 0.0 {
+                    u * (1.0 / l)
+                } else {
+                    Point::new(1.0, 0.0)
+                };
+                let (sin, cos) = (self.sweep() * t).sin_cos();
+                center + Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos) * radius
             }
         }
     }
@@ -250,8 +258,17 @@ impl Segment {
     pub fn tangent_at(&self, t: f64) -> Point {
         match *self {
             Segment::Line { a, b } => (b - a).unit(),
-            Segment::Arc { center, ccw, .. } => {
-                let r = (self.point_at(t) - center).unit();
+            Segment::Arc {
+                a, b, center, ccw, ..
+            } => {
+                // at the ends the radius is the end's own (no point to place)
+                let r = if t == 0.0 {
+                    (a - center).unit()
+                } else if t == 1.0 {
+                    (b - center).unit()
+                } else {
+                    (self.point_at(t) - center).unit()
+                };
                 if ccw {
                     r.perp()
                 } else {
@@ -295,24 +312,28 @@ impl Segment {
     pub fn distance_to(&self, p: Point) -> f64 {
         p.dist(self.closest_point(p))
     }
-    /// Whether the direction `v` (from the centre) lies within the arc's sweep.
+    /// Whether the direction `v` (from the centre) lies within the arc's sweep, ends
+    /// included: decided by cross products, without angles. An arc whose ends coincide is a
+    /// full turn (as `sweep` measures it).
     fn angle_within(&self, v: Point) -> bool {
         match *self {
             Segment::Line { .. } => false,
-            Segment::Arc { a, center, .. } => {
-                let sweep = self.sweep();
-                let sa = (a - center).y.atan2((a - center).x);
-                let mut d = v.y.atan2(v.x) - sa;
-                if sweep > 0.0 {
-                    while d < 0.0 {
-                        d += 2.0 * PI;
-                    }
-                    d <= sweep
+            Segment::Arc {
+                a, b, center, ccw, ..
+            } => {
+                let (va, vb) = (a - center, b - center);
+                let s = if ccw { 1.0 } else { -1.0 };
+                let after_start = s * va.cross(v) >= 0.0;
+                let before_end = s * v.cross(vb) >= 0.0;
+                let turn = va.cross(vb);
+                if a == b || (turn == 0.0 && va.dot(vb) > 0.0) {
+                    // a full turn
+                    true
+                } else if s * turn < 0.0 {
+                    // more than a half turn
+                    after_start || before_end
                 } else {
-                    while d > 0.0 {
-                        d -= 2.0 * PI;
-                    }
-                    d >= sweep
+                    after_start && before_end
                 }
             }
         }
@@ -678,6 +699,118 @@ impl Shape {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The angle-based forms `sweep`, `point_at` and `angle_within` had before they were
+    /// written with cross and dot products (the reference the new forms must agree with).
+    fn angle_of(v: Point) -> f64 {
+        v.y.atan2(v.x)
+    }
+    fn sweep_by_angles(a: Point, b: Point, c: Point, ccw: bool) -> f64 {
+        let mut s = angle_of(b - c) - angle_of(a - c);
+        if ccw {
+            while s <= 0.0 {
+                s += 2.0 * PI;
+            }
+        } else {
+            while s >= 0.0 {
+                s -= 2.0 * PI;
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn arc_sweeps_points_and_bounds_agree_with_the_angle_based_forms() {
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        let mut rnd = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut checked = 0;
+        for _ in 0..20_000 {
+            let a = Point::new(rnd() * 200.0 - 100.0, rnd() * 200.0 - 100.0);
+            let b = Point::new(rnd() * 200.0 - 100.0, rnd() * 200.0 - 100.0);
+            // bulges from a sliver to nearly a full turn, both ways
+            let bulge = (0.001 + rnd() * 20.0) * if rnd() < 0.5 { 1.0 } else { -1.0 };
+            let seg = Segment::from_bulge(a, b, bulge);
+            let Segment::Arc {
+                center: c,
+                radius: r,
+                ccw,
+                ..
+            } = seg
+            else {
+                continue;
+            };
+            let want = sweep_by_angles(a, b, c, ccw);
+            assert!(
+                (seg.sweep() - want).abs() <= 1e-12 * want.abs().max(1.0),
+                "{seg:?}"
+            );
+            for t in [0.0, 0.25, 0.5, 0.9, 1.0] {
+                let ang = angle_of(a - c) + want * t;
+                let p = c + Point::new(ang.cos(), ang.sin()) * r;
+                assert!(
+                    seg.point_at(t).dist(p) <= 1e-9 * r.max(1.0),
+                    "{seg:?} at {t}"
+                );
+                let tan = seg.tangent_at(t);
+                let radial = (p - c).unit();
+                assert!(tan.dot(radial).abs() < 1e-9 && (tan.len() - 1.0).abs() < 1e-12);
+                assert!(radial.cross(tan) * if ccw { 1.0 } else { -1.0 } > 0.0);
+            }
+            // directions: within the sweep exactly when their angle from the start, taken
+            // the arc's way, is at most the sweep (those within 1e-9 rad of an end skipped)
+            for k in 0..16 {
+                let th = k as f64 / 16.0 * 2.0 * PI + rnd() * 0.1;
+                let v = Point::new(th.cos(), th.sin()) * (0.5 + rnd());
+                let mut d = angle_of(v) - angle_of(a - c);
+                if ccw {
+                    while d < 0.0 {
+                        d += 2.0 * PI;
+                    }
+                } else {
+                    while d > 0.0 {
+                        d -= 2.0 * PI;
+                    }
+                }
+                if d.abs() < 1e-9 || (d - want).abs() < 1e-9 || (d.abs() - 2.0 * PI).abs() < 1e-9 {
+                    continue;
+                }
+                let inside = if ccw { d <= want } else { d >= want };
+                assert_eq!(seg.angle_within(v), inside, "{seg:?} direction {v:?}");
+                checked += 1;
+            }
+            // bounds: the ends and every extreme point of the circle the sweep passes
+            let bb = seg.bounds();
+            let mut want_b = Bounds::EMPTY;
+            want_b.add_point(a);
+            want_b.add_point(b);
+            for i in 0..=2000 {
+                want_b.add_point(seg.point_at(i as f64 / 2000.0));
+            }
+            let slack = r * 2e-6 + 1e-9;
+            assert!(bb.min.x <= want_b.min.x + 1e-9 && bb.min.x >= want_b.min.x - slack);
+            assert!(bb.min.y <= want_b.min.y + 1e-9 && bb.min.y >= want_b.min.y - slack);
+            assert!(bb.max.x >= want_b.max.x - 1e-9 && bb.max.x <= want_b.max.x + slack);
+            assert!(bb.max.y >= want_b.max.y - 1e-9 && bb.max.y <= want_b.max.y + slack);
+        }
+        assert!(checked > 100_000, "{checked} directions checked");
+        // a full turn (ends coincide) holds every direction
+        let full = Segment::Arc {
+            a: Point::new(1.0, 0.0),
+            b: Point::new(1.0, 0.0),
+            center: Point::default(),
+            radius: 1.0,
+            ccw: false,
+        };
+        assert!((full.sweep() + 2.0 * PI).abs() < 1e-15);
+        for th in [0.1, 2.0, 4.0, 6.0] {
+            assert!(full.angle_within(Point::new(f64::cos(th), f64::sin(th))));
+        }
+    }
 
     #[test]
     fn bulge_one_is_a_half_circle() {

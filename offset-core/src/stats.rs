@@ -92,9 +92,15 @@ impl Toolpath {
 
 /// The planner figures of `tp` on a machine with kinematics `k` (see the module).
 pub fn stats(tp: &Toolpath, k: &Kinematics) -> PlanStats {
-    // drilling cycles count as the moves they make
-    let expanded = tp.expanded();
-    let tp = &expanded;
+    // drilling cycles count as the moves they make (a path without any is taken as it is,
+    // not copied)
+    let expanded;
+    let tp = if tp.moves.iter().any(|m| matches!(m, Move::Drill { .. })) {
+        expanded = tp.expanded();
+        &expanded
+    } else {
+        tp
+    };
     let mut s = PlanStats::default();
     let a = if k.acceleration.is_finite() && k.acceleration > 0.0 {
         k.acceleration

@@ -216,8 +216,16 @@ impl PlannedArc {
 
 /// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc: 25
 /// points along it, stepped by one rotation (one `atan2` and one `sin_cos` per arc, not a
-/// `sin_cos` and four `atan2` per point).
-fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &PlannedArc) -> f64 {
+/// `sin_cos` and four `atan2` per point). The walk stops at the first point `cutoff` or
+/// more away (the candidate has lost then; the value returned is that point's).
+fn written_arc_deviation(
+    a: Point,
+    b: Point,
+    c: Point,
+    ccw: bool,
+    planned: &PlannedArc,
+    cutoff: f64,
+) -> f64 {
     let (va, vb) = (a - c, b - c);
     let r = va.len();
     let tau = std::f64::consts::TAU;
@@ -240,30 +248,60 @@ fn written_arc_deviation(a: Point, b: Point, c: Point, ccw: bool, planned: &Plan
     let mut worst: f64 = 0.0;
     for _ in 0..=24 {
         worst = worst.max(planned.distance_to(c + u * r));
+        if worst >= cutoff {
+            break;
+        }
         u = Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos);
     }
     worst
 }
 
-/// `v` in thousandths, rounded as `format!("{v:.3}")` rounds it (to nearest, from the
-/// exact decimal value of the double): v × 1000 is off the exact product by at most half an
-/// ulp, so it rounds the same way unless it lies within 1e-6 of a half (then None, and the
-/// formatter decides). None too beyond ±2³¹ thousandths.
+/// `v` in thousandths, rounded as `format!("{v:.3}")` rounds it: to nearest from the exact
+/// value of the double, ties to even. Exact integer arithmetic on the double's significand
+/// and exponent (v = m · 2^e, so 1000 v = 1000 m · 2^e, split at the binary point), so no
+/// near tie is left to the float formatter. None for non-finite values and where the count
+/// reaches 2⁵³ (beyond 9·10¹² mm, where k / 1000 would round twice).
 fn thousandths(v: f64) -> Option<i64> {
-    let x = v * 1000.0;
-    if !(x.abs() < 2_147_483_648.0) {
+    if !v.is_finite() {
         return None;
     }
-    let frac = (x - x.trunc()).abs();
-    if (frac - 0.5).abs() <= 1e-6 {
+    let bits = v.to_bits();
+    let biased = ((bits >> 52) & 0x7ff) as i32;
+    let fraction = bits & ((1u64 << 52) - 1);
+    let (m, e) = if biased == 0 {
+        (fraction, -1074)
+    } else {
+        (fraction | (1u64 << 52), biased - 1075)
+    };
+    if e >= 0 {
+        // an integer of at least 2^52: 1000 times it is past 2^53
+        return if m == 0 { Some(0) } else { None };
+    }
+    let n = 1000u128 * m as u128; // below 2^63
+    let s = (-e) as u32;
+    let k = if s >= 127 {
+        0 // n < 2^63 < 2^(s-1): less than half a thousandth
+    } else {
+        let q = n >> s;
+        let r = n - (q << s);
+        let half = 1u128 << (s - 1);
+        if r > half || (r == half && q & 1 == 1) {
+            q + 1
+        } else {
+            q
+        }
+    };
+    if k >= 1u128 << 53 {
         return None;
     }
-    Some(x.round() as i64)
+    let k = k as i64;
+    Some(if bits >> 63 == 1 { -k } else { k })
 }
 
 /// Appends `v` as written: three decimals, no exponent, no negative zero. A fixed-decimal
 /// writer (an integer count of thousandths, digit by digit); the general float formatter
-/// only where the rounding is a near tie or the number is huge.
+/// only beyond 9·10¹² mm (no planned coordinate: shapes beyond ±10⁷ mm are refused) and for
+/// non-finite values (refused before anything is written).
 pub fn push_num(out: &mut String, v: f64) {
     let Some(k) = thousandths(v) else {
         let s = format!("{v:.DECIMALS$}");
@@ -353,6 +391,8 @@ struct Writer {
     /// The written (rounded) position, per axis, once known.
     pos: [Option<f64>; 3],
     feed: Option<String>,
+    /// The thousandths of the feed last written (when `thousandths` gives them).
+    feed_thousandths: Option<i64>,
     spindle: Option<f64>,
     moved: bool,
     /// A canned drilling cycle is in force (cancelled with G80 before anything else).
@@ -425,6 +465,12 @@ impl Writer {
 
     /// Appends the feed word when the feed written changes.
     fn feed_word(&mut self, line: &mut String, feed: f64) {
+        // the same thousandths are the same text: no need to write it out to compare
+        let k = thousandths(feed);
+        if k.is_some() && self.feed.is_some() && k == self.feed_thousandths {
+            return;
+        }
+        self.feed_thousandths = k;
         let f = short(feed);
         if self.feed.as_deref() != Some(f.as_str()) {
             line.push_str(" F");
@@ -497,7 +543,8 @@ impl Writer {
         let planned_ij = Point::new(q(center.x - a.x), q(center.y - a.y));
         let mut best: Option<(f64, Point)> = None;
         if grbl_arc_ok(a, b, planned_ij) && planned_ij.len() >= MIN_ARC_RADIUS {
-            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &planned);
+            // (past 1e-3 it is not taken, wherever the walk stops)
+            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &planned, 2e-3);
             if dev <= 1e-3 {
                 best = Some((dev, planned_ij));
                 bases.clear();
@@ -511,7 +558,9 @@ impl Writer {
                     if !grbl_arc_ok(a, b, ij) || ij.len() < MIN_ARC_RADIUS {
                         continue;
                     }
-                    let dev = written_arc_deviation(a, b, a + ij, ccw, &planned);
+                    // a candidate as far as the best so far cannot replace it
+                    let cutoff = best.map_or(f64::INFINITY, |(d, _)| d);
+                    let dev = written_arc_deviation(a, b, a + ij, ccw, &planned, cutoff);
                     if best.is_none_or(|(d, _)| dev < d) {
                         best = Some((dev, ij));
                     }
@@ -650,11 +699,14 @@ fn validate(tp: &Toolpath, opts: &GcodeOptions) -> Result<(), GcodeError> {
                     return Err(GcodeError::UnknownStart { index });
                 }
                 envelope_check(index, [to.x, to.y, to.z], opts)?;
-                let b = arc_segment(pos.xy(), to.xy(), *center, *ccw).bounds();
-                let zlo = pos.z.min(to.z);
-                let zhi = pos.z.max(to.z);
-                envelope_check(index, [b.min.x, b.min.y, zlo], opts)?;
-                envelope_check(index, [b.max.x, b.max.y, zhi], opts)?;
+                // the arc's extremes matter only where there is an envelope
+                if opts.envelope_min.is_some() || opts.envelope_max.is_some() {
+                    let b = arc_segment(pos.xy(), to.xy(), *center, *ccw).bounds();
+                    let zlo = pos.z.min(to.z);
+                    let zhi = pos.z.max(to.z);
+                    envelope_check(index, [b.min.x, b.min.y, zlo], opts)?;
+                    envelope_check(index, [b.max.x, b.max.y, zhi], opts)?;
+                }
                 pos = *to;
             }
             Move::Stitch { .. } => {
@@ -866,6 +918,7 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
         lines: Vec::new(),
         pos: [None; 3],
         feed: None,
+        feed_thousandths: None,
         spindle: None,
         moved: false,
         in_cycle: false,
@@ -1068,6 +1121,40 @@ mod tests {
             vals.push(v);
             vals.push((v * 1000.0).round() / 1000.0 + 0.0005);
         }
+        // exact ties (odd sixteenths: 1000 v = 62.5 × odd, held exactly), their neighbours
+        // a bit either side, and neighbours of the decimal ties (k + 0.5) / 1000
+        let around = |v: f64| {
+            let b = v.to_bits();
+            [f64::from_bits(b - 1), v, f64::from_bits(b + 1)]
+        };
+        for j in 1..40_000i64 {
+            let t = j as f64 / 16.0;
+            vals.extend(around(t));
+            vals.extend(around(t).map(|v| -v));
+            let d = (2 * j * 7919 % 2_000_000_000 + 1) as f64 / 2000.0;
+            vals.extend(around(d));
+            vals.extend(around(d).map(|v| -v));
+        }
+        // up to the writer's own limit (2^53 thousandths, 9e12 mm) and past it, subnormals
+        for i in 0..20_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let m = (x >> 11) as f64 / (1u64 << 53) as f64;
+            vals.push(10f64.powf(6.0 + m * 7.5) * if i % 2 == 0 { 1.0 } else { -1.0 });
+        }
+        vals.extend([
+            9.007_199_254_740_991e12,
+            9.007_199_254_740_992e12,
+            -9.1e12,
+            1e300,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE / 3.0,
+            5e-324,
+            -0.0,
+            0.0,
+        ]);
         for v in vals {
             let s = format!("{v:.3}");
             let want = match s.strip_prefix('-') {

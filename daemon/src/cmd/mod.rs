@@ -18,6 +18,10 @@ pub mod serve;
 pub mod simulate;
 pub mod submit;
 
+/// When `main` began, before the command line was parsed (`machlink plan --timings` counts
+/// its start-up from here).
+pub static STARTED: std::sync::OnceLock<std::time::Instant> = std::sync::OnceLock::new();
+
 /// Writes `text` to stdout; a reader that went away (`machlink jobs --json | head`) is no
 /// error: see `main`, which ends such a command quietly with status 0.
 pub fn out(text: &str) -> anyhow::Result<()> {

@@ -3,8 +3,9 @@
 
 use super::job::{print_warnings, JobArgs};
 use anyhow::Context;
-use machlink::core::intake::{self, Target};
+use machlink::core::intake::{self, Stages, Target};
 use std::path::PathBuf;
+use std::time::Instant;
 
 #[derive(clap::Args)]
 pub struct PlanCmdArgs {
@@ -22,9 +23,18 @@ pub struct PlanCmdArgs {
     /// Where to write the program.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Also print the wall-clock time of each stage (start-up, reading the shape,
+    /// planning, fitting arcs, the post, writing the file, the figures), in milliseconds.
+    #[arg(long)]
+    pub timings: bool,
 }
 
 pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
+    let entered = Instant::now();
+    let mut stages = Stages::default();
+    if let Some(started) = super::STARTED.get() {
+        stages.add("start-up", entered - *started);
+    }
     let registry = machlink::core::registry::standard();
     let post = registry.post(&a.post).with_context(|| {
         format!(
@@ -34,10 +44,12 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
         )
     })?;
     let spec = a.job.spec(&a.file, None, Some(a.post.clone()))?;
-    let planned = intake::plan(&spec, Target::Post(post))?;
+    stages.add("spec", entered.elapsed());
+    let planned = intake::plan_timed(&spec, Target::Post(post), &mut stages)?;
     print_warnings(&planned.warnings);
-    let bytes = post.file(&planned.program, &label(&a.file))?;
-    std::fs::write(&a.output, &bytes)
+    let bytes = stages.time("file", || post.file(&planned.program, &label(&a.file)))?;
+    stages
+        .time("write", || std::fs::write(&a.output, &bytes))
         .with_context(|| format!("cannot write {}", a.output.display()))?;
     eprintln!(
         "wrote {} ({} post: {} units, {} bytes)",
@@ -46,9 +58,37 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
         planned.program.len(),
         bytes.len()
     );
-    eprint!("{}", figures(&planned.toolpath));
-    eprint!("{}", operation_figures(&planned.figures));
+    let shown = stages.time("figures", || {
+        figures(&planned.toolpath) + &operation_figures(&planned.figures)
+    });
+    eprint!("{shown}");
+    if a.timings {
+        eprintln!("{}", timings(&stages, super::STARTED.get().copied()));
+    }
     Ok(())
+}
+
+/// The `--timings` line: each stage's milliseconds in the order they ran, then the total
+/// since `main` began and the part of it outside planning and fitting (all but `plan` and `fit`).
+pub fn timings(stages: &Stages, started: Option<Instant>) -> String {
+    let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
+    let mut out = String::from("  timings (ms):");
+    for (name, took) in &stages.0 {
+        out.push_str(&format!(" {name} {:.3},", ms(*took)));
+    }
+    let total = started.map_or_else(|| stages.0.iter().map(|(_, t)| *t).sum(), |s| s.elapsed());
+    let geometry: std::time::Duration = stages
+        .0
+        .iter()
+        .filter(|(n, _)| matches!(*n, "plan" | "fit"))
+        .map(|(_, t)| *t)
+        .sum();
+    out.push_str(&format!(
+        " total {:.3}, outside plan and fit {:.3}",
+        ms(total),
+        ms(total.saturating_sub(geometry))
+    ));
+    out
 }
 
 /// Each operation of a job of several: its tool, lengths and time, and for drilling the

@@ -239,9 +239,42 @@ pub struct Planned {
     pub figures: Vec<crate::core::intake::recipe::OperationFigures>,
 }
 
+/// The wall-clock time of each stage of a plan, in the order they ran (`machlink plan
+/// --timings` prints them): `read` (the shape file parsed), `plan` (the operation's
+/// geometry), `fit` (runs of lines fitted into arcs), `post` (the program's units).
+#[derive(Clone, Debug, Default)]
+pub struct Stages(pub Vec<(&'static str, std::time::Duration)>);
+
+impl Stages {
+    /// Runs `f` and records its time as stage `name`.
+    pub fn time<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+        let started = std::time::Instant::now();
+        let out = f();
+        self.add(name, started.elapsed());
+        out
+    }
+
+    /// Adds `took` to stage `name` (a stage met twice adds up).
+    pub fn add(&mut self, name: &'static str, took: std::time::Duration) {
+        match self.0.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, t)) => *t += took,
+            None => self.0.push((name, took)),
+        }
+    }
+}
+
 /// Turns a job into a checked program for `target`. Nothing is sent anywhere: a refused
 /// job leaves no trace.
 pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> {
+    plan_timed(spec, target, &mut Stages::default())
+}
+
+/// [`plan`], with the time of each stage recorded in `stages`.
+pub fn plan_timed(
+    spec: &JobSpec,
+    target: Target<'_>,
+    stages: &mut Stages,
+) -> Result<Planned, IntakeError> {
     // a drawing for a machine with a default recipe, and no operation of its own, takes the
     // recipe's operations (read at each plan, so an edited recipe counts from the next job)
     let with_recipe;
@@ -277,8 +310,8 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
             (p.toolpath, Some(p.shape), None, p.warnings)
         }
         InputKind::Shape => {
-            let (shape, warnings) = read_shape(spec)?;
-            let toolpath = toolpath(spec, &shape)?;
+            let (shape, warnings) = stages.time("read", || read_shape(spec))?;
+            let toolpath = toolpath_timed(spec, &shape, stages)?;
             (toolpath, Some(shape), None, warnings)
         }
         InputKind::Mesh | InputKind::Points => {
@@ -296,7 +329,7 @@ pub fn plan(spec: &JobSpec, target: Target<'_>) -> Result<Planned, IntakeError> 
     if let Target::Machine(m) = target {
         check::moves(&toolpath, m, &check::planned_move).map_err(IntakeError::Refused)?;
     }
-    let program = post.program(&toolpath).map_err(|e| {
+    let program = stages.time("post", || post.program(&toolpath)).map_err(|e| {
         let sews = toolpath
             .moves
             .iter()
@@ -479,12 +512,22 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
 
 /// Plans the job's operation on `shape`, at the job's tolerance.
 pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> {
+    toolpath_timed(spec, shape, &mut Stages::default())
+}
+
+/// [`toolpath`], its `plan` and `fit` stages timed in `stages`.
+fn toolpath_timed(
+    spec: &JobSpec,
+    shape: &Shape,
+    stages: &mut Stages,
+) -> Result<Toolpath, IntakeError> {
     let Some(op) = &spec.operation else {
         return Err(IntakeError::Input(format!(
             "{} is a shape file: say which operation to plan (--op profile, pocket, adaptive or stitch)",
             spec.input.file_name
         )));
     };
+    let started = std::time::Instant::now();
     let planned = match op {
         Operation::Profile(p) => {
             let mut p = p.clone();
@@ -523,6 +566,7 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
                 .map(|(tp, _)| tp)
                 .map_err(|e| IntakeError::Plan(format!("cannot plan the drilling: {e}")))?;
             tp.source = spec.input.file_name.clone();
+            stages.add("plan", started.elapsed());
             return Ok(tp);
         }
         other => {
@@ -533,9 +577,12 @@ pub fn toolpath(spec: &JobSpec, shape: &Shape) -> Result<Toolpath, IntakeError> 
             )))
         }
     };
+    stages.add("plan", started.elapsed());
     let mut tp = planned.map_err(IntakeError::Plan)?;
     tp.source = spec.input.file_name.clone();
-    Ok(fitted(tp, spec.tolerance.unwrap_or(DEFAULT_TOLERANCE)))
+    Ok(stages.time("fit", || {
+        fitted(tp, spec.tolerance.unwrap_or(DEFAULT_TOLERANCE))
+    }))
 }
 
 /// The tool path with its runs of short lines fitted into lines and arcs within `tolerance`

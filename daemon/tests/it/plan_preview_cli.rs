@@ -84,6 +84,78 @@ fn a_pocket_from_svg_plans_posts_and_previews() {
 }
 
 #[test]
+fn plan_timings_name_every_stage_and_leave_the_program_unchanged() {
+    let dir = tempfile::tempdir().unwrap();
+    let svg = dir.path().join("part.svg");
+    std::fs::write(&svg, PART_SVG).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let plan = |out: &Path, timings: bool| {
+        let mut args = vec![
+            "plan".to_string(),
+            s(&svg),
+            "--op".into(),
+            "pocket".into(),
+            "--tool-diameter".into(),
+            "6".into(),
+            "--depth".into(),
+            "2".into(),
+            "-o".into(),
+            s(out),
+        ];
+        if timings {
+            args.push("--timings".into());
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (ok, err) = machlink(&args);
+        assert!(ok, "{err}");
+        err
+    };
+    let (with, without) = (dir.path().join("a.nc"), dir.path().join("b.nc"));
+    let err = plan(&with, true);
+    let quiet = plan(&without, false);
+    assert!(!quiet.contains("timings"), "{quiet}");
+    // the same program either way
+    assert_eq!(
+        std::fs::read(&with).unwrap(),
+        std::fs::read(&without).unwrap()
+    );
+    let line = err
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("timings (ms):"))
+        .unwrap_or_else(|| panic!("no timings line in: {err}"));
+    let mut stages = Vec::new();
+    let mut total = None;
+    let mut outside = None;
+    for part in line.split(',') {
+        let words: Vec<&str> = part.split_whitespace().collect();
+        let (value, name) = words.split_last().expect("a stage and its time");
+        let ms: f64 = value.parse().unwrap_or_else(|_| panic!("{part} in {line}"));
+        assert!(ms >= 0.0 && ms.is_finite(), "{part}");
+        match name.join(" ").as_str() {
+            "total" => total = Some(ms),
+            "outside plan and fit" => outside = Some(ms),
+            n => stages.push((n.to_string(), ms)),
+        }
+    }
+    let names: Vec<&str> = stages.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        ["start-up", "spec", "read", "plan", "fit", "post", "file", "write", "figures"],
+        "{line}"
+    );
+    let (total, outside) = (total.expect("a total"), outside.expect("the part outside"));
+    // the stages ran one after another within the total (each printed to the microsecond)
+    let sum: f64 = stages.iter().map(|(_, ms)| ms).sum();
+    assert!(sum <= total + 0.01 * stages.len() as f64, "{line}");
+    let geometry: f64 = stages
+        .iter()
+        .filter(|(n, _)| n == "plan" || n == "fit")
+        .map(|(_, ms)| ms)
+        .sum();
+    assert!((total - geometry - outside).abs() <= 0.003, "{line}");
+}
+
+#[test]
 fn bad_options_and_files_are_one_clear_sentence() {
     let dir = tempfile::tempdir().unwrap();
     let svg = dir.path().join("part.svg");

@@ -271,8 +271,13 @@ impl Report {
 /// How often the tool goes up to the safe height (the path's highest Z) from below it by a
 /// rapid: the retracts between passes, regions and levels.
 pub fn retracts(tp: &Toolpath) -> usize {
-    let Some(b) = tp.bounds() else { return 0 };
-    let top = b.max.z;
+    // the path's top (its bounds' top: every move's end, arcs rising no higher than theirs;
+    // the arcs' extremes in X and Y are not needed here)
+    let mut top = f64::NEG_INFINITY;
+    tp.walk(P3::default(), |_, _, to| top = top.max(to.z));
+    if top == f64::NEG_INFINITY {
+        return 0;
+    }
     let mut n = 0;
     tp.walk(P3::default(), |from, m, to| {
         if matches!(m, Move::Rapid { .. }) && from.z < top - 1e-9 && to.z >= top - 1e-9 {
