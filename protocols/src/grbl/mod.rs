@@ -579,6 +579,15 @@ impl GrblLink {
         // the machine's own pauses this pass has seen end: the next one is at the program
         // stop after as many stops from `from`
         let mut stops_passed = 0usize;
+        // Until when after a cycle start a report of Hold is stale: the answer to a poll
+        // sent before the `~`, one made in the same turn of the controller's loop as it
+        // (GRBL reports before it starts the cycle), or an automatic report on its way.
+        // Taken as a new pause, such a report held the job again at the stop it had just
+        // left while the machine ran on, and the daemon's answer, a feed hold, stopped it
+        // there with the job paused for a tool already loaded. A hold that lasts past this
+        // (a `~` the controller lost, or a program stop right after the last) is a pause.
+        let stale_hold_grace = 2 * self.opts.status_interval.max(MIN_STATUS_INTERVAL);
+        let mut stale_holds_until: Option<Instant> = None;
         let mut control_open = true;
         let mut idle_seen = 0u32;
         let mut poll = tokio::time::interval(self.opts.status_interval.max(MIN_STATUS_INTERVAL));
@@ -709,6 +718,11 @@ impl GrblLink {
                                 self.wco = s.wco;
                             }
                             let mut status = s.to_status(self.wco);
+                            if status.state == DeviceState::Held
+                                && stale_holds_until.is_some_and(|t| Instant::now() < t)
+                            {
+                                continue;
+                            }
                             // (once it paused itself it waits for the operator, whether or
                             // not the daemon holds it too)
                             if status.state == DeviceState::Held && (!held || machine_paused) {
@@ -795,6 +809,7 @@ impl GrblLink {
                         Control::Run => {
                             if held || machine_paused {
                                 self.write(&[realtime::CYCLE_START]).await?;
+                                stale_holds_until = Some(Instant::now() + stale_hold_grace);
                                 held = false;
                                 if machine_paused {
                                     stops_passed += 1;

@@ -30,6 +30,9 @@ struct FakeConfig {
     alarm_at: Option<(usize, u16)>,
     /// Status reports that still say Run once every line is answered (the last moves).
     run_after: usize,
+    /// Status reports after a cycle start (`~`) that still say Hold, as GRBL's does when the
+    /// `?` is taken in the same turn of its loop as the `~`, or was sent before it.
+    holds_after_resume: usize,
 }
 
 #[derive(Default)]
@@ -56,6 +59,7 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
     let mut locked = false;
     let mut held = false;
     let mut run_after = cfg.run_after;
+    let mut stale_holds = 0usize;
     let mut buf = [0u8; 256];
     loop {
         let mut out: Vec<u8> = Vec::new();
@@ -72,11 +76,18 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
                                 if pending.is_empty() && run_after > 0 && gcode_count > 0 {
                                     run_after -= 1;
                                 }
-                                let state = if held { "Hold:0" } else if locked { "Alarm" } else if busy { "Run" } else { "Idle" };
+                                let stale = stale_holds > 0;
+                                stale_holds = stale_holds.saturating_sub(1);
+                                let state = if held || stale { "Hold:0" } else if locked { "Alarm" } else if busy { "Run" } else { "Idle" };
                                 out.extend(format!("<{state}|MPos:0.000,0.000,0.000|Bf:{},{}|FS:0,0>\r\n", 15 - pending.len().min(15), window.saturating_sub(in_flight)).as_bytes());
                             }
                             b'!' => held = true,
-                            b'~' => held = false,
+                            b'~' => {
+                                if held {
+                                    stale_holds = cfg.holds_after_resume;
+                                }
+                                held = false;
+                            }
                             0x18 => {
                                 partial.clear();
                                 pending.clear();
@@ -105,10 +116,14 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
             _ = tokio::time::sleep(wait) => {
                 // acknowledge 0..=3 of the oldest lines, and now and then push a message
                 if rng.below(5) == 0 {
-                    let state = if pending.is_empty() && run_after == 0 { "Idle" } else { "Run" };
+                    let state = if held { "Hold:0" } else if pending.is_empty() && run_after == 0 { "Idle" } else { "Run" };
                     out.extend(format!("[MSG:Pgm End]\r\n<{state}|MPos:1.000,2.000,3.000|FS:100,0>\r\n").as_bytes());
                 }
                 for _ in 0..rng.below(4) {
+                    // a held controller runs nothing on, so answers nothing more
+                    if held {
+                        break;
+                    }
                     if locked && !pending.front().is_some_and(|(l, _)| l.starts_with('$')) {
                         break;
                     }
@@ -125,6 +140,8 @@ async fn fake_controller(io: DuplexStream, cfg: FakeConfig, log: Arc<Mutex<FakeL
                         out.extend(b"ok\r\n");
                     } else {
                         gcode_count += 1;
+                        // a program stop: the controller holds once it reaches it
+                        held |= line.starts_with("M0");
                         log.lock().unwrap().gcode.push(line);
                         if cfg.error_at.is_some_and(|(k, _)| k == gcode_count) {
                             out.extend(format!("error:{}\r\n", cfg.error_at.unwrap().1).as_bytes());
@@ -427,4 +444,55 @@ async fn completion_waits_for_idle_polling_at_most_five_times_a_second() {
         .filter(|e| matches!(e, LinkEvent::Status(_)))
         .count();
     assert!(statuses >= 21);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_status_report_made_before_the_cycle_start_does_not_pause_the_job_again() {
+    // The controller holds at each M0, and after the operator's cycle start its next report
+    // still says Hold (made in the same turn of its loop as the `~`). Taken as a new pause,
+    // that report made the daemon hold the job again at the stop it had just left.
+    let (mut link, log) = connect(FakeConfig {
+        window: Some(128),
+        seed: 23,
+        holds_after_resume: 1,
+        ..Default::default()
+    })
+    .await;
+    let mut program = lines_of_many_lengths(600, 60, 5);
+    program[200] = "M0 (load T2)".into();
+    program[400] = "M0 (load T3)".into();
+    let (etx, mut erx, ctx, crx) = channels();
+    // the operator, as the daemon is: each time the machine pauses itself, hold the job,
+    // then resume it a little later
+    let operator = tokio::spawn(async move {
+        let mut pauses = 0;
+        let mut acked = Vec::new();
+        while let Some(e) = erx.recv().await {
+            match e {
+                LinkEvent::Message(m) if m.contains("paused itself") => {
+                    pauses += 1;
+                    ctx.send(Control::Hold).unwrap();
+                    tokio::time::sleep(Duration::from_millis(300)).await;
+                    ctx.send(Control::Run).unwrap();
+                }
+                LinkEvent::Acked { unit } => acked.push(unit),
+                _ => {}
+            }
+        }
+        (pauses, acked)
+    });
+    let end = link.stream(&program, 0, etx, crx).await.unwrap();
+    assert_eq!(end, StreamEnd::Completed);
+    drop(link);
+    let (pauses, acked) = operator.await.unwrap();
+    assert_eq!(pauses, 2, "one pause per program stop");
+    assert_eq!(acked, (0..program.len()).collect::<Vec<_>>());
+    let l = log.lock().unwrap();
+    assert_eq!(l.gcode, program, "every line arrived once, in order");
+    let rt: Vec<u8> = l.realtime.iter().copied().filter(|&b| b != b'?').collect();
+    assert_eq!(
+        rt,
+        vec![b'!', b'~', b'!', b'~'],
+        "one hold and one resume per stop"
+    );
 }
