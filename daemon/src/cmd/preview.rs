@@ -36,7 +36,8 @@ pub struct PreviewArgs {
     /// `plan --post POST -o FILE` writes it: the drawing is of that very program's moves.
     #[arg(long, value_name = "FILE")]
     pub program: Option<PathBuf>,
-    /// The post the plan is made for, and --program written with (as for `plan`).
+    /// With --program: the post the plan is made for and the program written with (as for
+    /// `plan`); without it, a recipe is drawn as planned for grbl.
     #[arg(long, default_value = "grbl")]
     pub post: String,
     /// Plan options, as for `machlink plan`; with --op the plan is drawn over the part.
