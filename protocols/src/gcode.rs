@@ -1074,6 +1074,42 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
 mod tests {
     use super::*;
 
+    #[test]
+    fn grbl_takes_its_own_g_codes_and_words_and_names_the_rest() {
+        let g = Dialect::Grbl;
+        for (letter, value) in [
+            ('G', "0"),
+            ('G', "01"),
+            ('G', "28"),
+            ('G', "38.2"),
+            ('G', "43.1"),
+            ('G', "53"),
+            ('G', "91.1"),
+            ('N', "10"),
+            ('T', "1"),
+            ('S', "12000"),
+            ('R', "-5"),
+        ] {
+            assert_eq!(g.refuses(letter, value), None, "{letter}{value}");
+        }
+        for (letter, value, says) in [
+            ('G', "81", "G81 (a canned cycle)"),
+            ('G', "98", "G98 (a canned cycle's return height)"),
+            ('G', "41", "G41 (cutter radius compensation)"),
+            ('G', "43", "G43 (a tool length offset"),
+            ('G', "64", "G64 (path blending)"),
+            ('G', "38.6", "G38.6 is not"),
+            ('H', "1", "the word H1 (a tool length offset number)"),
+            ('Q', "2", "Q2 (a canned cycle's peck)"),
+        ] {
+            let e = g.refuses(letter, value).expect(says);
+            assert!(e.contains(says) && e.contains("GRBL 1.1"), "{e}");
+        }
+        // LinuxCNC and the generic dialect: what the reader follows is checked elsewhere
+        assert_eq!(Dialect::Linuxcnc.refuses('G', "81"), None);
+        assert_eq!(Dialect::Generic.refuses('H', "1"), None);
+    }
+
     fn lines(p: &[String]) -> &[String] {
         p
     }

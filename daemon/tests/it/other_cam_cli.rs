@@ -279,6 +279,7 @@ fn a_grbl_router_takes_what_it_runs_and_refuses_what_it_cannot_naming_the_line()
             "GRBL 1.1",
         ],
     );
+    // a machine that runs a file as the moves it reads (Modbus) takes it and runs it
     let o = submit(&s, &lcnc, "ring", true);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("completed"), "{}", stderr(&o));
