@@ -869,9 +869,12 @@ fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     }
     let (mut len, mut area2) = (0.0, 0.0);
     let mut bounds = Bounds::EMPTY;
+    // about the first point: a stitched loop may end a few ε from where it starts (the
+    // stitch matches ends within 16 ε), and its area is that of the loop closed there
+    let o = out.first().map_or(Point::new(0.0, 0.0), |s| s.a);
     for s in &out {
         len += s.length();
-        area2 += s.area2();
+        area2 += s.area2_about(o);
         let b = s.bbox();
         bounds.add_point(Point::new(b[0], b[1]));
         bounds.add_point(Point::new(b[2], b[3]));
@@ -995,5 +998,45 @@ mod tests {
             (area - std::f64::consts::FRAC_PI_2).abs() < 1e-6,
             "the half disc's area is {area}"
         );
+    }
+
+    #[test]
+    fn a_stitched_sliver_that_ends_a_few_eps_from_its_start_has_no_area() {
+        // what the prune left of a grow by 1.084 (grown_blob_327_…): a closed chain of two
+        // lines 10 µm long in all, nearly collinear, ending 3.3 µm from its start (within
+        // the stitch's 16 ε). About the origin, 21 mm away, its area came out 3.5e-5, far
+        // above ε × its length, so it was kept as an island crossing the loop beside it
+        let eps = 1e-6;
+        let segs = vec![
+            Seg::line(
+                Point::new(-20.58760941313336, -4.594124690639476),
+                Point::new(-20.587608681580587, -4.5941279353858056),
+            ),
+            Seg::line(
+                Point::new(-20.58760868158291, -4.594127935375481),
+                Point::new(-20.587610144362692, -4.594121445817104),
+            ),
+        ];
+        assert!(
+            build(segs, true, eps).is_none(),
+            "the sliver was kept as a loop"
+        );
+    }
+
+    #[test]
+    fn a_loop_that_ends_a_few_eps_from_its_start_has_its_area_wherever_it_lies() {
+        // a unit square whose last side stops 3 ε short of its start, far from the origin
+        let eps = 1e-6;
+        for c in [Point::new(0.0, 0.0), Point::new(-2000.0, 3000.0)] {
+            let p = |x: f64, y: f64| c + Point::new(x, y);
+            let segs = vec![
+                Seg::line(p(0.0, 0.0), p(1.0, 0.0)),
+                Seg::line(p(1.0, 0.0), p(1.0, 1.0)),
+                Seg::line(p(1.0, 1.0), p(0.0, 1.0)),
+                Seg::line(p(0.0, 1.0), p(0.0, 3.0 * eps)),
+            ];
+            let l = build(segs, true, eps).expect("the square is a loop");
+            assert!((l.area - 1.0).abs() < 1e-9, "about {c:?}: area {}", l.area);
+        }
     }
 }

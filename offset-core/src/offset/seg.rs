@@ -258,7 +258,16 @@ impl Seg {
 
     /// Twice the signed area this segment adds to a closed loop.
     pub fn area2(&self) -> f64 {
-        let chord = self.a.cross(self.b);
+        self.area2_about(Point::new(0.0, 0.0))
+    }
+
+    /// Twice the signed area this segment adds to a loop closed by a chord through `o`:
+    /// summed over a chain of segments from `o`, the area of the chain closed by the chord
+    /// from its end back to `o`, whether or not it ends there (about the origin, a chain
+    /// that ends a hair from its start adds the area of the sliver between the two ends and
+    /// the origin, which grows with the distance from it).
+    pub fn area2_about(&self, o: Point) -> f64 {
+        let chord = (self.a - o).cross(self.b - o);
         if self.is_arc() {
             chord + self.r * self.r * (self.sw - self.sw.sin())
         } else {

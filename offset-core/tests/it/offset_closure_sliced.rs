@@ -406,3 +406,22 @@ fn grown_blob_386_two_waves_keeps_its_last_shrink_at_its_distance() {
         0.001,
     );
 }
+
+#[test]
+fn grown_blob_327_one_wave_grows_back_as_valid_input() {
+    // a fresh seed (3457624769) found this one: the grow by 1.084 after two shrinks came
+    // back crossing itself at (-20.587609, -4.594125). The stitch closed slivers of 3 to
+    // 10 µm there (their ends within its 16 ε of their starts), and their area, measured
+    // about the origin 21 mm away, came out 3.5e-5 rather than nothing, so one was kept as
+    // an island crossing the loop. `offset_checked` holds the result to no crossing and to
+    // the distance both ways
+    grown_blob_case(
+        327,
+        &[(1.5248510122208616, 4.735308413840017, 3.5220194821258284)],
+        0.01655112745464613,
+        4602986852231964438,
+        0.05,
+        &[-0.5344602024851074, -1.0173971847961967, 1.083996102152415],
+        0.01,
+    );
+}
