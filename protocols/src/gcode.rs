@@ -1180,8 +1180,9 @@ mod tests {
             vals.push(10f64.powf(6.0 + m * 7.5) * if i % 2 == 0 { 1.0 } else { -1.0 });
         }
         vals.extend([
-            9.007_199_254_740_991e12,
-            9.007_199_254_740_992e12,
+            // about the writer's limit of 2^53 thousandths
+            (1u64 << 53) as f64 / 1000.0 - 0.01,
+            (1u64 << 53) as f64 / 1000.0,
             -9.1e12,
             1e300,
             f64::MAX,
