@@ -222,9 +222,14 @@ async fn a_modbus_device_that_stops_replying_pauses_its_job_at_its_consumed_bloc
         *s == DeviceState::Held
     })
     .await;
+    // (the note of the held machine can come before the count read back from it: the
+    // job is waiting once both are in)
     let back = wait_job(&daemon, j.id, "waiting after the device came back", |j| {
         let note = j.note.as_deref().unwrap_or("");
-        j.state == JobState::Paused && !note.contains("reconnecting") && note.contains("resume")
+        j.state == JobState::Paused
+            && !note.contains("reconnecting")
+            && note.contains("resume")
+            && j.acked_units >= SILENT_AFTER as usize
     })
     .await;
     assert_eq!(
@@ -314,9 +319,14 @@ async fn a_sewing_machine_that_stops_answering_status_pauses_its_job_and_resume_
         *s == DeviceState::Held
     })
     .await;
+    // (the note of the held machine can come before the count read back from it: the
+    // job is waiting once both are in)
     let back = wait_job(&daemon, j.id, "waiting after the machine came back", |j| {
         let note = j.note.as_deref().unwrap_or("");
-        j.state == JobState::Paused && !note.contains("reconnecting") && note.contains("resume")
+        j.state == JobState::Paused
+            && !note.contains("reconnecting")
+            && note.contains("resume")
+            && j.acked_units >= SILENT_AFTER as usize
     })
     .await;
     assert_eq!(
