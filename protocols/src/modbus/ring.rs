@@ -38,6 +38,9 @@ struct Progress {
     /// The tool block the device holds at for the operator, and whether the operator's
     /// hold has come since (only a resume after it releases the device).
     tool_stop: Option<(u32, bool)>,
+    /// The operator's control changed while the last round waited (the wait's `changed()`
+    /// marks the change seen, so the next round's `has_changed` no longer says so).
+    control_woke: bool,
 }
 
 /// The tool the device holds at for the operator: it holds, and its next block is a tool
@@ -526,6 +529,9 @@ impl Ring {
             p.started = true;
         }
         let command = self.base + reg::COMMAND;
+        // (a change since the last round: the daemon's hold and the operator's resume can
+        // both come between two rounds, and then only the resume is seen)
+        let changed = std::mem::take(&mut p.control_woke) | control.has_changed().unwrap_or(false);
         let want = *control.borrow_and_update();
         // at a tool block the device waits for the operator: the daemon's hold (which the
         // job's pause sends) and then the operator's resume release it, never the run the
@@ -533,10 +539,11 @@ impl Ring {
         let at_tool = tool_stop(&s, blocks).map(|_| s.consumed_seq + 1);
         match at_tool {
             Some(seq) => {
-                if p.tool_stop.is_none_or(|(at, _)| at != seq) {
+                let seen_before = p.tool_stop.is_some_and(|(at, _)| at == seq);
+                if !seen_before {
                     p.tool_stop = Some((seq, false));
                 }
-                if want == Control::Hold {
+                if want == Control::Hold || (changed && seen_before) {
                     p.tool_stop = Some((seq, true));
                 }
             }
@@ -616,7 +623,7 @@ impl Ring {
             };
             tokio::select! {
                 _ = tokio::time::sleep(self.poll) => {}
-                _ = operator => {}
+                _ = operator => p.control_woke = true,
             }
         }
         Ok(None)
@@ -652,6 +659,7 @@ impl Ring {
             answered: Instant::now(),
             status: None,
             tool_stop: None,
+            control_woke: false,
         };
         let mut resync = false;
         loop {
