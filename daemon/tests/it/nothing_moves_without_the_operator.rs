@@ -465,7 +465,7 @@ async fn stops_at_random_moments_move_no_machine_until_the_operator_resumes() {
     let mut checked = 0;
     for stop in 0..STOPS {
         tokio::time::sleep(Duration::from_millis(rng.between(300, 1500))).await;
-        let sigterm = rng.next() % 2 == 0;
+        let sigterm = rng.next().is_multiple_of(2);
         if sigterm {
             assert!(daemon.terminate().success(), "{}", daemon.log());
         } else {

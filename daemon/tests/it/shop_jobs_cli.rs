@@ -392,7 +392,7 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
         for (k, m) in r.moves.iter().enumerate().filter(|(_, m)| !m.rapid) {
             if m.to[2] == -DEPTH + 1.0
                 && m.from[2] == m.to[2]
-                && to_rect(m.to[0], m.to[1], PLATE).1 == false
+                && !to_rect(m.to[0], m.to[1], PLATE).1
             {
                 tab_tops += 1;
             }

@@ -276,38 +276,6 @@ pub fn cube_with_boss(size: f64, boss_radius: f64, boss_height: f64, segments: u
     Mesh::new("cube with boss", vertices, faces)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn assert_closed_out(m: &Mesh, volume: f64, tol: f64) {
-        let r = m.report();
-        assert!(r.closed, "{}: {r:?}", m.name);
-        assert!(
-            (m.volume() - volume).abs() <= tol,
-            "{}: volume {} vs {volume}",
-            m.name,
-            m.volume()
-        );
-    }
-
-    #[test]
-    fn generated_solids_are_closed_and_face_out() {
-        assert_closed_out(&cuboid(V3::ZERO, V3::new(2.0, 3.0, 4.0)), 24.0, 1e-12);
-        let s = sphere(V3::new(1.0, 2.0, 3.0), 5.0, 40, 80);
-        assert_closed_out(&s, 4.0 / 3.0 * std::f64::consts::PI * 125.0, 5.0);
-        let c = cylinder(0.0, 0.0, 0.0, 2.0, 3.0, 64);
-        assert_closed_out(&c, std::f64::consts::PI * 12.0, 0.1);
-        let hf = height_field_solid((0.0, 4.0), (0.0, 2.0), 8, 4, -1.0, |x, _| 1.0 + x * 0.25);
-        // over [0,4]×[0,2]: mean height 1.5 above z = 0, plus the 1 mm below
-        assert_closed_out(&hf, 8.0 * 2.5, 1e-9);
-        let n = 64;
-        let cb = cube_with_boss(20.0, 5.0, 6.0, n);
-        let boss = 0.5 * n as f64 * (TAU / n as f64).sin() * 25.0 * 6.0;
-        assert_closed_out(&cb, 8000.0 + boss, 1e-6);
-    }
-}
-
 /// A prism: the simple polygon `profile` (x, z), either turn, swept along Y from 0 to
 /// `length`; closed, normals out, its ends triangulated by ear clipping.
 pub fn prism_y(profile: &[(f64, f64)], length: f64) -> Mesh {
@@ -448,4 +416,36 @@ pub fn touching_cubes(size: f64, edge_only: bool) -> Mesh {
     let b = cuboid(o, o + V3::new(size, size, size));
     let tris: Vec<[V3; 3]> = a.triangles().chain(b.triangles()).collect();
     Mesh::from_triangles("touching cubes", &tris, 1e-9)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_closed_out(m: &Mesh, volume: f64, tol: f64) {
+        let r = m.report();
+        assert!(r.closed, "{}: {r:?}", m.name);
+        assert!(
+            (m.volume() - volume).abs() <= tol,
+            "{}: volume {} vs {volume}",
+            m.name,
+            m.volume()
+        );
+    }
+
+    #[test]
+    fn generated_solids_are_closed_and_face_out() {
+        assert_closed_out(&cuboid(V3::ZERO, V3::new(2.0, 3.0, 4.0)), 24.0, 1e-12);
+        let s = sphere(V3::new(1.0, 2.0, 3.0), 5.0, 40, 80);
+        assert_closed_out(&s, 4.0 / 3.0 * std::f64::consts::PI * 125.0, 5.0);
+        let c = cylinder(0.0, 0.0, 0.0, 2.0, 3.0, 64);
+        assert_closed_out(&c, std::f64::consts::PI * 12.0, 0.1);
+        let hf = height_field_solid((0.0, 4.0), (0.0, 2.0), 8, 4, -1.0, |x, _| 1.0 + x * 0.25);
+        // over [0,4]×[0,2]: mean height 1.5 above z = 0, plus the 1 mm below
+        assert_closed_out(&hf, 8.0 * 2.5, 1e-9);
+        let n = 64;
+        let cb = cube_with_boss(20.0, 5.0, 6.0, n);
+        let boss = 0.5 * n as f64 * (TAU / n as f64).sin() * 25.0 * 6.0;
+        assert_closed_out(&cb, 8000.0 + boss, 1e-6);
+    }
 }

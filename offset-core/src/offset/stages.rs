@@ -68,5 +68,5 @@ pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64) -> Option<f64> {
         return None;
     }
     let step = FAN_PER_LENGTH * length / crossing_fans;
-    (o.abs() > 2.0 * step).then(|| step * side)
+    (o.abs() > 2.0 * step).then_some(step * side)
 }

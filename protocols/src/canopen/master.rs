@@ -255,7 +255,10 @@ fn sleep_until(wake: Instant) {
     unsafe {
         libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
         let d = wake - now;
+        // (`as i64`: `c_long` is 32 bits on 32-bit Linux, where shop-floor ARM boards run)
+        #[allow(clippy::unnecessary_cast)]
         let mut ns = ts.tv_nsec as i64 + d.subsec_nanos() as i64;
+        #[allow(clippy::unnecessary_cast)]
         let mut sec = ts.tv_sec as i64 + d.as_secs() as i64;
         if ns >= 1_000_000_000 {
             ns -= 1_000_000_000;
