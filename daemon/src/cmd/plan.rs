@@ -36,13 +36,7 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
         stages.add("start-up", entered - *started);
     }
     let registry = machlink::core::registry::standard();
-    let post = registry.post(&a.post).with_context(|| {
-        format!(
-            "there is no post `{}` (known: {})",
-            a.post,
-            registry.post_names().join(", ")
-        )
-    })?;
+    let post = post_named(&registry, &a.post)?;
     let spec = a.job.spec(&a.file, None, Some(a.post.clone()))?;
     stages.add("spec", entered.elapsed());
     let planned = intake::plan_timed(&spec, Target::Post(post), &mut stages)?;
@@ -178,6 +172,19 @@ pub fn clock(secs: f64) -> String {
 }
 
 /// The job's label in a file header (a DST's): the input file's stem.
+/// The post `name` of the registry, or an error naming the posts there are.
+pub fn post_named<'r>(
+    registry: &'r machlink_protocols::kind::Registry,
+    name: &str,
+) -> anyhow::Result<&'r std::sync::Arc<dyn machlink_protocols::post::AnyPost>> {
+    registry.post(name).with_context(|| {
+        format!(
+            "there is no post `{name}` (known: {})",
+            registry.post_names().join(", ")
+        )
+    })
+}
+
 pub fn label(path: &std::path::Path) -> String {
     path.file_stem()
         .map(|s| s.to_string_lossy().into_owned())

@@ -83,27 +83,17 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             preview::svg_with(None, Some(&tp), &opts)
         }
     } else {
-        let spec = JobSpec {
-            post: None,
-            ..a.job.spec(&a.file, None, None)?
-        };
         if let Some(program) = &a.program {
             // the plan `plan --post` makes, drawn, and its program written beside the drawing
+            let spec = a.job.spec(&a.file, None, Some(a.post.clone()))?;
             let registry = machlink::core::registry::standard();
-            let post = registry.post(&a.post).with_context(|| {
-                format!(
-                    "there is no post `{}` (known: {})",
-                    a.post,
-                    registry.post_names().join(", ")
-                )
-            })?;
+            let post = super::plan::post_named(&registry, &a.post)?;
             if spec.operation.is_none() && spec.operations.is_empty() {
                 anyhow::bail!(
                     "preview --program writes the program of a plan: give --op or --recipe for {}",
                     a.file.display()
                 );
             }
-            let spec = a.job.spec(&a.file, None, Some(a.post.clone()))?;
             let planned = intake::plan(&spec, intake::Target::Post(post))?;
             print_warnings(&planned.warnings);
             let svg = if planned.figures.is_empty() {
@@ -126,6 +116,10 @@ pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
             );
             return Ok(());
         }
+        let spec = JobSpec {
+            post: None,
+            ..a.job.spec(&a.file, None, None)?
+        };
         if !spec.operations.is_empty() {
             // a job of operations: planned as `plan` plans it (tools given inline)
             let registry = machlink::core::registry::standard();
