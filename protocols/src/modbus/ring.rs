@@ -38,6 +38,8 @@ struct Progress {
     /// The tool block the device holds at for the operator, and whether the operator's
     /// hold has come since (only a resume after it releases the device).
     tool_stop: Option<(u32, bool)>,
+    /// The tool block last reported to the daemon as waiting for the operator.
+    tool_reported: Option<u32>,
     /// The operator's control changed while the last round waited (the wait's `changed()`
     /// marks the change seen, so the next round's `has_changed` no longer says so).
     control_woke: bool,
@@ -406,6 +408,14 @@ impl Ring {
             .is_none_or(|t| t.elapsed() >= Duration::from_millis(200));
         let mut seen = s.to_status();
         if let Some(number) = tool_stop(s, blocks) {
+            let seq = s.consumed_seq + 1;
+            if p.tool_reported == Some(seq) && p.tool_stop == Some((seq, true)) {
+                // the operator has this stop in hand (the daemon's hold came): saying it
+                // again, from a header read before the operator's resume took effect,
+                // would pause the job a second time once it is resumed
+                return Ok(());
+            }
+            p.tool_reported = Some(seq);
             // holding at a tool block: the operator loads the tool, then resumes
             seen.state = DeviceState::NeedsOperator {
                 reason: OperatorReason::LoadTool {
@@ -523,7 +533,6 @@ impl Ring {
             self.sync(session, blocks, from, s, p).await?;
             return Ok(None);
         }
-        self.observe(&s, blocks, p, events)?;
         let state = ModbusState::from_register(s.state);
         if matches!(state, Some(ModbusState::Running | ModbusState::Hold)) {
             p.started = true;
@@ -549,6 +558,8 @@ impl Ring {
             }
             None => p.tool_stop = None,
         }
+        // after the operator's part of a tool stop is known, so that it is not reported again
+        self.observe(&s, blocks, p, events)?;
         let waits_for_operator = p.tool_stop.is_some_and(|(_, held)| !held);
         match want {
             Control::Cancel => {
@@ -659,6 +670,7 @@ impl Ring {
             answered: Instant::now(),
             status: None,
             tool_stop: None,
+            tool_reported: None,
             control_woke: false,
         };
         let mut resync = false;

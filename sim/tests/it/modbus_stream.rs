@@ -413,9 +413,23 @@ async fn the_device_holds_at_a_tool_block_until_the_operator_and_again_after_a_s
     let (state, _, consumed, _) = sim.registers();
     assert_eq!((state, consumed), (2, at(1)), "held before the T1 block");
     assert!(sim.trace().is_empty(), "{:?}", sim.trace());
+    // once the operator has the stop (the daemon's hold came), the link says it no more:
+    // a repeat, read before the operator's resume took effect, would pause the resumed
+    // job a second time (the daemon pauses a running job on every such report)
+    let says = |rx: &mut mpsc::UnboundedReceiver<LinkEvent>, tool: u32| {
+        let mut n = 0;
+        while let Ok(ev) = rx.try_recv() {
+            n += matches!(&ev, LinkEvent::Status(s) if s.state == asks(tool)) as usize;
+        }
+        n
+    };
+    says(&mut rx, 1);
     ctl.send(Control::Hold).unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
+    says(&mut rx, 1); // (a round under way when the hold came may still say it)
+    tokio::time::sleep(Duration::from_millis(500)).await;
     assert_eq!(sim.registers().2, at(1), "the hold alone released it");
+    assert_eq!(says(&mut rx, 1), 0, "the link said T1 again after the hold");
     ctl.send(Control::Run).unwrap();
     until(&mut rx, &asks(2)).await;
     tokio::time::sleep(Duration::from_millis(300)).await;
