@@ -261,7 +261,7 @@ async fn a_canopen_drive_fault_waits_for_unlock_before_the_next_job_runs() {
     write_config(
         dir.path(),
         "[[machine]]\nname = \"gantry\"\nlink = \"sim-canopen\"\n\
-         period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\n\
+         period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\n\
          faults = [ { node = 2, fault = \"following_error\", after_syncs = 300 } ]\n\
          axes = [\n  { axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 },\n  \
          { axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 },\n  \
@@ -429,7 +429,7 @@ async fn stops_at_random_moments_move_no_machine_until_the_operator_resumes() {
              [[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\n\
              [[machine]]\nname = \"sewer\"\nlink = \"sewing\"\nport = \"{}\"\n\n\
              [[machine]]\nname = \"gantry\"\nlink = \"canopen\"\nbus = \"slcan:{}\"\n\
-             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\n\
+             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\n\
              axes = [\n  {{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
              {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \
              {{ axis = \"z\", node = 3, counts_per_mm = 1000, max_velocity = 15, max_acceleration = 400, max_jerk = 20000 }},\n]\n",

@@ -958,7 +958,7 @@ async fn a_canopen_gantry_stops_at_each_tool_change_until_the_operator_resumes()
         dir.path(),
         &format!(
             "[[machine]]\nname = \"gantry\"\nlink = \"canopen\"\nbus = \"slcan:{}\"\n\
-             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\n\
+             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\n\
              tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n\
              axes = [\n  {{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
              {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \

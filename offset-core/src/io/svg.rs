@@ -43,36 +43,12 @@ pub fn read_with(bytes: &[u8], file: &str, tolerance: f64) -> Result<SvgDrawing,
 /// The Inkscape namespace, whose `label` attribute names a layer.
 const INKSCAPE: &str = "http://www.inkscape.org/namespaces/inkscape";
 
-/// The `inkscape:label` of every element with an `id` that has one, from the raw XML
-/// (usvg keeps ids but not Inkscape's attributes); empty when the bytes are not plain XML
-/// (compressed SVG), where only ids name groups.
-fn labels(bytes: &[u8]) -> Vec<(String, String)> {
-    let Ok(text) = std::str::from_utf8(bytes) else {
-        return Vec::new();
-    };
-    let opt = usvg::roxmltree::ParsingOptions {
-        allow_dtd: true,
-        ..Default::default()
-    };
-    let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, opt) else {
-        return Vec::new();
-    };
-    doc.descendants()
-        .filter(|n| n.has_tag_name("g"))
-        .filter_map(|n| {
-            let id = n.attribute("id")?;
-            let label = n.attribute((INKSCAPE, "label"))?;
-            Some((id.to_string(), label.to_string()))
-        })
-        .collect()
-}
-
 /// The names of the file's groups, in document order, each once (case-insensitive): each
 /// group's `inkscape:label` (an Inkscape layer's name) and its `id`.
 pub fn layers(bytes: &[u8], file: &str) -> Result<Vec<String>, ImportError> {
     let tree = usvg::Tree::from_data(bytes, &usvg::Options::default())
         .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
-    let labels = labels(bytes);
+    let labels = raw_xml(bytes).labels;
     let mut out: Vec<String> = Vec::new();
     let mut todo: Vec<&usvg::Group> = vec![tree.root()];
     while let Some(g) = todo.pop() {
@@ -119,10 +95,18 @@ pub struct PlacedPath {
     pub paths: Vec<Polyline>,
 }
 
-/// The drawing elements of the raw XML in document order, each with its tag and id
-/// (outside `<defs>` and the other containers that draw nothing by themselves); empty when
-/// the bytes are not plain XML.
-fn shape_elements(bytes: &[u8]) -> Vec<(String, String)> {
+/// What usvg does not keep of the raw XML, read in one parse: the `inkscape:label` of every
+/// group with an `id` that has one (an Inkscape layer's name), and the drawing elements in
+/// document order, each with its tag and id (outside `<defs>` and the other containers that
+/// draw nothing by themselves). Both empty when the bytes are not plain XML (compressed
+/// SVG), where only ids name groups and elements are named by place.
+#[derive(Default)]
+struct RawXml {
+    labels: Vec<(String, String)>,
+    shapes: Vec<(String, String)>,
+}
+
+fn raw_xml(bytes: &[u8]) -> RawXml {
     const SHAPES: [&str; 7] = [
         "path", "rect", "circle", "ellipse", "line", "polyline", "polygon",
     ];
@@ -130,16 +114,26 @@ fn shape_elements(bytes: &[u8]) -> Vec<(String, String)> {
         "defs", "symbol", "clipPath", "mask", "marker", "pattern", "metadata",
     ];
     let Ok(text) = std::str::from_utf8(bytes) else {
-        return Vec::new();
+        return RawXml::default();
     };
     let opt = usvg::roxmltree::ParsingOptions {
         allow_dtd: true,
         ..Default::default()
     };
     let Ok(doc) = usvg::roxmltree::Document::parse_with_options(text, opt) else {
-        return Vec::new();
+        return RawXml::default();
     };
-    doc.descendants()
+    let labels = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("g"))
+        .filter_map(|n| {
+            let id = n.attribute("id")?;
+            let label = n.attribute((INKSCAPE, "label"))?;
+            Some((id.to_string(), label.to_string()))
+        })
+        .collect();
+    let shapes = doc
+        .descendants()
         .filter(|n| n.is_element() && SHAPES.contains(&n.tag_name().name()))
         .filter(|n| {
             !n.ancestors()
@@ -151,7 +145,8 @@ fn shape_elements(bytes: &[u8]) -> Vec<(String, String)> {
                 n.attribute("id").unwrap_or_default().to_string(),
             )
         })
-        .collect()
+        .collect();
+    RawXml { labels, shapes }
 }
 
 /// Every drawn element of the file, in document order: its name, groups and geometry
@@ -169,7 +164,10 @@ pub fn placed_paths(
     let tree = usvg::Tree::from_data(bytes, &usvg::Options::default())
         .map_err(|e| ImportError::invalid(file, format!("not a readable SVG document: {e}")))?;
     let height = tree.size().height() as f64;
-    let labels = labels(bytes);
+    let RawXml {
+        labels,
+        shapes: elements,
+    } = raw_xml(bytes);
     let mut found: Vec<(String, Vec<String>, Vec<Polyline>)> = Vec::new();
     let mut flattened = 0;
     // depth first in document order: a stack of the groups entered, each with the rest of
@@ -198,7 +196,6 @@ pub fn placed_paths(
         }
     }
     // the elements usvg drew, matched to the file's by place when they are as many
-    let elements = shape_elements(bytes);
     let by_place = elements.len() == found.len()
         && elements
             .iter()
@@ -271,7 +268,7 @@ pub fn read_layers(
         labels: if layers.is_empty() {
             Vec::new()
         } else {
-            labels(bytes)
+            raw_xml(bytes).labels
         },
     };
     collect(

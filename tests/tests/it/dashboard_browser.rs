@@ -273,7 +273,7 @@ fn machines() -> String {
          [[machine]]\nname = \"sewer\"\nlink = \"sim-sewing\"\ntime_scale = 5\nspm = 3000\n\
          thread_break_at = [{BREAK_AT}]\n\n\
          [[machine]]\nname = \"gantry\"\nlink = \"sim-canopen\"\nperiod_ms = 2\nheartbeat_ms = 50\n\
-         heartbeat_timeout_ms = 400\nreport_timeout_ms = 2000\naxes = [\n  \
+         heartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\naxes = [\n  \
          {{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
          {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \
          {{ axis = \"z\", node = 3, counts_per_mm = 1000, max_velocity = 15, max_acceleration = 400, max_jerk = 20000 }},\n]\n"
