@@ -171,7 +171,6 @@ pub fn clock(secs: f64) -> String {
     }
 }
 
-/// The job's label in a file header (a DST's): the input file's stem.
 /// The post `name` of the registry, or an error naming the posts there are.
 pub fn post_named<'r>(
     registry: &'r machlink_protocols::kind::Registry,
@@ -185,6 +184,7 @@ pub fn post_named<'r>(
     })
 }
 
+/// The job's label in a file header (a DST's): the input file's stem.
 pub fn label(path: &std::path::Path) -> String {
     path.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
