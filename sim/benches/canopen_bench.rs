@@ -5,7 +5,9 @@
 //! 2. SYNC period jitter of the master at 1, 2 and 4 ms periods over CANOPEN_JITTER_SECS
 //!    (60 by default) each, against a tokio interval at 1 ms measured in the same run, with
 //!    the CPU time of the SYNC clock's thread (`canopen-sync`, from
-//!    /proc/self/task/TID/schedstat) and of the whole process over the same stretch.
+//!    /proc/self/task/TID/schedstat) and of the whole process over the same stretch; and,
+//!    before each period, a bare sleeping thread at the same period (the platform's own
+//!    wake-up lateness: what any clock on this machine gets without spinning).
 //!
 //! `cargo bench -p machlink-sim --bench canopen_bench` (`CANOPEN_PERIODS_MS=2` for one
 //! period)
@@ -216,6 +218,69 @@ async fn anchor_jitter(secs: u64) {
     );
 }
 
+/// The second anchor: what a sleeping thread gets from this machine. A thread with the SYNC
+/// clock's settings (SCHED_FIFO where allowed, timer slack 1 ns) sleeps by absolute
+/// `clock_nanosleep` to each deadline of `period` and does nothing else: its jitter is what
+/// the clock would show without spinning, and its lateness (woken − deadline) is the spin a
+/// clock needs to be on time; the p99 lateness as a share of the period is what that spin
+/// costs in CPU.
+fn sleep_anchor(secs: u64, period: Duration) {
+    let n = (Duration::from_secs(secs).as_nanos() / period.as_nanos()) as usize;
+    let step = period.as_nanos() as i64;
+    let (realtime, woke, mut late) = std::thread::spawn(move || {
+        // SAFETY: prctl, pthread_setschedparam, clock_gettime and clock_nanosleep on the
+        // calling thread with valid pointers.
+        unsafe {
+            libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
+            let param = libc::sched_param { sched_priority: 20 };
+            let realtime =
+                libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0;
+            let mut at = libc::timespec {
+                tv_sec: 0,
+                tv_nsec: 0,
+            };
+            libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut at);
+            let (mut woke, mut late) = (Vec::with_capacity(n), Vec::with_capacity(n));
+            for _ in 0..n {
+                let ns = at.tv_nsec as i64 + step;
+                at.tv_sec += (ns / 1_000_000_000) as libc::time_t;
+                at.tv_nsec = (ns % 1_000_000_000) as _;
+                while libc::clock_nanosleep(
+                    libc::CLOCK_MONOTONIC,
+                    libc::TIMER_ABSTIME,
+                    &at,
+                    std::ptr::null_mut(),
+                ) == libc::EINTR
+                {}
+                let mut now = libc::timespec {
+                    tv_sec: 0,
+                    tv_nsec: 0,
+                };
+                libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut now);
+                woke.push(Instant::now());
+                let behind = (now.tv_sec - at.tv_sec) as i64 * 1_000_000_000
+                    + (now.tv_nsec as i64 - at.tv_nsec as i64);
+                late.push(behind as f64 / 1e3);
+            }
+            (realtime, woke, late)
+        }
+    })
+    .join()
+    .expect("the sleeping anchor's thread ran");
+    let (p50, p99, max, periods) = jitter(&woke, period);
+    late.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    let late_p99 = percentile(&late, 0.99);
+    println!(
+        "anchor: a bare thread (SCHED_FIFO: {}) sleeping by clock_nanosleep to each {} ms deadline for {secs} s ({periods} periods): |jitter| p50 {p50:.1} µs, p99 {p99:.1} µs, max {max:.1} µs; woken late by p50 {:.1} µs, p99 {late_p99:.1} µs, max {:.1} µs (a spin covering the p99 lateness: {:.1} % of a core); load average {}",
+        if realtime { "yes" } else { "refused" },
+        period.as_millis(),
+        percentile(&late, 0.5),
+        late.last().unwrap(),
+        late_p99 / (period.as_secs_f64() * 1e6) * 100.0,
+        load_average()
+    );
+}
+
 async fn sync_jitter(secs: u64, period: Duration) {
     let bus = MemoryBus::new();
     let _drives = SimDrives::spawn(&bus, &[1, 2, 3], 1.0);
@@ -298,6 +363,7 @@ fn main() {
             .map(|v| v.split(',').filter_map(|p| p.trim().parse().ok()).collect())
             .unwrap_or_else(|| vec![1, 2, 4]);
         for ms in periods {
+            sleep_anchor((secs / 4).max(5), Duration::from_millis(ms));
             sync_jitter(secs, Duration::from_millis(ms)).await;
         }
     });
