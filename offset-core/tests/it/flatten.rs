@@ -1,22 +1,31 @@
 //! Flattening: every chord stays within the tolerance of the true curve, and circular arcs stay arcs.
 
+use offset_core::check::Checker;
 use offset_core::flatten::{cubic, elliptical_arc, nurbs, quadratic};
 use offset_core::geom::{Point, Polyline, Segment};
 use proptest::prelude::*;
 use std::f64::consts::{FRAC_1_SQRT_2, PI, TAU};
 
 /// Largest distance from the curve (sampled densely) to the polyline, and from the
-/// polyline's points to the curve.
+/// polyline's points to the curve (exact distances to segments, through the checker's
+/// index: each sample's search bounded by the one before).
 fn deviation(curve: &dyn Fn(f64) -> Point, pts: &[Point]) -> f64 {
+    let farthest = |to: &Polyline, from: &mut dyn Iterator<Item = Point>| {
+        let c = Checker::new(std::slice::from_ref(to));
+        let mut near = None;
+        from.map(|p| {
+            let d = c.distance_near(p, near);
+            near = Some((p, d));
+            d
+        })
+        .fold(0.0, f64::max)
+    };
     let pl = Polyline::from_points(pts, false);
     let dense: Vec<Point> = (0..=4000).map(|i| curve(i as f64 / 4000.0)).collect();
     let curve_pl = Polyline::from_points(&dense, false);
-    let a = dense.iter().map(|&p| pl.distance_to(p)).fold(0.0, f64::max);
+    let a = farthest(&pl, &mut dense.iter().copied());
     // chord midpoints against the curve
-    let b = pts
-        .windows(2)
-        .map(|w| curve_pl.distance_to(w[0].lerp(w[1], 0.5)))
-        .fold(0.0, f64::max);
+    let b = farthest(&curve_pl, &mut pts.windows(2).map(|w| w[0].lerp(w[1], 0.5)));
     a.max(b)
 }
 

@@ -45,19 +45,21 @@ impl Piece {
             }
             Piece::Arc { seg, z0, z1 } if z0 == z1 => {
                 let q = seg.closest_point(p.xy());
-                q.dist(p.xy()).hypot(p.z - z0)
+                ((q.x - p.x).powi(2) + (q.y - p.y).powi(2) + (p.z - z0).powi(2)).sqrt()
             }
             Piece::Arc { seg, z0, z1 } => {
                 // a helix: the nearest point lies near where its height matches the point's
                 // or where its angle does; refine the best of those within half a turn
-                let at = |t: f64| {
-                    let q = seg.point_at(t);
-                    q.dist(p.xy()).hypot(p.z - (z0 + (z1 - z0) * t))
-                };
                 let Segment::Arc { a, center, .. } = *seg else {
                     return f64::INFINITY;
                 };
                 let sweep = seg.sweep();
+                let along = ArcPoints::new(seg);
+                let squared = |t: f64| {
+                    let q = along.at(t);
+                    let z = z0 + (z1 - z0) * t;
+                    (q.x - p.x).powi(2) + (q.y - p.y).powi(2) + (p.z - z).powi(2)
+                };
                 let mut candidates = vec![0.0, 1.0, ((p.z - z0) / (z1 - z0)).clamp(0.0, 1.0)];
                 let a0 = (a - center).y.atan2((a - center).x);
                 let phi = (p.y - center.y).atan2(p.x - center.x);
@@ -71,29 +73,82 @@ impl Piece {
                 }
                 let (mut best_t, mut best) = (0.0, f64::INFINITY);
                 for t in candidates {
-                    let d = at(t);
+                    let d = squared(t);
                     if d < best {
                         (best_t, best) = (t, d);
                     }
                 }
                 let half = (std::f64::consts::PI / sweep.abs()).min(1.0);
-                let (mut lo, mut hi) = ((best_t - half).max(0.0), (best_t + half).min(1.0));
-                for _ in 0..60 {
-                    let m1 = lo + (hi - lo) / 3.0;
-                    let m2 = hi - (hi - lo) / 3.0;
-                    if at(m1) < at(m2) {
-                        hi = m2;
-                    } else {
-                        lo = m1;
-                    }
-                }
-                best.min(at(0.5 * (lo + hi)))
+                let (lo, hi) = ((best_t - half).max(0.0), (best_t + half).min(1.0));
+                best.min(golden_section_min(squared, lo, hi)).sqrt()
             }
         }
     }
 }
 
-/// A uniform grid over the planned cuts, for nearest-piece queries.
+/// Points along an arc by its parameter, as `Segment::point_at` gives them, with the
+/// arc's sweep and start direction worked out once instead of at every point.
+struct ArcPoints {
+    center: Point,
+    start: Point,
+    sweep: f64,
+}
+
+impl ArcPoints {
+    fn new(seg: &Segment) -> ArcPoints {
+        let Segment::Arc {
+            a, center, radius, ..
+        } = *seg
+        else {
+            return ArcPoints {
+                center: seg.start(),
+                start: Point::new(0.0, 0.0),
+                sweep: 0.0,
+            };
+        };
+        let u = a - center;
+        let l = u.len();
+        let u = if l > 0.0 {
+            u * (1.0 / l)
+        } else {
+            Point::new(1.0, 0.0)
+        };
+        ArcPoints {
+            center,
+            start: u * radius,
+            sweep: seg.sweep(),
+        }
+    }
+
+    fn at(&self, t: f64) -> Point {
+        let (sin, cos) = (self.sweep * t).sin_cos();
+        let u = self.start;
+        self.center + Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos)
+    }
+}
+
+/// The least value of `f` on [lo, hi], for `f` with one minimum there: a golden-section
+/// search, one evaluation a step, narrowed to 1e-10 of the interval (48 steps).
+fn golden_section_min(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+    let g = (5f64.sqrt() - 1.0) / 2.0;
+    let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+    let (mut f1, mut f2) = (f(x1), f(x2));
+    for _ in 0..48 {
+        if f1 < f2 {
+            hi = x2;
+            (x2, f2) = (x1, f1);
+            x1 = hi - g * (hi - lo);
+            f1 = f(x1);
+        } else {
+            lo = x1;
+            (x1, f1) = (x2, f2);
+            x2 = lo + g * (hi - lo);
+            f2 = f(x2);
+        }
+    }
+    f1.min(f2)
+}
+
 struct Grid {
     min: Point,
     cell: f64,
@@ -262,10 +317,11 @@ fn sample_piece(p: &Piece) -> Vec<P3> {
         Piece::Arc { seg, z0, z1 } => {
             let n =
                 ((seg.length().hypot(z1 - z0) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
+            let along = ArcPoints::new(seg);
             (0..=n)
                 .map(|i| {
                     let t = i as f64 / n as f64;
-                    let q = seg.point_at(t);
+                    let q = along.at(t);
                     P3::new(q.x, q.y, z0 + (z1 - z0) * t)
                 })
                 .collect()
