@@ -171,6 +171,53 @@ pub enum Segment {
     },
 }
 
+/// Points along a segment by its parameter t in [0, 1], as [`Segment::point_at`] gives
+/// them, with an arc's sweep and start direction worked out once: for the walks that ask
+/// many points of one segment (samplers, distance checks).
+#[derive(Clone, Copy, Debug)]
+pub struct PointsAlong {
+    seg: Segment,
+    /// An arc's unit direction from its centre to its start.
+    start_dir: Point,
+    sweep: f64,
+}
+
+impl PointsAlong {
+    pub fn new(seg: &Segment) -> PointsAlong {
+        let (start_dir, sweep) = match *seg {
+            Segment::Line { .. } => (Point::new(1.0, 0.0), 0.0),
+            Segment::Arc { a, center, .. } => {
+                let u = a - center;
+                let l = u.len();
+                let u = if l > 0.0 {
+                    u * (1.0 / l)
+                } else {
+                    Point::new(1.0, 0.0)
+                };
+                (u, seg.sweep())
+            }
+        };
+        PointsAlong {
+            seg: *seg,
+            start_dir,
+            sweep,
+        }
+    }
+
+    /// The point at t: a line's by interpolation, an arc's as the start's direction turned
+    /// by the swept part (no angle of the start).
+    pub fn at(&self, t: f64) -> Point {
+        match self.seg {
+            Segment::Line { a, b } => a.lerp(b, t),
+            Segment::Arc { center, radius, .. } => {
+                let u = self.start_dir;
+                let (sin, cos) = (self.sweep * t).sin_cos();
+                center + Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos) * radius
+            }
+        }
+    }
+}
+
 impl Segment {
     /// The segment from `a` to `b` with the given bulge. Bulges too small to matter
     /// (|bulge| < 1e-12) or on a zero-length chord give a line.
@@ -236,23 +283,7 @@ impl Segment {
     }
     /// The point at parameter t in [0, 1] along the segment (by arc length).
     pub fn point_at(&self, t: f64) -> Point {
-        match *self {
-            Segment::Line { a, b } => a.lerp(b, t),
-            Segment::Arc {
-                a, center, radius, ..
-            } => {
-                // the start's direction turned by the swept part (no angle of the start)
-                let u = a - center;
-                let l = u.len();
-                let u = if l > 0.0 {
-                    u * (1.0 / l)
-                } else {
-                    Point::new(1.0, 0.0)
-                };
-                let (sin, cos) = (self.sweep() * t).sin_cos();
-                center + Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos) * radius
-            }
-        }
+        PointsAlong::new(self).at(t)
     }
     /// Unit tangent in the direction of travel at parameter t.
     pub fn tangent_at(&self, t: f64) -> Point {

@@ -12,7 +12,9 @@
 //! `cargo bench -p machlink-sim --bench canopen_bench` (`CANOPEN_PERIODS_MS=2` for one
 //! period)
 
-use machlink_protocols::canopen::master::{Axis, CanopenLink, CanopenOptions, Pace};
+use machlink_protocols::canopen::master::{
+    realtime_priority, sleep_until, tight_timer_slack, Axis, CanopenLink, CanopenOptions, Pace,
+};
 use machlink_protocols::canopen::trajectory::{AxisLimits, Limits, Planner};
 use machlink_protocols::canopen::MemoryBus;
 use machlink_protocols::{Control, Link, StreamEnd};
@@ -219,51 +221,27 @@ async fn anchor_jitter(secs: u64) {
 }
 
 /// The second anchor: what a sleeping thread gets from this machine. A thread with the SYNC
-/// clock's settings (SCHED_FIFO where allowed, timer slack 1 ns) sleeps by absolute
-/// `clock_nanosleep` to each deadline of `period` and does nothing else: its jitter is what
+/// clock's settings and its sleep (SCHED_FIFO where allowed, timer slack 1 ns, an absolute
+/// `clock_nanosleep`: the master's own functions) sleeps to each deadline of `period` and
+/// does nothing else: its jitter is what
 /// the clock would show without spinning, and its lateness (woken − deadline) is the spin a
 /// clock needs to be on time; the p99 lateness as a share of the period is what that spin
 /// costs in CPU.
 fn sleep_anchor(secs: u64, period: Duration) {
-    let n = (Duration::from_secs(secs).as_nanos() / period.as_nanos()) as usize;
-    let step = period.as_nanos() as i64;
+    let n = (Duration::from_secs(secs).as_nanos() / period.as_nanos()) as u32;
     let (realtime, woke, mut late) = std::thread::spawn(move || {
-        // SAFETY: prctl, pthread_setschedparam, clock_gettime and clock_nanosleep on the
-        // calling thread with valid pointers.
-        unsafe {
-            libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
-            let param = libc::sched_param { sched_priority: 20 };
-            let realtime =
-                libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &param) == 0;
-            let mut at = libc::timespec {
-                tv_sec: 0,
-                tv_nsec: 0,
-            };
-            libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut at);
-            let (mut woke, mut late) = (Vec::with_capacity(n), Vec::with_capacity(n));
-            for _ in 0..n {
-                let ns = at.tv_nsec as i64 + step;
-                at.tv_sec += (ns / 1_000_000_000) as libc::time_t;
-                at.tv_nsec = (ns % 1_000_000_000) as _;
-                while libc::clock_nanosleep(
-                    libc::CLOCK_MONOTONIC,
-                    libc::TIMER_ABSTIME,
-                    &at,
-                    std::ptr::null_mut(),
-                ) == libc::EINTR
-                {}
-                let mut now = libc::timespec {
-                    tv_sec: 0,
-                    tv_nsec: 0,
-                };
-                libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut now);
-                woke.push(Instant::now());
-                let behind = (now.tv_sec - at.tv_sec) as i64 * 1_000_000_000
-                    + (now.tv_nsec as i64 - at.tv_nsec as i64);
-                late.push(behind as f64 / 1e3);
-            }
-            (realtime, woke, late)
+        let realtime = realtime_priority();
+        tight_timer_slack();
+        let start = Instant::now();
+        let (mut woke, mut late) = (Vec::with_capacity(n as usize), Vec::new());
+        for k in 1..=n {
+            let deadline = start + period * k;
+            sleep_until(deadline);
+            let now = Instant::now();
+            woke.push(now);
+            late.push(now.saturating_duration_since(deadline).as_secs_f64() * 1e6);
         }
+        (realtime, woke, late)
     })
     .join()
     .expect("the sleeping anchor's thread ran");

@@ -233,7 +233,7 @@ impl WakeMargin {
 
 /// Cuts the calling thread's timer slack to 1 ns (Linux lets a sleeping thread wake up to
 /// 50 µs late by default, to batch wake-ups).
-fn tight_timer_slack() {
+pub fn tight_timer_slack() {
     // SAFETY: prctl with PR_SET_TIMERSLACK takes a plain integer.
     unsafe {
         libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong, 0, 0, 0);
@@ -242,7 +242,7 @@ fn tight_timer_slack() {
 
 /// Sleeps until `wake` on CLOCK_MONOTONIC (the clock `Instant` reads), absolute, so a
 /// preemption between computing and starting the sleep does not make it later.
-fn sleep_until(wake: Instant) {
+pub fn sleep_until(wake: Instant) {
     let now = Instant::now();
     if wake <= now {
         return;
@@ -279,7 +279,7 @@ fn sleep_until(wake: Instant) {
 }
 
 /// Asks for SCHED_FIFO for the calling thread; false where that is not allowed.
-fn realtime_priority() -> bool {
+pub fn realtime_priority() -> bool {
     // SAFETY: plain calls on the current thread with a valid parameter block.
     unsafe {
         let param = libc::sched_param { sched_priority: 20 };

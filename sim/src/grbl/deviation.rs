@@ -3,6 +3,7 @@
 use super::interp::Motion;
 use super::machine::arc_sweep;
 use super::Executed;
+use offset_core::geom::PointsAlong;
 use offset_core::toolpath::arc_segment;
 use offset_core::{Move, Point, Segment, Toolpath, P3};
 
@@ -54,7 +55,7 @@ impl Piece {
                     return f64::INFINITY;
                 };
                 let sweep = seg.sweep();
-                let along = ArcPoints::new(seg);
+                let along = PointsAlong::new(seg);
                 let squared = |t: f64| {
                     let q = along.at(t);
                     let z = z0 + (z1 - z0) * t;
@@ -83,47 +84,6 @@ impl Piece {
                 best.min(golden_section_min(squared, lo, hi)).sqrt()
             }
         }
-    }
-}
-
-/// Points along an arc by its parameter, as `Segment::point_at` gives them, with the
-/// arc's sweep and start direction worked out once instead of at every point.
-struct ArcPoints {
-    center: Point,
-    start: Point,
-    sweep: f64,
-}
-
-impl ArcPoints {
-    fn new(seg: &Segment) -> ArcPoints {
-        let Segment::Arc {
-            a, center, radius, ..
-        } = *seg
-        else {
-            return ArcPoints {
-                center: seg.start(),
-                start: Point::new(0.0, 0.0),
-                sweep: 0.0,
-            };
-        };
-        let u = a - center;
-        let l = u.len();
-        let u = if l > 0.0 {
-            u * (1.0 / l)
-        } else {
-            Point::new(1.0, 0.0)
-        };
-        ArcPoints {
-            center,
-            start: u * radius,
-            sweep: seg.sweep(),
-        }
-    }
-
-    fn at(&self, t: f64) -> Point {
-        let (sin, cos) = (self.sweep * t).sin_cos();
-        let u = self.start;
-        self.center + Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos)
     }
 }
 
@@ -317,7 +277,7 @@ fn sample_piece(p: &Piece) -> Vec<P3> {
         Piece::Arc { seg, z0, z1 } => {
             let n =
                 ((seg.length().hypot(z1 - z0) / SAMPLE_STEP).ceil() as usize).clamp(1, MAX_SAMPLES);
-            let along = ArcPoints::new(seg);
+            let along = PointsAlong::new(seg);
             (0..=n)
                 .map(|i| {
                     let t = i as f64 / n as f64;
