@@ -256,13 +256,47 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Line<S> {
         }
         Ok(String::from_utf8_lossy(&out).into_owned())
     }
+    /// What the controller says until `marker` has come (within `within`) and it has then
+    /// been quiet for 80 ms: for the power-up banner, which a loaded machine may print
+    /// long after the port opened.
+    async fn said_through(&mut self, marker: &str, within: Duration) -> Result<String, String> {
+        let give_up = Instant::now() + within;
+        let mut out = String::new();
+        while !out.contains(marker) {
+            let left = give_up.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(format!(
+                    "no {marker:?} within {within:?} of power-up; heard {out:?}"
+                ));
+            }
+            out += &self.said(left.min(Duration::from_millis(200))).await?;
+        }
+        out += &self.said(Duration::from_millis(80)).await?;
+        Ok(out)
+    }
     async fn ask(&mut self, bytes: &[u8]) -> Result<String, String> {
         self.send(bytes).await?;
         self.said(Duration::from_millis(80)).await
     }
-    /// The state word of a fresh status report.
+    /// `ask`, for an answer that is due: its first bytes are waited for up to 3 s (a
+    /// loaded machine may be slow to answer), the rest until 80 ms of quiet.
+    async fn ask_due(&mut self, bytes: &[u8]) -> Result<String, String> {
+        self.send(bytes).await?;
+        let mut buf = [0u8; 1024];
+        let first = match tokio::time::timeout(Duration::from_secs(3), self.io.read(&mut buf)).await
+        {
+            Err(_) => return Ok(String::new()),
+            Ok(Ok(0)) => return Err("the controller closed the line".into()),
+            Ok(Ok(n)) => String::from_utf8_lossy(&buf[..n]).into_owned(),
+            Ok(Err(e)) => return Err(format!("reading: {e}")),
+        };
+        Ok(first + &self.said(Duration::from_millis(80)).await?)
+    }
+    /// The state word of a fresh status report (waited for up to 3 s: GRBL answers `?`
+    /// whatever it is doing, and a loaded machine may be slow to).
     async fn state(&mut self) -> Result<String, String> {
-        let r = self.ask(b"?").await?;
+        self.send(b"?").await?;
+        let r = self.said_through(">", Duration::from_secs(3)).await?;
         let r = r.trim();
         if !(r.starts_with('<') && r.ends_with('>')) {
             return Err(format!("`?` got {r:?}, not one status report"));
@@ -274,7 +308,11 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Line<S> {
             .to_string())
     }
     async fn expect(&mut self, bytes: &[u8], want: &str) -> Result<(), String> {
-        let got = self.ask(bytes).await?;
+        self.send(bytes).await?;
+        let got = self
+            .said_through(want, Duration::from_secs(3))
+            .await
+            .unwrap_or_else(|e| e);
         if got.contains(want) {
             Ok(())
         } else {
@@ -324,8 +362,9 @@ where
 {
     let want = cell(ask, column);
     let mut l = Line { io };
-    // the power-up banner
-    l.said(Duration::from_millis(120)).await?;
+    // the power-up banner (and, for a controller that powers up locked, its unlock message)
+    l.said_through("['$' for help]", Duration::from_secs(10))
+        .await?;
     match column {
         Column::Idle => {}
         Column::Run | Column::Hold | Column::Alarm => {
@@ -347,7 +386,11 @@ where
             column.word()
         ));
     }
-    let said = l.ask(&ask.bytes()).await?;
+    let said = if want.answer == Answer::Silence {
+        l.ask(&ask.bytes()).await?
+    } else {
+        l.ask_due(&ask.bytes()).await?
+    };
     if !matches(want.answer, &said) {
         return Err(format!(
             "it said {said:?}, where {} is due",
@@ -364,7 +407,7 @@ where
     }
     // Only a reset lets a raised alarm take lines again: one sent before it is never run.
     if column == Column::AlarmBeforeReset && want.next.is_none() {
-        let later = l.ask(&[0x18]).await?;
+        let later = l.ask_due(&[0x18]).await?;
         if !matches(Answer::BannerLocked, &later) {
             return Err(format!("the reset after it said {later:?}"));
         }
