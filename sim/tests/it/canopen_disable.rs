@@ -77,6 +77,7 @@ async fn a_silent_drive_mid_job_leaves_every_drive_disabled() {
     // in real time (a lockstep run would finish before a heartbeat is missed)
     let mut table = settings("csp");
     table["lockstep"] = false.into();
+    table["heartbeat_timeout_ms"] = 400.into();
     let mut m = Machine::start_with(table).await;
     let program = m.program(&line_job());
     assert!(m

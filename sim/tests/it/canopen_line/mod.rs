@@ -41,7 +41,9 @@ pub fn settings(mode: &str) -> serde_json::Value {
         "mode": mode,
         "period_ms": 2,
         "heartbeat_ms": 50,
-        "heartbeat_timeout_ms": 400,
+        // 1.5 s, so a loaded machine's late heartbeat is not taken as lost (the test of a
+        // silent drive sets 400 ms)
+        "heartbeat_timeout_ms": 1500,
         "report_timeout_ms": 2000,
         "axes": [axis("x", 1, 0), axis("y", 2, 1), axis("z", 3, 2)]
     })
