@@ -20,6 +20,7 @@ while [ "$i" -lt "$n" ]; do
         grep -E "^test .* FAILED|minimal failing input|panicked" "${TMPDIR:-/tmp}/offset-core-seed-$seed.log" | head -20
         exit 1
     fi
+    echo "  passed"
     rm -f "${TMPDIR:-/tmp}/offset-core-seed-$seed.log"
 done
 echo "$n fresh seeds in a row passed"
