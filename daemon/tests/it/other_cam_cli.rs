@@ -589,3 +589,84 @@ async fn a_canopen_gantry_stops_at_a_files_tool_change_and_its_m0_until_resume()
         "the Z drive reached the plunge's depth {dips} times"
     );
 }
+
+/// Fusion's program (`G28 G91 Z0.`, `T1 M6`, `G53 G0`) streamed through the daemon to a
+/// simulated controller that takes M6 as a grblHAL with a manual tool changer does (it
+/// holds there until cycle start): the job pauses for T1 (named from the machine's table),
+/// nothing moves until `resume`, then every program line reaches the controller once, in
+/// order; the two `G28 G91 Z0.` lines go up to the stored home Z (machine 0), the cuts to
+/// Z -3, and `G53 G0 X0. Y0.` ends at the machine's origin.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fusions_program_streams_to_a_controller_that_holds_at_its_tool_change() {
+    use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            m6_holds: true,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"hal\"\nlink = \"grbl\"\nport = \"{}\"\n\
+             allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
+             work_area = {{ min = [0, 0, -30], max = [300, 200, 50] }}\n\
+             tools = [ {{ number = 1, diameter = 6.0, name = \"6 mm flat end mill\" }} ]\n",
+            port.display()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let file = data("fusion360_grbl_bracket.nc");
+    let id = submit_at(&sock, &file, "hal");
+    paused_for(&sock, id, "load T1 (6 mm flat end mill)");
+    let executed = |sim: &machlink_sim::grbl::GrblSimHandle| sim.trace().len();
+    let (moved, at) = (executed(&sim), sim.position());
+    std::thread::sleep(Duration::from_millis(600));
+    assert_eq!(
+        (executed(&sim), sim.position()),
+        (moved, at),
+        "it moved during the tool change"
+    );
+    let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // every line of the file (comments and tape marks aside) once, in order
+    let norm = |l: &str| l.replace(' ', "").to_uppercase();
+    let want: Vec<String> = std::fs::read_to_string(&file)
+        .unwrap()
+        .lines()
+        .map(machlink_protocols::gcode_read::clean)
+        .filter(|l| !l.is_empty() && l != "%")
+        .map(|l| norm(&l))
+        .collect();
+    let got: Vec<String> = sim
+        .events()
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::Received { n: Some(_), line } => Some(norm(&line)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(got, want, "the controller's lines against the file's");
+    let trace = sim.trace();
+    let home_z: Vec<f64> = trace
+        .iter()
+        .filter(|e| e.line.contains("G28"))
+        .map(|e| e.to[2])
+        .collect();
+    // each a rapid to where the tool is (G91 Z0), then Z to the stored home: at the start
+    // from Z 0, at the end from Z 15
+    assert_eq!(home_z, [0.0, 0.0, 15.0, 0.0]);
+    let lowest = trace.iter().map(|e| e.to[2]).fold(f64::MAX, f64::min);
+    assert!((lowest + 3.0).abs() < 1e-9, "the cuts reach Z {lowest}");
+    let last = trace.last().unwrap();
+    assert!(last.line.contains("G53"), "{last:?}");
+    assert!(last.to.iter().all(|v| v.abs() < 1e-9), "{last:?}");
+}
