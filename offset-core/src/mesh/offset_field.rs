@@ -528,11 +528,11 @@ pub(crate) fn one_sided_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffs
             let (lu, lv) = (u.len(), v.len());
             if lu > 0.0 && lv > 0.0 {
                 let angle = (u.dot(v) / (lu * lv)).clamp(-1.0, 1.0).acos();
-                at_vertex[face[k] as usize] = at_vertex[face[k] as usize] + normals[f] * angle;
+                at_vertex[face[k] as usize] += normals[f] * angle;
             }
             let (a, b) = (face[k], face[(k + 1) % 3]);
             let e = along_edge.entry((a.min(b), a.max(b))).or_insert(V3::ZERO);
-            *e = *e + normals[f];
+            *e += normals[f];
         }
     }
     let side = |p: V3| -> f64 {
