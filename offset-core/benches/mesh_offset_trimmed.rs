@@ -137,6 +137,12 @@ fn main() {
                     OffsetMethod::MultipleNormals => {
                         format!("machlink multiple normals, tolerance {tol}")
                     }
+                    OffsetMethod::OneSided => {
+                        format!(
+                            "machlink one-sided, tolerance {tol} (grid {:.3} mm)",
+                            out.report.grid_step
+                        )
+                    }
                 };
                 println!(
                     "| {name} | {d} | {how} | {:.1} ms | {} | {err:.4} | {} |",

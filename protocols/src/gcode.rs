@@ -821,12 +821,36 @@ fn tool_stop_line(tool: u32, name: &str) -> String {
 /// The tool a program stop line written by the GRBL post asks the operator to load: its
 /// number and name (`M0 (load T2: 6 mm flat end mill)` → 2, "6 mm flat end mill").
 pub fn tool_to_load(line: &str) -> Option<(u32, String)> {
-    let rest = line.strip_prefix("M0 (load T")?.strip_suffix(')')?;
+    let Some(rest) = line
+        .strip_prefix("M0 (load T")
+        .and_then(|r| r.strip_suffix(')'))
+    else {
+        // a tool change as other CAM programs write it for a controller that takes M6
+        // (`T1 M6`, `N35 M6 T1`): the tool's number, its name from the machine's table
+        return tool_change_of(line).map(|n| (n, String::new()));
+    };
     let (n, name) = match rest.split_once(':') {
         Some((n, name)) => (n, name.trim()),
         None => (rest, ""),
     };
     Some((n.trim().parse().ok()?, name.to_string()))
+}
+
+/// The tool an `M6` line loads by the `T` word on the same line (`T1 M6`, `N35 M6 T1`), or
+/// None for any other line.
+pub fn tool_change_of(line: &str) -> Option<u32> {
+    if !line.contains('6') {
+        return None;
+    }
+    let words = crate::gcode_read::words(&crate::gcode_read::clean(line));
+    let m6 = words
+        .iter()
+        .any(|(l, v)| *l == 'M' && v.parse::<f64>().ok() == Some(6.0));
+    let t = words
+        .iter()
+        .find(|(l, _)| *l == 'T')
+        .and_then(|(_, v)| v.parse::<u32>().ok());
+    t.filter(|_| m6)
 }
 
 fn comment(text: &str) -> String {

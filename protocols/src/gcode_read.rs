@@ -1,11 +1,16 @@
 //! A small G-code reader for previews and checks: G0/G1/G2/G3 (XY plane, I/J centres or R,
 //! a negative R the long way round), G81/G82/G83 drilling cycles, G20/G21, G90/G91, G53 and
-//! G28/G30, into the Toolpath IR. It takes programs as other CAM programs write them: `( … )`
-//! and `;` comments (also mid-line), `N` numbers, `*NN` checksums, `%` tape marks, a `/`
-//! block delete (the line runs: the switch is off, as GRBL, which ignores the `/`), lower-case
-//! words and words without spaces (`g1x10y5`). What it cannot follow is refused naming the
-//! line: arcs outside the XY plane (G18/G19), cutter radius compensation (G41/G42), other
-//! canned cycles (G73, G76, G84–G89) and a drilling cycle in incremental mode.
+//! G28/G30, G4 dwells, tool changes (`M6` with the `T` of its line or an earlier one) and
+//! program stops (`M0`, `M1`), into the Toolpath IR. It takes programs as other CAM programs
+//! write them: `( … )` and `;` comments (also mid-line), `N` numbers, `*NN` checksums, `%`
+//! tape marks, a `/` block delete (the line runs: the switch is off, as GRBL, which ignores
+//! the `/`), lower-case words and words without spaces (`g1x10y5`). What it cannot follow is
+//! refused naming the line: arcs outside the XY plane (G18/G19), cutter radius compensation
+//! (G41/G42), other canned cycles (G73, G76, G84–G89) and a drilling cycle in incremental
+//! mode. Read for a machine that runs the file as the moves read ([`Reader::as_moves`]), it
+//! also refuses every word that would change what the machine does and that the moves
+//! cannot carry: moves outside the work frame (G53, G28, G30), other work offsets, tool
+//! length offsets other than the loaded tool's, probes, other feed modes, other axes.
 
 use offset_core::geom::Point;
 use offset_core::toolpath::{Move, Toolpath, P3};
@@ -18,8 +23,8 @@ pub struct ReadError {
     pub message: String,
 }
 
-/// Reads G-code text into moves. Words other than motion, units and distance modes are
-/// ignored (spindle, coolant, tool changes, comments); the machine starts at the origin.
+/// Reads G-code text into moves: motion, dwells, tool changes and program stops; spindle,
+/// coolant and comments are left out. The machine starts at the origin.
 pub fn read(text: &str) -> Result<Toolpath, ReadError> {
     read_with_lines(text).map(|(tp, _)| tp)
 }
@@ -33,8 +38,8 @@ pub fn read_with_lines(text: &str) -> Result<(Toolpath, Vec<usize>), ReadError> 
     let mut reader = Reader::default();
     for (n, raw) in text.lines().enumerate() {
         let line = n + 1;
-        if let Some(m) = reader
-            .line(raw)
+        for m in reader
+            .line_moves(raw)
             .map_err(|message| ReadError { line, message })?
         {
             tp.push(m);
@@ -119,6 +124,12 @@ pub struct Reader {
     cycle: Option<Cycle>,
     /// G99: a drilling cycle returns to its R plane (G98, the default: to the Z it began at).
     to_r_plane: bool,
+    /// The tool the last `T` word selected (the next `M6` loads it).
+    selected: Option<u32>,
+    /// The tool the last `M6` loaded.
+    loaded: Option<u32>,
+    /// Read for a machine that runs the file as the moves read: see [`Reader::as_moves`].
+    as_moves: bool,
 }
 
 impl Default for Reader {
@@ -132,14 +143,168 @@ impl Default for Reader {
             plane: Plane::Xy,
             cycle: None,
             to_r_plane: false,
+            selected: None,
+            loaded: None,
+            as_moves: false,
         }
     }
 }
 
+/// The G-codes a machine that runs the file as its moves follows (G43 with the loaded
+/// tool's H besides, and the arcs of G18/G19, refused where they are used).
+const FOLLOWED_AS_MOVES: &[f64] = &[
+    0.0, 1.0, 2.0, 3.0, 4.0, 17.0, 18.0, 19.0, 20.0, 21.0, 40.0, 49.0, 54.0, 61.0, 61.1, 64.0,
+    80.0, 81.0, 82.0, 83.0, 90.0, 91.0, 91.1, 94.0, 98.0, 99.0,
+];
+
+/// The M-codes a machine that runs the file as its moves follows: program stops, ends,
+/// spindle, tool change, coolant (spindle and coolant are the device's own, as for a
+/// planned program).
+const M_FOLLOWED_AS_MOVES: &[f64] = &[0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 30.0];
+
+/// Why a machine that runs the file as its moves cannot follow G-code `g` (None: it can).
+fn not_followed_as_moves(g: f64) -> Option<String> {
+    if FOLLOWED_AS_MOVES.iter().any(|c| (c - g).abs() < 1e-9) || g == 43.0 {
+        return None;
+    }
+    let what = match g {
+        53.0 => " (a move in machine coordinates)",
+        28.0 | 30.0 => " (a move to a stored position)",
+        28.1 | 30.1 => " (storing a position)",
+        g if (55.0..60.0).contains(&g) => " (another work offset)",
+        g if g > 43.0 && g < 44.0 => " (a tool length offset given in the program)",
+        g if (38.0..39.0).contains(&g) => " (a probe)",
+        93.0 => " (inverse time feed)",
+        95.0 => " (feed per revolution)",
+        90.1 => " (arc centres in absolute coordinates)",
+        10.0 | 92.0 | 92.1 | 92.2 | 92.3 => " (setting an offset)",
+        _ => "",
+    };
+    Some(format!(
+        "G{g}{what} is not followed where the file runs as its moves, in the one work frame (G54) with the loaded tool"
+    ))
+}
+
 impl Reader {
-    /// Reads one line; the work-frame move it makes, if any. The error is one sentence
-    /// without the line number.
+    /// A reader for a machine that runs the file as the moves read (a Modbus ring, CANopen
+    /// drives): besides what [`Reader::default`] refuses, it refuses every word that would
+    /// change what such a machine does and that the moves cannot carry (G53, G28/G30, G55–G59,
+    /// G43 with another tool's H or before any tool change, G43.1, probes, G93/G95, G90.1,
+    /// axes other than X, Y, Z, M-codes other than stops, ends, spindle, tool change and
+    /// coolant, `O` words), and an `M6` no `T` word has selected a tool for.
+    pub fn as_moves() -> Reader {
+        Reader {
+            as_moves: true,
+            ..Reader::default()
+        }
+    }
+
+    /// Reads one line; the work-frame move it makes, if any (a rapid, line, arc or hole;
+    /// not its tool change, dwell or stop). The error is one sentence without the line number.
     pub fn line(&mut self, raw: &str) -> Result<Option<Move>, String> {
+        Ok(self.line_moves(raw)?.into_iter().find(|m| {
+            matches!(
+                m,
+                Move::Rapid { .. } | Move::Linear { .. } | Move::Arc { .. } | Move::Drill { .. }
+            )
+        }))
+    }
+
+    /// Reads one line; every move it makes, in the order a controller carries them out: the
+    /// tool change (`M6`), the dwell (`G4 P…`, seconds), the motion, the program stop (`M0`,
+    /// `M1`). The error is one sentence without the line number.
+    pub fn line_moves(&mut self, raw: &str) -> Result<Vec<Move>, String> {
+        let words = self.words_of(raw)?;
+        let mut out = Vec::new();
+        let (mut change, mut stop, mut dwell) = (false, false, false);
+        let mut length_offset = None;
+        let (mut h, mut p) = (None, None);
+        for &(l, v) in &words {
+            match l {
+                'T' => {
+                    if !(v >= 0.0 && v.fract() == 0.0 && v <= u32::MAX as f64) {
+                        return Err(format!("T{v} is not a tool number"));
+                    }
+                    self.selected = Some(v as u32);
+                }
+                'M' if v == 6.0 => change = true,
+                'M' if v == 0.0 || v == 1.0 => stop = true,
+                'M' if self.as_moves && !M_FOLLOWED_AS_MOVES.contains(&v) => {
+                    return Err(format!(
+                        "M{v} is not followed where the file runs as its moves (only M0, M1, M2, M30, spindle, M6 and coolant are)"
+                    ))
+                }
+                'G' if v == 4.0 => dwell = true,
+                'G' if v == 43.0 => length_offset = Some(v),
+                'G' if self.as_moves => {
+                    if let Some(why) = not_followed_as_moves(v) {
+                        return Err(why);
+                    }
+                }
+                'H' => h = Some(v),
+                'P' => p = Some(v),
+                'A' | 'B' | 'C' | 'U' | 'V' | 'W' if self.as_moves => {
+                    return Err(format!(
+                        "the word {l}{v} (an axis besides X, Y and Z) is not followed where the file runs as its moves"
+                    ))
+                }
+                _ => {}
+            }
+        }
+        if change {
+            match self.selected {
+                Some(tool) => {
+                    self.loaded = Some(tool);
+                    out.push(Move::ToolChange {
+                        tool,
+                        name: String::new(),
+                        geometry: None,
+                    });
+                }
+                None if self.as_moves => return Err(
+                    "M6 with no T word on its line or before it: which tool to load is not said"
+                        .into(),
+                ),
+                None => {}
+            }
+        }
+        if let (Some(_), true) = (length_offset, self.as_moves) {
+            // the operator sets the length of the tool loaded at the tool stop; an offset of
+            // any other tool the moves cannot carry
+            match (self.loaded, h) {
+                (Some(_), None) => {}
+                (Some(t), Some(h)) if h == t as f64 => {}
+                (Some(t), Some(h)) => {
+                    return Err(format!(
+                        "G43 H{h} (the length offset of tool {h}) is not followed: tool {t} is the one loaded, whose length the operator sets at its tool change"
+                    ))
+                }
+                (None, _) => {
+                    return Err(format!(
+                        "G43{} (a tool length offset from the tool table) is not followed before a tool change (M6) has loaded the tool whose length the operator sets",
+                        h.map(|h| format!(" H{h}")).unwrap_or_default()
+                    ))
+                }
+            }
+        }
+        if dwell {
+            match p {
+                Some(s) if s.is_finite() && s >= 0.0 => out.push(Move::Dwell { seconds: s }),
+                _ if !self.as_moves => {}
+                Some(s) => return Err(format!("the dwell G4 P{s} is not a number of seconds")),
+                None => return Err("the dwell G4 needs its P (seconds)".into()),
+            }
+        } else if let Some(m) = self.motion(&words)? {
+            out.push(m);
+        }
+        if stop {
+            out.push(Move::Stop);
+        }
+        Ok(out)
+    }
+
+    /// The words of line `raw`: letter and value, `%` and a `$` line's rest left out.
+    fn words_of(&self, raw: &str) -> Result<Vec<(char, f64)>, String> {
         let clean = clean(raw).to_ascii_uppercase();
         let chars: Vec<char> = clean.chars().filter(|c| !c.is_whitespace()).collect();
         let mut words: Vec<(char, f64)> = Vec::new();
@@ -162,11 +327,22 @@ impl Reader {
             if letter == '$' {
                 break;
             }
+            if letter == 'O' && self.as_moves {
+                // `o100 sub`, `o100 if […]`: what follows is no word
+                return Err(format!(
+                    "the word O{num} (a subroutine or a program number) is not followed where the file runs as its moves"
+                ));
+            }
             let v: f64 = num
                 .parse()
                 .map_err(|_| format!("word {letter} has no number (\"{num}\")"))?;
             words.push((letter, v));
         }
+        Ok(words)
+    }
+
+    /// The work-frame move a line of `words` makes, if any.
+    fn motion(&mut self, words: &[(char, f64)]) -> Result<Option<Move>, String> {
         let scale = &mut self.scale;
         let mut target: [Option<f64>; 3] = [None; 3];
         let (mut ci, mut cj, mut cr) = (None, None, None);
@@ -176,7 +352,7 @@ impl Reader {
         let mut sets_offset = false;
         let mut probe = false;
         let (mut q, mut p) = (None, None);
-        for &(l, v) in &words {
+        for &(l, v) in words {
             match l {
                 'G' if v == 53.0 || v == 28.0 || v == 30.0 => outside_work_frame = true,
                 'G' if v == 10.0 => sets_offset = true,
@@ -568,5 +744,103 @@ mod tests {
         }
         // back in the XY plane, arcs are read again
         assert!(read("G18\nG17\nG2 X10 Y0 I5 J0").is_ok());
+    }
+
+    #[test]
+    fn tool_changes_dwells_and_program_stops_become_their_moves_in_a_controllers_order() {
+        let kinds = |text: &str, r: Reader| -> Vec<String> {
+            let mut r = r;
+            text.lines()
+                .flat_map(|l| r.line_moves(l).unwrap())
+                .map(|m| match m {
+                    Move::ToolChange { tool, .. } => format!("T{tool}"),
+                    Move::Stop => "stop".into(),
+                    Move::Dwell { seconds } => format!("dwell {seconds}"),
+                    Move::Rapid { .. } => "rapid".into(),
+                    Move::Linear { .. } => "line".into(),
+                    m => panic!("{m:?}"),
+                })
+                .collect()
+        };
+        // T on the line of M6 (either order) or before it; the change before the line's
+        // motion, the stop after it
+        for r in [Reader::default(), Reader::as_moves()] {
+            assert_eq!(
+                kinds(
+                    "T1 M6\nG0 X1\nM6 T2 G0 X2\nT3\nG4 P1.5\nM6\nG1 X3 F100 M0\nM1",
+                    r
+                ),
+                [
+                    "T1",
+                    "rapid",
+                    "T2",
+                    "rapid",
+                    "dwell 1.5",
+                    "T3",
+                    "line",
+                    "stop",
+                    "stop"
+                ]
+            );
+        }
+        // the work-frame move of a line is still its motion
+        let mut r = Reader::default();
+        assert!(matches!(
+            r.line("T4 M6 G0 X5").unwrap(),
+            Some(Move::Rapid { .. })
+        ));
+        // read as previews read it, an M6 with no tool and what a GRBL runs pass
+        assert!(read("M6\nG53 G0 Z0\nG43.1 Z2\nG1 A5 F100").is_ok());
+    }
+
+    #[test]
+    fn read_as_moves_what_the_moves_cannot_carry_is_refused() {
+        let refused = |text: &str| -> ReadError {
+            let mut r = Reader::as_moves();
+            for (n, l) in text.lines().enumerate() {
+                if let Err(message) = r.line_moves(l) {
+                    return ReadError {
+                        line: n + 1,
+                        message,
+                    };
+                }
+            }
+            panic!("{text} was not refused")
+        };
+        for (text, line, says) in [
+            ("G0 X1\nG53 G0 Z0", 2, "G53 (a move in machine coordinates)"),
+            ("G28 G91 Z0", 1, "G28 (a move to a stored position)"),
+            ("G30", 1, "G30 (a move to a stored position)"),
+            ("G0 X1\nG56", 2, "G56 (another work offset)"),
+            ("T1 M6\nG43.1 Z3", 2, "G43.1 (a tool length offset given"),
+            ("T1 M6\nG43 H2", 2, "tool 1 is the one loaded"),
+            ("G43 H1", 1, "before a tool change (M6)"),
+            ("G38.2 Z-5 F10", 1, "G38.2 (a probe)"),
+            ("G93 G1 X1 F2", 1, "G93 (inverse time feed)"),
+            ("G90.1", 1, "G90.1 (arc centres in absolute"),
+            ("G1 X1 B3 F100", 1, "the word B3 (an axis"),
+            ("O100 SUB", 1, "the word O100"),
+            ("M98 P100", 1, "M98 is not followed"),
+            ("G0 X1\nM6", 2, "no T word"),
+            ("G4", 1, "needs its P"),
+            ("T1.5 M6", 1, "T1.5 is not a tool number"),
+            ("G7", 1, "G7 is not followed"),
+        ] {
+            let e = refused(text);
+            assert_eq!(e.line, line, "{text}: {e}");
+            assert!(e.message.contains(says), "{text}: {e}");
+        }
+        // G43 with the loaded tool's H, or none, is the loaded tool's length
+        let mut r = Reader::as_moves();
+        for l in [
+            "T7",
+            "M6",
+            "G43 H7",
+            "G43",
+            "G49",
+            "G54 G17 G40 G80 G90 G94 G21",
+        ] {
+            r.line_moves(l).unwrap_or_else(|e| panic!("{l}: {e}"));
+        }
     }
 }

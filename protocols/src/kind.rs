@@ -66,6 +66,19 @@ pub trait MachineKind: Send + Sync + 'static {
     fn gcode_lines_are_units(&self) -> bool {
         false
     }
+    /// Whether this kind's machines run a G-code file as the moves it reads (Modbus, CANopen):
+    /// the file is then read with [`crate::gcode_read::Reader::as_moves`], which refuses
+    /// whatever the moves cannot carry, and each move is offered to
+    /// [`MachineKind::gcode_move_refused`].
+    fn gcode_runs_as_moves(&self) -> bool {
+        false
+    }
+    /// For a kind that runs a G-code file as its moves: why its machines cannot run move `m`
+    /// read from a line of the file (a program stop where the kind has none), in one
+    /// sentence; None: they can.
+    fn gcode_move_refused(&self, _m: &offset_core::toolpath::Move) -> Option<String> {
+        None
+    }
     /// The dialect whose G-codes this kind's controller reads from a G-code file line by
     /// line (GRBL), checked word by word before a job is stored; None: the file goes as its
     /// moves, so what the reader follows is what runs.
@@ -246,6 +259,10 @@ pub trait AnyKind: Send + Sync {
     fn gcode_lines_are_units(&self) -> bool;
     /// See [`MachineKind::gcode_dialect`].
     fn gcode_dialect(&self) -> Option<crate::gcode::Dialect>;
+    /// See [`MachineKind::gcode_runs_as_moves`].
+    fn gcode_runs_as_moves(&self) -> bool;
+    /// See [`MachineKind::gcode_move_refused`].
+    fn gcode_move_refused(&self, m: &offset_core::toolpath::Move) -> Option<String>;
     fn start(
         &self,
         machine: &str,
@@ -361,6 +378,12 @@ impl<K: MachineKind> AnyKind for K {
     }
     fn gcode_dialect(&self) -> Option<crate::gcode::Dialect> {
         MachineKind::gcode_dialect(self)
+    }
+    fn gcode_runs_as_moves(&self) -> bool {
+        MachineKind::gcode_runs_as_moves(self)
+    }
+    fn gcode_move_refused(&self, m: &offset_core::toolpath::Move) -> Option<String> {
+        MachineKind::gcode_move_refused(self, m)
     }
     fn start(
         &self,

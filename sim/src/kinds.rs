@@ -272,6 +272,12 @@ impl MachineKind for SimModbusKind {
     ) -> Option<Result<Vec<MotionBlock>, PostError>> {
         gcode_file_blocks(moves)
     }
+    fn gcode_runs_as_moves(&self) -> bool {
+        true
+    }
+    fn gcode_move_refused(&self, m: &offset_core::toolpath::Move) -> Option<String> {
+        machlink_protocols::modbus::kind::gcode_file_refuses(m)
+    }
     fn start(
         &self,
         _machine: &str,

@@ -87,6 +87,7 @@ fn has_extension(p: &std::path::Path, ext: &str) -> bool {
 
 /// `offset part.stl`: the mesh offset by multiple normals per vertex (Kim & Yang 2005), or
 /// trimmed (contoured from the exact distance) where offsets of different faces interfere,
+/// or one-sided for an open surface,
 /// written as binary STL, with the faces in and out, the worst distance error sampled on
 /// the output and the time.
 fn offset_mesh(a: &OffsetArgs, bytes: &[u8]) -> anyhow::Result<()> {
@@ -110,6 +111,12 @@ fn offset_mesh(a: &OffsetArgs, bytes: &[u8]) -> anyhow::Result<()> {
         mesh::OffsetMethod::MultipleNormals => "multiple normals".to_string(),
         mesh::OffsetMethod::Trimmed => format!(
             "trimmed: offsets interfere, contoured on a {:.3} mm grid",
+            out.report.grid_step
+        ),
+        mesh::OffsetMethod::OneSided => format!(
+            "one-sided: the input is open (a surface, no solid), so the result is the surface at {} mm on the side {} its faces' normals, open too, contoured on a {:.3} mm grid",
+            a.distance.abs(),
+            if a.distance > 0.0 { "of" } else { "against" },
             out.report.grid_step
         ),
     };

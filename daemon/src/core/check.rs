@@ -140,7 +140,7 @@ pub fn gcode_program(
         if let Some(c) = check.line(i + 1, raw)? {
             lines.push(c.line);
             source_lines.push(i + 1);
-            if let Some(m) = c.motion {
+            for m in c.moves {
                 moves.push(m);
             }
         }
@@ -152,11 +152,12 @@ pub fn gcode_program(
     })
 }
 
-/// A program line that passed the checks: the line to send, and the move it makes.
+/// A program line that passed the checks: the line to send, and the moves it makes (a tool
+/// change, a dwell, a motion, a program stop, in that order).
 #[derive(Clone, Debug)]
 pub struct CheckedLine {
     pub line: String,
-    pub motion: Option<Move>,
+    pub moves: Vec<Move>,
 }
 
 /// The checks of [`gcode_program`], one line at a time, so a file can be checked as it
@@ -182,7 +183,11 @@ impl<'m> GcodeCheck<'m> {
             mm_per_unit: 1.0,
             kept: 0,
             closing_percent: None,
-            reader: gcode_read::Reader::default(),
+            reader: if machine.kind.gcode_runs_as_moves() {
+                gcode_read::Reader::as_moves()
+            } else {
+                gcode_read::Reader::default()
+            },
             moves: MoveCheck::new(machine),
         }
     }
@@ -282,16 +287,29 @@ impl<'m> GcodeCheck<'m> {
                 _ => {}
             }
         }
-        let motion = self
-            .reader
-            .line(&line)
-            .map_err(|e| format!("{file}, line {n}: {e}"))?;
-        if let Some(m) = &motion {
+        // where the file runs as its moves, what the reader or the kind cannot follow is
+        // the machine's refusal: the sentence names it
+        let as_moves = machine.kind.gcode_runs_as_moves();
+        let on_machine = || format!(" (machine `{}`, link = \"{}\")", machine.name, machine.link);
+        let moves = self.reader.line_moves(&line).map_err(|e| {
+            if as_moves {
+                format!("{file}, line {n} `{line}`: {e}{}", on_machine())
+            } else {
+                format!("{file}, line {n}: {e}")
+            }
+        })?;
+        for m in &moves {
+            if let Some(why) = as_moves
+                .then(|| machine.kind.gcode_move_refused(m))
+                .flatten()
+            {
+                return Err(format!("{file}, line {n} `{line}`: {why}{}", on_machine()));
+            }
             self.moves
                 .step(m, &|| format!("{file}, line {n} `{line}`"))?;
         }
         self.kept += 1;
-        Ok(Some(CheckedLine { line, motion }))
+        Ok(Some(CheckedLine { line, moves }))
     }
 }
 

@@ -405,3 +405,66 @@ fn offset_of_a_u_channel_narrower_than_2d_is_a_valid_solid_at_the_distance() {
         );
     }
 }
+
+/// `machlink offset` on an open surface (a height-field patch, no solid): the binary says in
+/// one line that the input is open and the result one-sided, and the STL it writes, read
+/// back, is open, has no two faces crossing, and every sampled point is 1 mm from the patch
+/// within the tolerance, on the side its normals point to (up) for +1 and below for -1
+/// (testkit/mesh_check.rs, independent of the library).
+#[test]
+fn offset_of_an_open_surface_is_one_sided_at_the_distance() {
+    use common::mesh_check as mc;
+    let dir = tempfile::tempdir().unwrap();
+    let wave = |x: f64, y: f64| 2.0 + 0.8 * (x / 3.0).sin() * (y / 4.0).cos();
+    let patch = shapes::height_field((0.0, 12.0), (0.0, 10.0), 24, 20, wave);
+    let stl = dir.path().join("patch.stl");
+    std::fs::write(&stl, write_stl(&patch)).unwrap();
+    let part_tris: Vec<[mc::P; 3]> = patch
+        .triangles()
+        .map(|t| t.map(|p| [p.x as f32 as f64, p.y as f32 as f64, p.z as f32 as f64]))
+        .collect();
+    for d in ["1", "-1"] {
+        let out = dir.path().join(format!("patch{d}.stl"));
+        let o = machlink(&[
+            "offset",
+            stl.to_str().unwrap(),
+            "--distance",
+            d,
+            "--tolerance",
+            "0.08",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        ok(&o, "offset an open patch");
+        let said = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(said.lines().count(), 1, "{said}");
+        assert!(
+            said.contains("one-sided: the input is open") && said.contains("faces out"),
+            "{said}"
+        );
+        let m =
+            offset_core::mesh::read_stl(&std::fs::read(&out).unwrap(), "out", &Default::default())
+                .unwrap();
+        let v: Vec<mc::P> = m.vertices.iter().map(|p| [p.x, p.y, p.z]).collect();
+        let f: Vec<[usize; 3]> = m.faces.iter().map(|f| f.map(|i| i as usize)).collect();
+        assert!(mc::closed_manifold(&f).is_err(), "offset by {d}: open");
+        let crossing = mc::self_intersections(&v, &f, 3);
+        assert!(
+            crossing.is_empty(),
+            "offset by {d}: faces {crossing:?} cross"
+        );
+        let dist: f64 = d.parse().unwrap();
+        let (err, at) = mc::worst_distance_error(&part_tris, &v, &f, dist);
+        assert!(
+            err <= 0.08 + 1e-4,
+            "offset by {d}: {at:?} is {err:.4} mm off"
+        );
+        for p in v
+            .iter()
+            .filter(|p| (0.0..=12.0).contains(&p[0]) && (0.0..=10.0).contains(&p[1]))
+        {
+            let above = p[2] - wave(p[0], p[1]);
+            assert!(above * dist > 0.0, "offset by {d}: {p:?} on the other side");
+        }
+    }
+}

@@ -5,7 +5,9 @@
 //! run is refused naming the line.
 
 use crate::common;
-use common::cli::{machlink, stderr, Serve};
+use crate::proc;
+use common::cli::{at_socket as cli, machlink, stderr, stdout, wait_job_record, Serve};
+use machlink::core::store::JobState;
 
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -279,10 +281,10 @@ fn a_grbl_router_takes_what_it_runs_and_refuses_what_it_cannot_naming_the_line()
             "GRBL 1.1",
         ],
     );
-    // a machine that runs a file as the moves it reads (Modbus) takes it and runs it
-    let o = submit(&s, &lcnc, "ring", true);
+    // a machine that runs a file as the moves it reads (Modbus) takes it (and stops at its
+    // tool change: a_linuxcnc_program_on_a_modbus_plc_stops_at_its_tool_change…)
+    let o = submit(&s, &lcnc, "ring", false);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("completed"), "{}", stderr(&o));
     // the same program without its tool change: GRBL has no canned cycles
     let text = std::fs::read_to_string(&lcnc).unwrap();
     let no_tc: Vec<&str> = text
@@ -333,10 +335,338 @@ fn a_grbl_router_takes_what_it_runs_and_refuses_what_it_cannot_naming_the_line()
         "an XZ arc on Modbus",
         &["line 4", "XZ plane (G18)"],
     );
+    // what a Modbus ring cannot follow, each named at its line: Fusion's retract to the
+    // stored home (G28), a program stop (its ring has no stop block), another tool's length,
+    // a tool change that names no tool, another work offset, a rotary axis, a probe
+    let g28 = line_of("fusion360_grbl_bracket.nc", "N25 G28");
+    refused(
+        &submit(&s, &fusion, "ring", false),
+        "G28 on Modbus",
+        &[
+            &format!("line {g28} `N25 G28 G91 Z0.`"),
+            "G28 (a move to a stored position) is not followed",
+            "machine `ring`",
+        ],
+    );
+    for (what, text, wants) in [
+        (
+            "M0 on Modbus",
+            "G21 G90\nG0 X10 Y10 Z5\nM0\nG1 Z-1 F300\n",
+            &[
+                "line 3 `M0`",
+                "a program stop (M0, M1) has no block in a Modbus ring",
+            ][..],
+        ),
+        (
+            "G43 of another tool",
+            "G21 G90\nT1 M6\nG43 H2\nG0 X10 Y10 Z5\n",
+            &["line 3 `G43 H2`", "tool 1 is the one loaded"][..],
+        ),
+        (
+            "G43 before any tool change",
+            "G21 G90\nG43 H1\nG0 X10 Y10 Z5\n",
+            &["line 2 `G43 H1`", "before a tool change (M6)"][..],
+        ),
+        (
+            "M6 with no T",
+            "G21 G90\nG0 X10 Y10 Z5\nM6\n",
+            &["line 3 `M6`", "no T word"][..],
+        ),
+        (
+            "another work offset",
+            "G21 G90\nG55\nG0 X10 Y10 Z5\n",
+            &["line 2 `G55`", "G55 (another work offset) is not followed"][..],
+        ),
+        (
+            "a rotary axis",
+            "G21 G90\nG0 X10 Y10 Z5\nG1 A90 F300\n",
+            &[
+                "line 3 `G1 A90 F300`",
+                "the word A90 (an axis besides X, Y and Z)",
+            ][..],
+        ),
+        (
+            "a probe",
+            "G21 G90\nG0 X10 Y10 Z5\nG38.2 Z-10 F100\n",
+            &[
+                "line 3 `G38.2 Z-10 F100`",
+                "G38.2 (a probe) is not followed",
+            ][..],
+        ),
+        (
+            "a machine-frame move",
+            "G21 G90\nG0 X10 Y10 Z5\nG53 G0 Z0\n",
+            &["line 3 `G53 G0 Z0`", "G53 (a move in machine coordinates)"][..],
+        ),
+    ] {
+        let f = dir.path().join("ring.nc");
+        std::fs::write(&f, text).unwrap();
+        refused(&submit(&s, &f, "ring", false), what, wants);
+    }
+    // the GRBL takes the probe and the machine-frame move as they are (its own G-codes)
+    let f = dir.path().join("grbl_frames.nc");
+    std::fs::write(&f, "G21 G90\nG0 X10 Y10 Z5\nG53 G0 Z-1\nG0 X20\n").unwrap();
+    let o = submit(&s, &f, "bench", false);
+    assert!(o.status.success(), "{}", stderr(&o));
+
     // a sewing machine takes no G-code at all
     refused(
         &submit(&s, &data("bcnc_rounded_square.nc"), "sewer", false),
         "G-code for a sewing machine",
         &["does not run G-code files"],
     );
+}
+
+/// Submits `file` to `machine` on the daemon at `sock`; the job's number.
+fn submit_at(sock: &Path, file: &Path, machine: &str) -> i64 {
+    let o = cli(
+        sock,
+        &["submit", file.to_str().unwrap(), "--machine", machine],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    stdout(&o)
+        .trim()
+        .parse()
+        .expect("submit prints the job's number")
+}
+
+/// Waits until job `id` is paused with the note that the machine needs the operator for
+/// `reason`, then checks the note says how to go on.
+fn paused_for(sock: &Path, id: i64, reason: &str) {
+    let j = wait_job_record(sock, id, &format!("paused for {reason}"), |j| {
+        j.state == JobState::Paused && j.note.as_deref().is_some_and(|n| n.contains(reason))
+    });
+    assert_eq!(
+        j.note.as_deref(),
+        Some(format!("needs operator: {reason}, then `machlink resume {id}`").as_str())
+    );
+}
+
+/// FreeCAD's LinuxCNC program (`M6 T1`, `G43 H1`, a `G81` hole, in inches) to the
+/// simulated Modbus PLC through the daemon: the device holds at the tool block of T1 before
+/// any move, the job names the tool from the machine's table, nothing runs until `resume`,
+/// and then every block runs once, in order, the hole down to -0.25 in and the profile at
+/// -0.125 in.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_linuxcnc_program_on_a_modbus_plc_stops_at_its_tool_change_until_resume() {
+    use machlink_protocols::modbus::map::BlockKind;
+    use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent};
+    let dir = tempfile::tempdir().unwrap();
+    let press = ModbusSim::spawn_tcp(
+        SimConfig {
+            time_scale: 20.0,
+            capacity: 16,
+            ..Default::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\
+             allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
+             tools = [ {{ number = 1, diameter = 6.35, name = \"1/4 in end mill\" }} ]\n",
+            press.addr().port()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let id = submit_at(&sock, &data("freecad_linuxcnc_plate_inch.ngc"), "press");
+    paused_for(&sock, id, "load T1 (1/4 in end mill)");
+    let stops: Vec<(u32, u32)> = press
+        .events_from(0)
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::ToolStop { seq, tool } => Some((seq, tool)),
+            _ => None,
+        })
+        .collect();
+    // M6 T1 comes before any move: the device holds at block 1, nothing run
+    assert_eq!(stops, [(1, 1)]);
+    let (state, _, consumed, _) = press.registers();
+    assert_eq!((state, consumed), (2, 0), "held before block 1");
+    std::thread::sleep(Duration::from_millis(600));
+    assert_eq!(press.registers().2, 0, "a block ran during the tool change");
+    assert!(
+        press.trace().is_empty(),
+        "a block ran during the tool change"
+    );
+    let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    let trace = press.trace();
+    let seqs: Vec<u32> = trace.iter().map(|e| e.seq).collect();
+    assert_eq!(
+        seqs,
+        (1..=done.total_units as u32).collect::<Vec<_>>(),
+        "every block once, in order"
+    );
+    let kinds: Vec<BlockKind> = trace.iter().map(|e| e.block.kind).collect();
+    assert_eq!(kinds.first(), Some(&BlockKind::ToolChange));
+    assert_eq!(
+        kinds
+            .iter()
+            .filter(|k| **k == BlockKind::ToolChange)
+            .count(),
+        1
+    );
+    assert_eq!(kinds.last(), Some(&BlockKind::End));
+    // the G81 hole to -0.25 in once, the profile at -0.125 in (micrometres)
+    let z: Vec<i32> = trace.iter().map(|e| e.block.target[2]).collect();
+    assert_eq!(z.iter().min(), Some(&-6350));
+    assert_eq!(z.iter().filter(|z| **z == -6350).count(), 1, "{z:?}");
+    assert!(z.iter().filter(|z| **z == -3175).count() >= 8, "{z:?}");
+}
+
+/// A program for a CANopen gantry (simulated CiA 402 drives behind an SLCAN adapter) with a
+/// tool change (`T2 M6`) and a program stop (`M0`) before its plunge: the master comes to
+/// rest at each, the job names why (the tool from the machine's table), no drive moves until
+/// `resume`, and the job then ends with the plunge made once.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_canopen_gantry_stops_at_a_files_tool_change_and_its_m0_until_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let bus = machlink_protocols::canopen::MemoryBus::new();
+    let drives = machlink_sim::canopen::SimDrives::spawn(&bus, &[1, 2, 3], 1.0);
+    let adapter = machlink_sim::canopen::spawn_adapter(&bus).unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"gantry\"\nlink = \"canopen\"\nbus = \"slcan:{}\"\n\
+             period_ms = 2\nheartbeat_ms = 50\nheartbeat_timeout_ms = 1500\nreport_timeout_ms = 2000\n\
+             allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
+             tools = [ {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n\
+             axes = [\n  {{ axis = \"x\", node = 1, counts_per_mm = 1000, max_velocity = 60, max_acceleration = 800, max_jerk = 20000 }},\n  \
+             {{ axis = \"y\", node = 2, counts_per_mm = 1000, max_velocity = 50, max_acceleration = 600, max_jerk = 20000 }},\n  \
+             {{ axis = \"z\", node = 3, counts_per_mm = 1000, max_velocity = 15, max_acceleration = 400, max_jerk = 20000 }},\n]\n",
+            adapter.path,
+        ),
+    );
+    let file = dir.path().join("plunge.ngc");
+    std::fs::write(
+        &file,
+        "%\n(a tool, a stop, one plunge)\nG21 G90\nT2\nG0 X5 Y5 Z2\nM6\nG43 H2\nM3 S8000\n\
+         G0 X10 Y10\nM0 (check the clamp)\nG1 Z-1 F300\nG0 Z2\nM5\nM2\n%\n",
+    )
+    .unwrap();
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let id = submit_at(&sock, &file, "gantry");
+    // how far the drives have moved: set-points that changed a drive's actual position
+    let moved = |drives: &machlink_sim::canopen::SimDrives| -> usize {
+        drives
+            .nodes()
+            .iter()
+            .map(|&n| {
+                drives
+                    .trace(n)
+                    .windows(2)
+                    .filter(|w| (w[1].actual - w[0].actual).abs() > 0.5)
+                    .count()
+            })
+            .sum()
+    };
+    for reason in ["load T2 (5 mm drill)", "program stop"] {
+        paused_for(&sock, id, reason);
+        let before = moved(&drives);
+        std::thread::sleep(Duration::from_millis(600));
+        assert_eq!(moved(&drives), before, "a drive moved at the {reason}");
+        let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // the plunge: Z down to -1 mm once
+    let z: Vec<f64> = drives.trace(3).iter().map(|r| r.actual / 1000.0).collect();
+    let dips = z
+        .windows(2)
+        .filter(|w| w[0] > -0.999 && w[1] <= -0.999)
+        .count();
+    assert_eq!(
+        dips, 1,
+        "the Z drive reached the plunge's depth {dips} times"
+    );
+}
+
+/// Fusion's program (`G28 G91 Z0.`, `T1 M6`, `G53 G0`) streamed through the daemon to a
+/// simulated controller that takes M6 as a grblHAL with a manual tool changer does (it
+/// holds there until cycle start): the job pauses for T1 (named from the machine's table),
+/// nothing moves until `resume`, then every program line reaches the controller once, in
+/// order; the two `G28 G91 Z0.` lines go up to the stored home Z (machine 0), the cuts to
+/// Z -3, and `G53 G0 X0. Y0.` ends at the machine's origin.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn fusions_program_streams_to_a_controller_that_holds_at_its_tool_change() {
+    use machlink_sim::grbl::{GrblSim, GrblSimConfig, TraceEvent};
+    let dir = tempfile::tempdir().unwrap();
+    let port = dir.path().join("grbl0");
+    let sim = GrblSim::spawn_linked(
+        GrblSimConfig {
+            time_scale: 40.0,
+            m6_holds: true,
+            ..Default::default()
+        },
+        &port,
+    )
+    .unwrap();
+    proc::write_config(
+        dir.path(),
+        &format!(
+            "[[machine]]\nname = \"hal\"\nlink = \"grbl\"\nport = \"{}\"\n\
+             allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
+             work_area = {{ min = [0, 0, -30], max = [300, 200, 50] }}\n\
+             tools = [ {{ number = 1, diameter = 6.0, name = \"6 mm flat end mill\" }} ]\n",
+            port.display()
+        ),
+    );
+    let daemon = proc::Daemon::start(dir.path()).await;
+    let sock = daemon.socket.clone();
+    let file = data("fusion360_grbl_bracket.nc");
+    let id = submit_at(&sock, &file, "hal");
+    paused_for(&sock, id, "load T1 (6 mm flat end mill)");
+    let executed = |sim: &machlink_sim::grbl::GrblSimHandle| sim.trace().len();
+    let (moved, at) = (executed(&sim), sim.position());
+    std::thread::sleep(Duration::from_millis(600));
+    assert_eq!(
+        (executed(&sim), sim.position()),
+        (moved, at),
+        "it moved during the tool change"
+    );
+    let o = cli(&sock, &["resume", &id.to_string(), "--yes"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let done = wait_job_record(&sock, id, "completed", |j| j.state.is_final());
+    assert_eq!(done.state, JobState::Completed, "{done:?}");
+    // every line of the file (comments and tape marks aside) once, in order
+    let norm = |l: &str| l.replace(' ', "").to_uppercase();
+    let want: Vec<String> = std::fs::read_to_string(&file)
+        .unwrap()
+        .lines()
+        .map(machlink_protocols::gcode_read::clean)
+        .filter(|l| !l.is_empty() && l != "%")
+        .map(|l| norm(&l))
+        .collect();
+    let got: Vec<String> = sim
+        .events()
+        .into_iter()
+        .filter_map(|e| match e {
+            TraceEvent::Received { n: Some(_), line } => Some(norm(&line)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(got, want, "the controller's lines against the file's");
+    let trace = sim.trace();
+    let home_z: Vec<f64> = trace
+        .iter()
+        .filter(|e| e.line.contains("G28"))
+        .map(|e| e.to[2])
+        .collect();
+    // each a rapid to where the tool is (G91 Z0), then Z to the stored home: at the start
+    // from Z 0, at the end from Z 15
+    assert_eq!(home_z, [0.0, 0.0, 15.0, 0.0]);
+    let lowest = trace.iter().map(|e| e.to[2]).fold(f64::MAX, f64::min);
+    assert!((lowest + 3.0).abs() < 1e-9, "the cuts reach Z {lowest}");
+    let last = trace.last().unwrap();
+    assert!(last.line.contains("G53"), "{last:?}");
+    assert!(last.to.iter().all(|v| v.abs() < 1e-9), "{last:?}");
 }

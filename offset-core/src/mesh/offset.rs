@@ -80,6 +80,10 @@ pub enum OffsetMethod {
     /// Trimmed: the exact distance's level set, contoured by marching tetrahedra
     /// (`offset_field`), where offsets of different faces interfere or bodies touch.
     Trimmed,
+    /// One-sided: the input is an open surface (it has no inside), and the result is the
+    /// surface at |d| on the side its normals point to (d > 0) or the other (d < 0),
+    /// contoured from the exact distance as the trimmed offset is; it is open too.
+    OneSided,
 }
 
 /// An offset mesh and what made it.
@@ -89,7 +93,9 @@ pub struct OffsetResult {
     pub report: OffsetReport,
 }
 
-/// Offsets the closed solid `m` by `distance` (positive grows it, negative shrinks it).
+/// Offsets the closed solid `m` by `distance` (positive grows it, negative shrinks it); an
+/// open surface is offset one-sided ([`OffsetMethod::OneSided`]: on the side its normals
+/// point to for a positive distance, the other for a negative one).
 pub fn offset(
     m: &Mesh,
     distance: f64,
@@ -133,6 +139,8 @@ pub fn offset(
             }
             None
         }
+        // an open surface has no inside: offset on one side
+        Err(MeshError::Open { .. }) => return one_sided(m, distance, opts.tolerance),
         Err(e) => return Err(e),
     };
     if let Some((solid, topo)) = solid {
@@ -164,6 +172,34 @@ pub fn offset(
             worst_error: fo.worst,
         },
         mesh,
+    })
+}
+
+/// The one-sided offset of the open surface `m` (its faces turned consistently, else the
+/// side is not defined and the faces turned against their neighbours are named).
+fn one_sided(m: &Mesh, distance: f64, tol: f64) -> Result<OffsetResult, MeshError> {
+    let r = Topology::new(m).report(m);
+    if !r.flipped_faces.is_empty() {
+        return Err(MeshError::Flipped {
+            name: m.name.clone(),
+            count: r.flipped_faces.len(),
+            faces: r.flipped_faces,
+        });
+    }
+    let fo = super::offset_field::one_sided_by_field(m, distance, tol)?;
+    Ok(OffsetResult {
+        report: OffsetReport {
+            faces_in: m.faces.len(),
+            faces_out: fo.mesh.faces.len(),
+            moved_faces: 0,
+            edge_blend_faces: 0,
+            corner_blend_faces: 0,
+            split_vertices: 0,
+            method: OffsetMethod::OneSided,
+            grid_step: fo.step,
+            worst_error: fo.worst,
+        },
+        mesh: fo.mesh,
     })
 }
 

@@ -193,6 +193,9 @@ struct Field<'a> {
     h: f64,
     n: [usize; 3],
     d: f64,
+    /// The level of the unsigned distance (an open surface's, which has no inside): s is
+    /// the distance itself and d is |d|.
+    unsigned: bool,
 }
 
 impl Field<'_> {
@@ -217,7 +220,7 @@ impl Field<'_> {
     fn value(&self, i: usize, j: usize, k: usize) -> f64 {
         let p = self.point(i, j, k);
         let dist = self.bvh.nearest(self.tris, p).0;
-        let s = if self.cols.winding(i, j, p.z) >= 1 {
+        let s = if !self.unsigned && self.cols.winding(i, j, p.z) >= 1 {
             -dist
         } else {
             dist
@@ -229,7 +232,7 @@ impl Field<'_> {
     /// d (the step is at most |d| / 2), so the unsigned distance serves.
     fn value_near(&self, p: V3) -> f64 {
         let dist = self.bvh.nearest(self.tris, p).0;
-        if self.d > 0.0 {
+        if self.d > 0.0 || self.unsigned {
             dist - self.d
         } else {
             -dist - self.d
@@ -285,7 +288,8 @@ const TETS: [[usize; 4]; 6] = [
     [0, 4, 6, 7],
 ];
 
-/// Contours the level s = d of the closed, oriented mesh `m` at grid step `h`.
+/// Contours the level s = d of the closed, oriented mesh `m` at grid step `h` (`unsigned`:
+/// the level of the distance to `m`, whatever its sides, at d > 0).
 fn contour(
     m: &Mesh,
     tris: &[[V3; 3]],
@@ -293,6 +297,7 @@ fn contour(
     d: f64,
     h: f64,
     tol: f64,
+    unsigned: bool,
 ) -> Result<(Mesh, usize), MeshError> {
     let (lo, hi) = m.bounds().ok_or(MeshError::Empty {
         name: m.name.clone(),
@@ -315,7 +320,14 @@ fn contour(
             FIELD_COLUMNS
         )));
     }
-    let cols = Columns::new(tris, origin.x, origin.y, h, n[0], n[1]);
+    let cols = if unsigned {
+        Columns {
+            nx: n[0],
+            lines: Vec::new(),
+        }
+    } else {
+        Columns::new(tris, origin.x, origin.y, h, n[0], n[1])
+    };
     let f = Field {
         tris,
         bvh,
@@ -324,6 +336,7 @@ fn contour(
         h,
         n,
         d,
+        unsigned,
     };
     let nb = [
         (n[0] - 1).div_ceil(BLOCK),
@@ -470,7 +483,7 @@ pub(crate) fn offset_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset,
         .min(d.abs() / 2.0);
     let mut last = None;
     for _ in 0..6 {
-        let (mesh, _points) = contour(&m, &tris, &bvh, d, h, tol)?;
+        let (mesh, _points) = contour(&m, &tris, &bvh, d, h, tol, false)?;
         let (worst, _) = measure_error(&part, &mesh, d, 2);
         if worst <= tol {
             return Ok(FieldOffset {
@@ -485,6 +498,113 @@ pub(crate) fn offset_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset,
     }
     Err(MeshError::BadParam(format!(
         "{}: the trimmed offset by {d} reaches a worst error of {:.4} mm at a grid step of {h:.4} mm, not the tolerance {tol}: ask for a larger tolerance",
+        m.name,
+        last.unwrap_or(f64::NAN)
+    )))
+}
+
+/// The one-sided offset of the open, consistently turned surface `m` by `d` within `tol`:
+/// the level at |d| of the distance to the surface, contoured as [`offset_by_field`] does
+/// (so no two faces cross and every point is at |d|), keeping the faces on the side the
+/// surface's normals point to (d > 0) or the other (d < 0). A face's side is the sign of its
+/// centre's offset from the nearest point of the surface along the surface's pseudonormal
+/// there (the face's normal inside a face, the angle-weighted normal at a vertex, the sum
+/// of the two faces' at an edge: Bærentzen & Aanæs 2005), so round a free edge a quarter
+/// turn of the tube about it is kept, up to the plane of the faces along it. The result's
+/// faces turn as the input's do (away from it for d > 0, towards it for d < 0); it is
+/// open, its rim within a grid step of that cut.
+pub(crate) fn one_sided_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset, MeshError> {
+    let ad = d.abs();
+    let tris: Vec<[V3; 3]> = m.triangles().collect();
+    let bvh = Bvh::new(&tris, false);
+    let normals: Vec<V3> = (0..m.faces.len()).map(|f| m.face_normal(f)).collect();
+    // pseudonormals at vertices (angle-weighted) and along edges (sum of the faces')
+    let mut at_vertex = vec![V3::ZERO; m.vertices.len()];
+    let mut along_edge: FastMap<(u32, u32), V3> = FastMap::default();
+    for (f, face) in m.faces.iter().enumerate() {
+        let t = tris[f];
+        for k in 0..3 {
+            let (u, v) = (t[(k + 1) % 3] - t[k], t[(k + 2) % 3] - t[k]);
+            let (lu, lv) = (u.len(), v.len());
+            if lu > 0.0 && lv > 0.0 {
+                let angle = (u.dot(v) / (lu * lv)).clamp(-1.0, 1.0).acos();
+                at_vertex[face[k] as usize] += normals[f] * angle;
+            }
+            let (a, b) = (face[k], face[(k + 1) % 3]);
+            let e = along_edge.entry((a.min(b), a.max(b))).or_insert(V3::ZERO);
+            *e += normals[f];
+        }
+    }
+    let side = |p: V3| -> f64 {
+        let (_, f) = bvh.nearest(&tris, p);
+        if f == usize::MAX {
+            return 0.0;
+        }
+        let t = tris[f];
+        let q = super::v3::closest_on_triangle(p, &t);
+        let face = m.faces[f];
+        let size = (t[1] - t[0]).len().max((t[2] - t[0]).len()).max(1e-12);
+        let eps = 1e-7 * size;
+        let mut n = normals[f];
+        if let Some(k) = (0..3).find(|&k| q.dist(t[k]) <= eps) {
+            n = at_vertex[face[k] as usize];
+        } else if let Some(k) = (0..3).find(|&k| {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            q.dist(super::v3::closest_on_segment(q, a, b)) <= eps
+        }) {
+            let (a, b) = (face[k], face[(k + 1) % 3]);
+            n = along_edge[&(a.min(b), a.max(b))];
+        }
+        (p - q).dot(n)
+    };
+    let mut h = (3.0 * tol).min((8.0 * ad * tol / 3.0).sqrt()).min(ad / 2.0);
+    let mut last = None;
+    for _ in 0..6 {
+        let (whole, _points) = contour(m, &tris, &bvh, ad, h, tol, true)?;
+        // the faces on the asked side, by their centres
+        let keep: Vec<usize> = (0..whole.faces.len())
+            .into_par_iter()
+            .filter(|&f| {
+                let [a, b, c] = whole.triangle(f);
+                side((a + b + c) / 3.0) * d > 0.0
+            })
+            .collect();
+        let mut index = vec![u32::MAX; whole.vertices.len()];
+        let mut vertices = Vec::new();
+        let mut faces = Vec::with_capacity(keep.len());
+        for f in keep {
+            let mut face = whole.faces[f].map(|v| {
+                if index[v as usize] == u32::MAX {
+                    index[v as usize] = vertices.len() as u32;
+                    vertices.push(whole.vertices[v as usize]);
+                }
+                index[v as usize]
+            });
+            if d < 0.0 {
+                face.swap(1, 2);
+            }
+            faces.push(face);
+        }
+        let mesh = Mesh::new(format!("{} offset {d}", m.name), vertices, faces);
+        if mesh.faces.is_empty() {
+            return Err(MeshError::BadParam(format!(
+                "{}: the one-sided offset by {d} has no faces",
+                m.name
+            )));
+        }
+        let (worst, _) = measure_error(m, &mesh, d, 2);
+        if worst <= tol {
+            return Ok(FieldOffset {
+                mesh,
+                step: h,
+                worst,
+            });
+        }
+        last = Some(worst);
+        h *= (0.9 * tol / worst).clamp(0.3, 0.8);
+    }
+    Err(MeshError::BadParam(format!(
+        "{}: the one-sided offset by {d} reaches a worst error of {:.4} mm at a grid step of {h:.4} mm, not the tolerance {tol}: ask for a larger tolerance",
         m.name,
         last.unwrap_or(f64::NAN)
     )))

@@ -154,6 +154,16 @@ pub fn closest_on_triangle(p: V3, t: &[V3; 3]) -> V3 {
     a + ab * v + ac * w
 }
 
+/// The point of the segment from `a` to `b` nearest `p`.
+pub fn closest_on_segment(p: V3, a: V3, b: V3) -> V3 {
+    let ab = b - a;
+    let l2 = ab.len2();
+    if l2 == 0.0 {
+        return a;
+    }
+    a + ab * ((p - a).dot(ab) / l2).clamp(0.0, 1.0)
+}
+
 /// The distance from `p` to triangle `t`.
 pub fn dist_to_triangle(p: V3, t: &[V3; 3]) -> f64 {
     p.dist(closest_on_triangle(p, t))

@@ -3,7 +3,7 @@
 //! within the tolerance, and the output is closed (every edge shared by exactly two faces,
 //! turning opposite ways).
 
-use offset_core::mesh::offset::{measure_error, offset, MeshOffsetOptions};
+use offset_core::mesh::offset::{measure_error, offset, MeshOffsetOptions, OffsetMethod};
 use offset_core::mesh::shapes::{cube_with_boss, cuboid, sphere};
 use offset_core::mesh::{Mesh, MeshError, V3};
 
@@ -92,16 +92,31 @@ fn a_box_grown_and_shrunk_keeps_its_faces_flat() {
 }
 
 #[test]
-fn an_open_mesh_is_refused_naming_a_face_of_the_hole() {
-    let mut m = cuboid(V3::ZERO, V3::new(1.0, 1.0, 1.0));
-    m.faces.remove(3);
-    let e = offset(&m, 1.0, &Default::default()).unwrap_err();
-    assert!(matches!(e, MeshError::Open { .. }), "{e}");
+fn an_open_mesh_is_offset_one_sided_and_one_turned_against_itself_is_refused() {
+    // a box without its top: grown on the side its faces' normals point to (out)
+    let mut m = cuboid(V3::ZERO, V3::new(4.0, 4.0, 4.0));
+    let top: Vec<usize> = (0..m.faces.len())
+        .filter(|&f| m.face_normal(f).z > 0.9)
+        .collect();
+    for f in top.into_iter().rev() {
+        m.faces.remove(f);
+    }
+    let r = offset(&m, 1.0, &MeshOffsetOptions { tolerance: 0.05 }).unwrap();
+    assert_eq!(r.report.method, OffsetMethod::OneSided);
+    // every vertex outside the box's walls and floor (the open top is no wall; the cut
+    // along the rim, in the walls' planes, is ragged by up to a grid step)
+    let g = r.report.grid_step;
+    for v in &r.mesh.vertices {
+        let outside = v.x < g || v.x > 4.0 - g || v.y < g || v.y > 4.0 - g || v.z < g;
+        assert!(outside, "{v:?} is inside the open box");
+    }
     assert!(
-        e.to_string()
-            .contains("is not closed: 3 edges bound a hole"),
-        "{e}"
+        r.mesh.vertices.iter().any(|v| v.x < -0.99) && r.mesh.vertices.iter().any(|v| v.z < -0.99)
     );
+    // faces turned against their neighbours leave no side to offset: refused naming them
+    m.faces[0].swap(1, 2);
+    let e = offset(&m, 1.0, &Default::default()).unwrap_err();
+    assert!(matches!(e, MeshError::Flipped { .. }), "{e}");
 }
 
 #[test]

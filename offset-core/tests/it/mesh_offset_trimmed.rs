@@ -3,7 +3,8 @@
 //! cubes sharing a face and two sharing an edge — grown and shrunk, each checked by the
 //! independent checks of testkit/mesh_check.rs: closed and manifold, no two faces crossing
 //! (triangle–triangle), every vertex and face sample at |d| from the part within the
-//! tolerance (exact point–triangle distances), and on the right side of the part.
+//! tolerance (exact point–triangle distances), and on the right side of the part; and an
+//! open height-field patch offset one-sided, checked the same way (open, on its side).
 
 use crate::common::mesh_check as mc;
 use offset_core::mesh::offset::{offset, MeshOffsetOptions, OffsetMethod};
@@ -172,4 +173,62 @@ fn the_independent_checks_find_crossing_open_and_distant_meshes() {
     // an edge blend's chord: a flat face inside the arc is found between the corners
     let (err, _) = mc::worst_distance_error(&part, &points(&grown), &faces(&grown), 1.0);
     assert!(err <= TOL, "{err}");
+}
+
+/// An open height-field patch (a wave over 12 × 10 mm, its faces' normals up) offset by
+/// ±1 mm: one-sided, every vertex and face sample at 1 mm from the patch within the
+/// tolerance, no two faces crossing, open; grown, every vertex over the patch lies above it
+/// and, shrunk, below it; the faces turn as the patch's do.
+#[test]
+fn an_open_height_field_offsets_one_sided_at_the_distance() {
+    use offset_core::mesh::shapes::height_field;
+    let wave = |x: f64, y: f64| 2.0 + 0.8 * (x / 3.0).sin() * (y / 4.0).cos();
+    let patch = height_field((0.0, 12.0), (0.0, 10.0), 24, 20, wave);
+    let tris: Vec<[mc::P; 3]> = patch
+        .triangles()
+        .map(|t| t.map(|p| [p.x, p.y, p.z]))
+        .collect();
+    let tol = 0.08;
+    for d in [1.0, -1.0] {
+        let r = offset(&patch, d, &MeshOffsetOptions { tolerance: tol })
+            .unwrap_or_else(|e| panic!("offset by {d}: {e}"));
+        assert_eq!(r.report.method, OffsetMethod::OneSided, "offset by {d}");
+        let out = &r.mesh;
+        let (v, f) = (points(out), faces(out));
+        assert!(f.len() > 500, "offset by {d}: {} faces", f.len());
+        assert!(
+            mc::closed_manifold(&f).is_err(),
+            "offset by {d}: one side of an open patch is open"
+        );
+        let crossing = mc::self_intersections(&v, &f, 5);
+        assert!(
+            crossing.is_empty(),
+            "offset by {d}: faces {crossing:?} cross"
+        );
+        let (err, at) = mc::worst_distance_error(&tris, &v, &f, d);
+        assert!(err <= tol, "offset by {d}: {at:?} is {err:.4} mm off");
+        // over the patch, on the asked side only
+        let over: Vec<&mc::P> = v
+            .iter()
+            .filter(|p| (0.0..=12.0).contains(&p[0]) && (0.0..=10.0).contains(&p[1]))
+            .collect();
+        assert!(
+            over.len() > 200,
+            "offset by {d}: {} vertices over the patch",
+            over.len()
+        );
+        for p in over {
+            let above = p[2] - wave(p[0], p[1]);
+            assert!(above * d > 0.0, "offset by {d}: {p:?} is on the other side");
+        }
+        // the faces turn as the patch's (up)
+        let up = (0..out.faces.len())
+            .filter(|&k| out.face_normal(k).z > 0.0)
+            .count();
+        assert!(
+            up * 10 > out.faces.len() * 9,
+            "offset by {d}: {up} of {} faces turn up",
+            out.faces.len()
+        );
+    }
 }

@@ -366,6 +366,9 @@ impl MachineKind for CanopenKind {
     ) -> Option<Result<Vec<Move>, PostError>> {
         gcode_file_moves(moves)
     }
+    fn gcode_runs_as_moves(&self) -> bool {
+        true
+    }
     fn start(&self, machine: &str, s: &CanopenSettings) -> BoxFuture<'static, std::io::Result<()>> {
         if let Ok(BusSpec::Slcan { port, .. }) = s.own.bus.parse::<BusSpec>() {
             crate::serial::warn_missing_port(machine, &port);

@@ -952,9 +952,10 @@ impl Lines<'_> {
     }
 }
 
-/// A program stop the controller holds at (M0, M1; docs/grbl.md).
+/// A program stop the controller holds at (M0, M1; docs/grbl.md), or a tool change a
+/// controller that takes M6 holds at (`T1 M6`).
 fn is_program_stop(line: &str) -> bool {
-    line.starts_with("M0") || line.starts_with("M1")
+    line.starts_with("M0") || line.starts_with("M1") || crate::gcode::tool_change_of(line).is_some()
 }
 
 impl Link<String> for GrblLink {

@@ -153,6 +153,15 @@ pub fn gcode_file_blocks(moves: &Toolpath) -> Option<Result<Vec<MotionBlock>, Po
     Some(post_blocks(moves).map_err(|e| PostError::new("modbus", e)))
 }
 
+/// Why a Modbus machine cannot run move `m` of a G-code file: a program stop (`M0`, `M1`),
+/// for which its ring has no block (docs/modbus.md: the device holds by itself only at a
+/// tool change), so it would not stop there.
+pub fn gcode_file_refuses(m: &offset_core::toolpath::Move) -> Option<String> {
+    matches!(m, offset_core::toolpath::Move::Stop).then(|| {
+        "a program stop (M0, M1) has no block in a Modbus ring (docs/modbus.md), so the device would not stop there; take the stop out or run the file on a CANopen machine".to_string()
+    })
+}
+
 /// Opens a Modbus link with `settings`; it connects on its first request.
 pub fn open_ring(settings: ModbusSettings) -> OpenLink<MotionBlock> {
     Box::pin(async move {
@@ -266,6 +275,12 @@ impl<T: RingTransport> MachineKind for ModbusKind<T> {
         moves: &Toolpath,
     ) -> Option<Result<Vec<MotionBlock>, PostError>> {
         gcode_file_blocks(moves)
+    }
+    fn gcode_runs_as_moves(&self) -> bool {
+        true
+    }
+    fn gcode_move_refused(&self, m: &offset_core::toolpath::Move) -> Option<String> {
+        gcode_file_refuses(m)
     }
     fn start(&self, machine: &str, s: &Self::Settings) -> BoxFuture<'static, std::io::Result<()>> {
         s.own.warn_missing(machine);

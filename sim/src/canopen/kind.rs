@@ -117,6 +117,9 @@ impl MachineKind for SimCanopenKind {
     ) -> Option<Result<Vec<Move>, PostError>> {
         gcode_file_moves(moves)
     }
+    fn gcode_runs_as_moves(&self) -> bool {
+        true
+    }
     fn start(
         &self,
         _machine: &str,

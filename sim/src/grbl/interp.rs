@@ -81,6 +81,12 @@ pub struct Interpreter {
     /// The machine Z at which a tool going down touches the touch plate (G38.2 stops
     /// there); None: there is no plate, and a probe is error 20 here (GRBL would alarm).
     pub touch_plate_z: Option<f64>,
+    /// The positions `G28` and `G30` go to (machine coordinates, mm), stored by `G28.1` and
+    /// `G30.1`; GRBL keeps them in EEPROM, zero until stored.
+    pub stored: [[f64; 3]; 2],
+    /// `M6` is taken, as by a grblHAL with a manual tool changer: the controller holds there
+    /// (as at `M0`) until cycle start. Off (GRBL 1.1): `M6` is error 20.
+    pub m6_holds: bool,
 }
 
 /// GRBL's line cleaning: drops spaces, control characters and comments (`(…)` and `;…`),
@@ -187,6 +193,11 @@ impl Interpreter {
         let mut dwell = false;
         let mut g53 = false;
         let mut g10 = false;
+        // G28/G30: to a stored position (0, 1), via the axis words' intermediate point;
+        // G28.1/G30.1: store the position
+        let mut go_stored: Option<usize> = None;
+        let mut store: Option<usize> = None;
+        let mut tool_stop = false;
         let mut wcs: Option<usize> = None;
         let mut units: Option<bool> = None;
         let mut distance: Option<bool> = None;
@@ -254,6 +265,14 @@ impl Interpreter {
                             group("non-modal")?;
                             g10 = true;
                         }
+                        280 | 300 => {
+                            group("non-modal")?;
+                            go_stored = Some(usize::from(code10 as i64 == 300));
+                        }
+                        281 | 301 => {
+                            group("non-modal")?;
+                            store = Some(usize::from(code10 as i64 == 301));
+                        }
                         911 => group("arc distance")?,
                         490 => group("tool length")?,
                         _ => return Err(20),
@@ -277,6 +296,10 @@ impl Interpreter {
                             spindle = Some(v as u8);
                         }
                         7..=9 => group("coolant")?,
+                        6 if self.m6_holds => {
+                            group("tool change")?;
+                            tool_stop = true;
+                        }
                         _ => return Err(20),
                     }
                 }
@@ -374,6 +397,10 @@ impl Interpreter {
         if let Some(m) = motion_cmd {
             self.modal.motion = m;
         }
+        if tool_stop {
+            // the tool change comes before the line's motion; the machine holds for it
+            actions.push(Action::Pause);
+        }
 
         let axis = [val(b'X'), val(b'Y'), val(b'Z')];
         let has_axis = axis.iter().any(Option::is_some);
@@ -410,6 +437,53 @@ impl Interpreter {
                 center: None,
                 feed: self.modal.feed,
             });
+            return Ok(actions);
+        }
+        if let Some(k) = store {
+            if has_axis {
+                return Err(20);
+            }
+            self.stored[k] = self.pos;
+            return Ok(actions);
+        }
+        if let Some(k) = go_stored {
+            // GRBL 1.1: with axis words, a rapid to the point they name (in the distance
+            // mode and work offset in force), then those axes alone to the stored
+            // position; without, every axis to it
+            if has_offsets || motion_cmd.is_some() {
+                return Err(if has_offsets { 36 } else { 21 });
+            }
+            let from = self.pos;
+            let mut via = from;
+            let mut to = self.stored[k];
+            let wco = self.wco();
+            if has_axis {
+                for k in 0..3 {
+                    match axis[k] {
+                        Some(v) if self.modal.relative => via[k] = from[k] + v * scale,
+                        Some(v) => via[k] = v * scale + wco[k],
+                        None => to[k] = from[k],
+                    }
+                }
+                actions.push(Action::Move {
+                    motion: Motion::Rapid,
+                    from,
+                    to: via,
+                    center: None,
+                    feed: 0.0,
+                });
+            }
+            actions.push(Action::Move {
+                motion: Motion::Rapid,
+                from: via,
+                to,
+                center: None,
+                feed: 0.0,
+            });
+            self.pos = to;
+            if let Some(s) = stop {
+                actions.push(s);
+            }
             return Ok(actions);
         }
         let motion = self.modal.motion;
@@ -615,5 +689,48 @@ mod tests {
         assert_eq!(i.wco(), [10.0, 20.0, 0.0]);
         assert_eq!(run(&mut i, "G10 L2 X1"), Err(36));
         assert!(!arc_target_ok([0.0, 0.0], [2.0, 0.2], [1.0, 0.0]));
+    }
+
+    #[test]
+    fn g28_goes_via_its_axis_words_to_the_stored_position_and_m6_holds_where_taken() {
+        let ends = |acts: Vec<Action>| -> Vec<[f64; 3]> {
+            acts.into_iter()
+                .filter_map(|a| match a {
+                    Action::Move { motion, to, .. } => {
+                        assert_eq!(motion, Motion::Rapid);
+                        Some(to)
+                    }
+                    _ => None,
+                })
+                .collect()
+        };
+        let mut i = Interpreter::new();
+        run(&mut i, "G0 X10 Y20 Z5").unwrap();
+        // Fusion's retract: G91 Z0 is the point where the tool is, then Z alone home
+        assert_eq!(
+            ends(run(&mut i, "G28 G91 Z0").unwrap()),
+            [[10.0, 20.0, 5.0], [10.0, 20.0, 0.0]]
+        );
+        run(&mut i, "G90").unwrap();
+        // a stored position, and G28 without axis words: every axis goes to it
+        run(&mut i, "G0 X30 Y40 Z-2").unwrap();
+        run(&mut i, "G28.1").unwrap();
+        run(&mut i, "G0 X1 Y1 Z1").unwrap();
+        assert_eq!(ends(run(&mut i, "G28").unwrap()), [[30.0, 40.0, -2.0]]);
+        // with X: via X 5 (absolute, work frame), then X alone to the stored X
+        run(&mut i, "G0 X0 Y0 Z0").unwrap();
+        assert_eq!(
+            ends(run(&mut i, "G28 X5").unwrap()),
+            [[5.0, 0.0, 0.0], [30.0, 0.0, 0.0]]
+        );
+        // G30 has its own
+        assert_eq!(ends(run(&mut i, "G30").unwrap()), [[0.0, 0.0, 0.0]]);
+        // M6: error 20 on GRBL 1.1; a hold before the line's move where it is taken
+        assert_eq!(run(&mut i, "T1 M6"), Err(20));
+        i.m6_holds = true;
+        let acts = run(&mut i, "T2 M6 G0 X3").unwrap();
+        assert_eq!(acts[0], Action::Pause);
+        assert!(matches!(acts[1], Action::Move { .. }));
+        assert_eq!(i.modal.tool, 2);
     }
 }

@@ -177,6 +177,7 @@ impl Machine {
         };
         m.interp.offsets = m.cfg.work_offsets;
         m.interp.touch_plate_z = m.cfg.touch_plate_z;
+        m.interp.m6_holds = m.cfg.m6_holds;
         if m.cfg.homing {
             // with homing enabled GRBL starts locked until it is homed (or unlocked)
             m.settings.insert(22, "1".into());

@@ -71,6 +71,10 @@ pub struct GrblSimConfig {
     pub trace_file: Option<PathBuf>,
     /// A touch plate whose top is at this machine Z: `G38.2` stops there (None: no plate).
     pub touch_plate_z: Option<f64>,
+    /// Takes `M6` as a grblHAL with a manual tool changer does, holding there until cycle
+    /// start (as at `M0`; the real controller's `Tool` state and its 0xA3 acknowledge are
+    /// not simulated). Off (GRBL 1.1): `M6` is error 20.
+    pub m6_holds: bool,
 }
 
 /// What the simulated controller did, as its trace (and `--trace FILE`) records it.
@@ -113,6 +117,7 @@ impl Default for GrblSimConfig {
             work_offsets: [[0.0; 3]; 6],
             trace_file: None,
             touch_plate_z: None,
+            m6_holds: false,
         }
     }
 }
