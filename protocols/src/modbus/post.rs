@@ -18,10 +18,13 @@ pub enum ModbusPostError {
     BadFeed { index: usize, value: f64 },
     #[error("move {index}: dwell of {value} s is not between 0 and 4294967 s")]
     BadDwell { index: usize, value: f64 },
-    #[error(
-        "move {index}: a motion-block device has no {what}; plan this job for a sewing machine"
-    )]
-    Unsupported { index: usize, what: &'static str },
+    #[error("move {index}: a motion-block device has no {what}; {instead}")]
+    Unsupported {
+        index: usize,
+        what: &'static str,
+        /// What the operator can do instead.
+        instead: &'static str,
+    },
 }
 
 fn um(index: usize, axis: &'static str, mm: f64) -> Result<i32, ModbusPostError> {
@@ -124,18 +127,21 @@ pub fn post_blocks(tp: &Toolpath) -> Result<Vec<MotionBlock>, ModbusPostError> {
                 return Err(ModbusPostError::Unsupported {
                     index,
                     what: "needle or thread",
+                    instead: "plan this job for a sewing machine",
                 })
             }
             Move::Stop => {
                 return Err(ModbusPostError::Unsupported {
                     index,
                     what: "program stop block",
+                    instead: "submit the part before the stop and the part after it as two jobs",
                 })
             }
             Move::ProbeToolLength { .. } => {
                 return Err(ModbusPostError::Unsupported {
                     index,
                     what: "tool-length probe",
+                    instead: "set the tool length at the machine instead",
                 })
             }
         };
