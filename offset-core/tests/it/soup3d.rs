@@ -182,6 +182,24 @@ fn a_rough_whose_stock_is_the_part_is_refused_in_one_sentence() {
     );
 }
 
+#[test]
+fn a_rough_with_stock_beside_the_part_that_its_tool_cannot_reach_is_refused_not_sent_empty() {
+    // 2 mm of stock round the part and a 20 mm cutter: material is there, but the tool
+    // keeping its allowance from the part never fits inside the stock
+    let m = cuboid(V3::ZERO, V3::new(20.0, 10.0, 5.0));
+    let p = Rough3dParams {
+        tool: Tool::flat(20.0),
+        stock_margin: 2.0,
+        ..params(0.3)
+    };
+    let e = rough3d(&m, &p).unwrap_err().to_string();
+    assert!(
+        e.contains("the rough would cut nothing, though the stock holds material")
+            && e.contains("refused rather than sent empty"),
+        "{e}"
+    );
+}
+
 /// Every point the waterline passes through leaves the cutter in the part by no more
 /// than the tolerance (measured square to it: the least of lifting it and moving it out), and every contour vertex touches the part within the tolerance.
 fn waterline_touches_and_never_gouges(case: &str, m: &Mesh, c: Cutter) {
