@@ -8,8 +8,12 @@ of radius 8 on a circle of radius 28) as geometry JSON, then runs, in rounds tha
 interleave the binaries (round k runs each binary once, the order rotating), `BINARY plan
 gear.json --op pocket --tool-diameter 3 --stepover 40% --depth 1 --timings -o OUT` and the
 anchor `BINARY --version` (the process start-up floor). Prints, per binary, the best and
-the median of each stage `--timings` reports, the whole process's wall time measured from
-outside, and the 1-minute load average before and after; and whether the binaries wrote
+the median of each stage `--timings` reports, the time outside `plan` and `fit` and, for
+builds that time the JSON import's arc fitting (`import fit`), outside all three (both
+computed here from the stages and the total, whatever the build calls them), the whole
+process's wall time measured from outside (each run writes a new file: the previous run's
+output is removed before it, outside the timing, since on ext4 truncating it waits for its
+write-back), and the 1-minute load average before and after; and whether the binaries wrote
 the same program text.
 """
 import math
@@ -54,10 +58,17 @@ def parse_timings(stderr):
                 words = part.split()
                 if len(words) >= 2:
                     name = " ".join(words[:-1])
-                    # the first builds with --timings called it so
-                    if name == "outside the geometry":
-                        name = "outside plan and fit"
-                    out[name] = float(words[-1])
+                    # the builds' own "outside …" figures differ in what they leave out
+                    # (the first called plan and fit "the geometry"; later ones count the
+                    # JSON import's arc fitting there too): both are derived below
+                    if not name.startswith("outside"):
+                        out[name] = float(words[-1])
+            total = out.get("total", 0.0)
+            plan_fit = out.get("plan", 0.0) + out.get("fit", 0.0)
+            out["outside plan and fit"] = total - plan_fit
+            if "import fit" in out:
+                out["outside the geometry (all but import fit, plan, fit)"] = (
+                    total - plan_fit - out["import fit"])
             return out
     raise SystemExit("no timings line in the output of plan:\n" + stderr)
 
@@ -84,6 +95,11 @@ def main():
             t = time.perf_counter()
             subprocess.run([b, "--version"], check=True, capture_output=True)
             anchor[b].append((time.perf_counter() - t) * 1e3)
+            # a new file each run: on ext4, truncating the previous run's program waits for
+            # its write-back to the disk (about 4 ms here), which is the disk's time, not
+            # the planner's
+            if os.path.exists(out):
+                os.remove(out)
             cmd = [b, "plan", shape, "--op", "pocket", "--tool-diameter", "3",
                    "--stepover", "40%", "--depth", "1", "--timings", "-o", out]
             t = time.perf_counter()

@@ -13,8 +13,16 @@
 //! pass; two dense circles offset to near collapse (30,000 points of radius 10 to 1e-3 of
 //! the inradius, 100,000 points to d = -9.999).
 //!
+//! Every kernel runs on every row. The slow anchors are held to a time budget: a kernel
+//! starts no further round of a case once its rounds there add up to the budget (so it
+//! may run fewer rounds than the others; each cell says how many ran), and each Clipper2
+//! round runs in a child process (this binary, `clipper-round`) that is stopped when its
+//! offsets run past the row's limit (the check of its outputs is not held to it), the
+//! cell then saying so.
+//!
 //! Run: `cargo bench -p offset-core --bench offset_bench` (add `-- quick` to skip the 1M
-//! rows, `-- rounds N` for N rounds instead of the defaults).
+//! rows, `-- rounds N` for N rounds instead of the defaults, `-- only TEXT` for the rows
+//! whose name holds TEXT).
 
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
@@ -231,6 +239,12 @@ struct Cell {
     dev: Option<f64>,
 }
 
+/// A kernel's cell of a row: measured, or stopped at the row's limit in its first round.
+enum Outcome {
+    Measured(Cell),
+    Stopped { after_s: f64 },
+}
+
 fn count(ps: &[Polyline]) -> (usize, usize) {
     let v = ps.iter().map(|p| p.len()).sum();
     let a = ps
@@ -251,15 +265,56 @@ fn load_average() -> String {
         .unwrap_or_else(|| "?".into())
 }
 
-/// What each kernel takes part in: machlink and cavalier_contours always; Clipper2 with
-/// its own number of rounds (0: left out, with the reason).
+/// How a row's outputs are checked against their inputs.
+#[derive(Clone, Copy, PartialEq)]
+enum Check {
+    /// `offset_core::check`: every output point at the distance, and no stretch of the
+    /// input left without its offset
+    Full,
+    /// only the distance from the input of each output segment's ends and middle (the
+    /// dense circles: near their centre every distance question visits all n input
+    /// segments, and the full check took minutes at 30,000 points; an empty output
+    /// passes this one)
+    Distance,
+    /// none (the 1M rows)
+    None,
+}
+
+/// The worst deviation of `out` from the offset of `input` by `d`, as `check` asks.
+fn deviation(check: Check, input: &[Polyline], out: &[Polyline], d: f64) -> Option<f64> {
+    let checker = Checker::new(input);
+    match check {
+        Check::Full => Some(checker.check(out, d, 1e-3).worst()),
+        Check::Distance => {
+            // each segment's ends and middle (a question near the circle's centre visits
+            // every one of its n segments, all about as far)
+            let mut worst: f64 = 0.0;
+            for p in out {
+                for s in p.segments() {
+                    for t in [0.0, 0.5, 1.0] {
+                        let q = s.point_at(t);
+                        worst = worst.max((checker.distance(q) - d.abs()).abs());
+                    }
+                }
+            }
+            Some(worst)
+        }
+        Check::None => None,
+    }
+}
+
+/// One row: every kernel takes part, machlink and cavalier_contours for `rounds` rounds,
+/// Clipper2 for `clipper_rounds`, each kernel within `budget_s` seconds of rounds (at least
+/// one round), and each Clipper2 round stopped past `clipper_limit_s`.
 struct Case {
     name: String,
     boundaries: Vec<Polyline>,
     plan: Plan,
     rounds: usize,
     clipper_rounds: usize,
-    check: bool,
+    check: Check,
+    budget_s: f64,
+    clipper_limit_s: f64,
 }
 
 fn measure<K: Kernel>(
@@ -275,7 +330,88 @@ fn measure<K: Kernel>(
     (t, done)
 }
 
-fn summarise(mut m: Measured, check: bool) -> Cell {
+/// What a Clipper2 round in the child process reports: its time and its output's
+/// vertices, arcs and worst deviation.
+struct ChildRound {
+    ms: f64,
+    verts: usize,
+    arcs: usize,
+    dev: Option<f64>,
+}
+
+/// Runs one Clipper2 round of case `index` in a child process (`clipper-round INDEX`),
+/// stopping it when its offsets run past `limit_s` (the check of its outputs that follows
+/// is not held to the limit); None when it was stopped.
+fn clipper_round_in_child(index: usize, limit_s: f64) -> Option<ChildRound> {
+    use std::io::BufRead;
+    let exe = std::env::current_exe().expect("the bench knows its own path");
+    let mut child = std::process::Command::new(exe)
+        .args(["clipper-round", &index.to_string()])
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .expect("the bench can start itself");
+    let stdout = child.stdout.take().expect("piped");
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let reader = std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    // the child says `clipper-offsets MS` when its offsets are done, before it checks them
+    let timed = rx.recv_timeout(std::time::Duration::from_secs_f64(limit_s));
+    if !matches!(&timed, Ok(l) if l.starts_with("clipper-offsets ")) {
+        let _ = child.kill();
+        let _ = child.wait();
+        let _ = reader.join();
+        return None;
+    }
+    let report: Vec<String> = rx.iter().collect();
+    let _ = child.wait();
+    let _ = reader.join();
+    let line = report
+        .iter()
+        .find_map(|l| l.strip_prefix("clipper-round "))
+        .unwrap_or_else(|| panic!("no report from the Clipper2 round: {report:?}"));
+    let w: Vec<&str> = line.split_whitespace().collect();
+    Some(ChildRound {
+        ms: w[0].parse().expect("ms"),
+        verts: w[1].parse().expect("vertices"),
+        arcs: w[2].parse().expect("arcs"),
+        dev: w[3].parse().ok(),
+    })
+}
+
+/// The child's side: one Clipper2 round of case `index`, its output checked, reported as
+/// `clipper-round MS VERTICES ARCS DEVIATION` on stdout.
+fn clipper_round(c: &Case) {
+    let clip = Clipper;
+    let set = clip.load(&c.boundaries);
+    let (t, last) = measure(&clip, &set, &c.plan);
+    println!("clipper-offsets {t}");
+    use std::io::Write;
+    let _ = std::io::stdout().flush();
+    let cell = summarise(
+        Measured {
+            times: vec![t],
+            last,
+        },
+        c.check,
+    );
+    println!(
+        "clipper-round {} {} {} {}",
+        cell.best,
+        cell.verts,
+        cell.arcs,
+        cell.dev.map_or("-".to_string(), |d| d.to_string())
+    );
+}
+
+fn summarise(mut m: Measured, check: Check) -> Cell {
     m.times.sort_by(f64::total_cmp);
     let rounds = m.times.len();
     let median = if rounds % 2 == 1 {
@@ -285,10 +421,10 @@ fn summarise(mut m: Measured, check: bool) -> Cell {
     };
     let out = &m.last.last().expect("one offset at least").2;
     let (verts, arcs) = count(out);
-    let dev = check.then(|| {
+    let dev = (check != Check::None).then(|| {
         m.last
             .iter()
-            .map(|(i, d, o)| Checker::new(i).check(o, *d, 1e-3).worst())
+            .filter_map(|(i, d, o)| deviation(check, i, o, *d))
             .fold(0.0, f64::max)
     });
     Cell {
@@ -301,30 +437,40 @@ fn summarise(mut m: Measured, check: bool) -> Cell {
     }
 }
 
-fn run_case(c: &Case) -> Vec<Option<Cell>> {
-    let (ml, cav, clip) = (Machlink, Cavalier, Clipper);
-    let sets = (
-        ml.load(&c.boundaries),
-        cav.load(&c.boundaries),
-        clip.load(&c.boundaries),
-    );
-    let mut ms: [Option<Measured>; 3] = [None, None, None];
+fn run_case(index: usize, c: &Case) -> Vec<Outcome> {
+    let (ml, cav) = (Machlink, Cavalier);
+    let sets = (ml.load(&c.boundaries), cav.load(&c.boundaries));
+    let mut ms: [Option<Measured>; 2] = [None, None];
+    let mut clip: Vec<ChildRound> = Vec::new();
+    let mut stopped: Option<f64> = None;
+    // each kernel's seconds of rounds so far
+    let mut spent = [0.0f64; 3];
     let rounds = c.rounds.max(c.clipper_rounds);
     for round in 0..rounds {
         for j in 0..3 {
             let which = (round + j) % 3;
             let wanted = match which {
-                2 => round < c.clipper_rounds,
+                2 => round < c.clipper_rounds && stopped.is_none(),
                 _ => round < c.rounds,
             };
-            if !wanted {
+            if !wanted || (round > 0 && spent[which] >= c.budget_s) {
+                continue;
+            }
+            if which == 2 {
+                match clipper_round_in_child(index, c.clipper_limit_s) {
+                    Some(r) => {
+                        spent[2] += r.ms / 1e3;
+                        clip.push(r);
+                    }
+                    None => stopped = Some(c.clipper_limit_s),
+                }
                 continue;
             }
             let (t, last) = match which {
                 0 => measure(&ml, &sets.0, &c.plan),
-                1 => measure(&cav, &sets.1, &c.plan),
-                _ => measure(&clip, &sets.2, &c.plan),
+                _ => measure(&cav, &sets.1, &c.plan),
             };
+            spent[which] += t / 1e3;
             let e = ms[which].get_or_insert(Measured {
                 times: Vec::new(),
                 last: Vec::new(),
@@ -333,48 +479,68 @@ fn run_case(c: &Case) -> Vec<Option<Cell>> {
             e.last = last;
         }
     }
-    ms.into_iter()
-        .map(|m| m.map(|m| summarise(m, c.check)))
-        .collect()
+    let mut out: Vec<Outcome> = ms
+        .into_iter()
+        .map(|m| Outcome::Measured(summarise(m.expect("one round at least"), c.check)))
+        .collect();
+    out.push(match (clip.last(), stopped) {
+        (Some(last), _) => {
+            let mut times: Vec<f64> = clip.iter().map(|r| r.ms).collect();
+            times.sort_by(f64::total_cmp);
+            let n = times.len();
+            let median = if n % 2 == 1 {
+                times[n / 2]
+            } else {
+                0.5 * (times[n / 2 - 1] + times[n / 2])
+            };
+            Outcome::Measured(Cell {
+                best: times[0],
+                median,
+                rounds: n,
+                verts: last.verts,
+                arcs: last.arcs,
+                dev: last.dev,
+            })
+        }
+        (None, Some(after_s)) => Outcome::Stopped { after_s },
+        (None, None) => unreachable!("Clipper2 runs one round at least"),
+    });
+    out
 }
 
-fn fmt_time(c: &Option<Cell>) -> String {
+/// The measured cell, if the kernel was not stopped.
+fn cell(x: &Outcome) -> Option<&Cell> {
+    match x {
+        Outcome::Measured(c) => Some(c),
+        Outcome::Stopped { .. } => None,
+    }
+}
+
+fn fmt_time(c: &Outcome) -> String {
     match c {
-        Some(c) if c.rounds > 1 => format!("{:.1} / {:.1}", c.best, c.median),
-        Some(c) => format!("{:.1} (1 round)", c.best),
-        None => "not run".into(),
+        Outcome::Measured(c) if c.rounds > 1 => {
+            format!("{:.1} / {:.1} ({} rounds)", c.best, c.median, c.rounds)
+        }
+        Outcome::Measured(c) => format!("{:.1} (1 round)", c.best),
+        Outcome::Stopped { after_s } => format!("stopped after {after_s:.0} s (1 round)"),
     }
 }
 
-fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let quick = args.iter().any(|a| a == "quick");
-    let forced: Option<usize> = args
-        .iter()
-        .position(|a| a == "rounds")
-        .and_then(|i| args.get(i + 1))
-        .and_then(|s| s.parse().ok());
-    let only: Option<String> = args
-        .iter()
-        .position(|a| a == "only")
-        .and_then(|i| args.get(i + 1))
-        .cloned();
+/// Every row, 1M ones included (`quick` drops them when the table is printed, so a row's
+/// index is the same for the child process whatever the options).
+fn cases() -> Vec<Case> {
     let mut cases = Vec::new();
-    let mut sizes = vec![1_000usize, 10_000, 100_000];
-    if !quick {
-        sizes.push(1_000_000);
-    }
-    for &n in &sizes {
+    for n in [1_000usize, 10_000, 100_000, 1_000_000] {
         let rounds = match n {
             ..=10_000 => 9,
             ..=100_000 => 5,
             _ => 3,
         };
-        // Clipper2 takes ≈ 9 s a run at 100k and minutes at 1M
+        // Clipper2 took ≈ 1.5 s a run at 100k (d = -2) and longer at 1M
         let clipper_rounds = match n {
             ..=10_000 => 5,
-            ..=100_000 => 1,
-            _ => 0,
+            ..=100_000 => 3,
+            _ => 1,
         };
         for with_islands in [false, true] {
             cases.push(Case {
@@ -390,18 +556,27 @@ fn main() {
                 plan: Plan::Once(-2.0),
                 rounds,
                 clipper_rounds,
-                check: n <= 100_000,
+                check: if n <= 100_000 {
+                    Check::Full
+                } else {
+                    Check::None
+                },
+                budget_s: 30.0,
+                clipper_limit_s: 240.0,
             });
         }
     }
     for d in [2.0, 20.0, 200.0, 400.0] {
         cases.push(Case {
-            name: format!("gear 10000 + 10 islands, d = -{d}"),
+            name: format!("gear 10000 + 10 islands, d = -{d} (distance series)"),
             boundaries: gear_with_islands(10_000),
             plan: Plan::Once(-d),
             rounds: 7,
             clipper_rounds: 3,
-            check: true,
+            check: Check::Full,
+            // Clipper2 took 17 s a round at 400 mm
+            budget_s: 30.0,
+            clipper_limit_s: 120.0,
         });
     }
     cases.push(Case {
@@ -410,16 +585,21 @@ fn main() {
         boundaries: gear_with_islands(10_000),
         plan: Plan::FromOriginal((1..=21).map(|k| -20.0 * k as f64).collect()),
         rounds: 5,
+        // Clipper2 took 207 s for its one round
         clipper_rounds: 1,
-        check: true,
+        check: Check::Full,
+        budget_s: 30.0,
+        clipper_limit_s: 400.0,
     });
     cases.push(Case {
         name: "21 pocket passes of gear 10000 + 10 islands, each from the previous, d = -20".into(),
         boundaries: gear_with_islands(10_000),
         plan: Plan::Incremental(-20.0, 21),
         rounds: 9,
-        clipper_rounds: 1,
-        check: true,
+        clipper_rounds: 3,
+        check: Check::Full,
+        budget_s: 30.0,
+        clipper_limit_s: 120.0,
     });
     let inr = |n: usize| 10.0 * (std::f64::consts::PI / n as f64).cos();
     cases.push(Case {
@@ -427,23 +607,55 @@ fn main() {
         boundaries: vec![dense_circle(30_000)],
         plan: Plan::Once(-(inr(30_000) - 1e-3)),
         rounds: 9,
-        // Clipper2 did not finish this one within minutes
-        clipper_rounds: 0,
-        check: true,
+        // an earlier Clipper2 did not finish this one within minutes
+        clipper_rounds: 1,
+        check: Check::Distance,
+        budget_s: 30.0,
+        clipper_limit_s: 60.0,
     });
     cases.push(Case {
         name: "dense circle 100000, r = 10, d = -9.999".into(),
         boundaries: vec![dense_circle(100_000)],
         plan: Plan::Once(-9.999),
         rounds: 9,
-        clipper_rounds: 0,
-        check: true,
+        clipper_rounds: 1,
+        check: Check::Distance,
+        budget_s: 30.0,
+        clipper_limit_s: 60.0,
     });
+    cases
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "clipper-round") {
+        let index: usize = args
+            .get(i + 1)
+            .and_then(|s| s.parse().ok())
+            .expect("clipper-round INDEX");
+        clipper_round(&cases()[index]);
+        return;
+    }
+    let quick = args.iter().any(|a| a == "quick");
+    let forced: Option<usize> = args
+        .iter()
+        .position(|a| a == "rounds")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|s| s.parse().ok());
+    let only: Option<String> = args
+        .iter()
+        .position(|a| a == "only")
+        .and_then(|i| args.get(i + 1))
+        .cloned();
+    let started = Instant::now();
     println!("load average (1 min) at the start: {}", load_average());
     println!();
-    println!("| case | machlink (ms, best / median) | cavalier_contours 0.9 | Clipper2 0.6 | cavalier_contours ÷ machlink (best, median) | output vertices (arcs): machlink / cavalier_contours | worst deviation (mm): machlink / cavalier_contours / Clipper2 | load |");
+    println!("| case | machlink (ms, best / median, rounds) | cavalier_contours 0.9 | Clipper2 0.6 | cavalier_contours ÷ machlink (best, median) | output vertices (arcs): machlink / cavalier_contours / Clipper2 | worst deviation (mm): machlink / cavalier_contours / Clipper2 | load |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
-    for mut c in cases {
+    for (index, mut c) in cases().into_iter().enumerate() {
+        if quick && c.name.starts_with("gear 1000000") {
+            continue;
+        }
         if only.as_ref().is_some_and(|o| !c.name.contains(o.as_str())) {
             continue;
         }
@@ -451,24 +663,22 @@ fn main() {
             c.rounds = r;
             c.clipper_rounds = c.clipper_rounds.min(r);
         }
-        let cells = run_case(&c);
-        let dev = |x: &Option<Cell>| match x {
+        let cells = run_case(index, &c);
+        let dev = |x: &Outcome| match cell(x) {
             Some(Cell { dev: Some(d), .. }) => format!("{d:.1e}"),
             Some(_) => "not checked".into(),
             None => "–".into(),
         };
-        let ratio = match (&cells[0], &cells[1]) {
+        let ratio = match (cell(&cells[0]), cell(&cells[1])) {
             (Some(m), Some(cv)) => {
                 format!("{:.2}×, {:.2}×", cv.best / m.best, cv.median / m.median)
             }
             _ => "–".into(),
         };
-        let outs = |x: &Option<Cell>| {
-            x.as_ref()
-                .map_or("–".into(), |c| format!("{} ({})", c.verts, c.arcs))
-        };
+        let outs =
+            |x: &Outcome| cell(x).map_or("–".into(), |c| format!("{} ({})", c.verts, c.arcs));
         println!(
-            "| {} | {} | {} | {} | {} | {} / {} | {} / {} / {} | {} |",
+            "| {} | {} | {} | {} | {} | {} / {} / {} | {} / {} / {} | {} |",
             c.name,
             fmt_time(&cells[0]),
             fmt_time(&cells[1]),
@@ -476,10 +686,17 @@ fn main() {
             ratio,
             outs(&cells[0]),
             outs(&cells[1]),
+            outs(&cells[2]),
             dev(&cells[0]),
             dev(&cells[1]),
             dev(&cells[2]),
             load_average(),
         );
     }
+    println!();
+    println!(
+        "the whole run: {:.0} s; load average (1 min) at the end: {}",
+        started.elapsed().as_secs_f64(),
+        load_average()
+    );
 }

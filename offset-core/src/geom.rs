@@ -15,13 +15,16 @@ impl Point {
     pub const fn new(x: f64, y: f64) -> Self {
         Point { x, y }
     }
+    #[inline]
     pub fn dot(self, o: Point) -> f64 {
         self.x * o.x + self.y * o.y
     }
     /// z of the 3D cross product: > 0 when `o` lies counter-clockwise of `self`.
+    #[inline]
     pub fn cross(self, o: Point) -> f64 {
         self.x * o.y - self.y * o.x
     }
+    #[inline]
     pub fn len(self) -> f64 {
         // the plain square root where the squares neither overflow nor underflow (every
         // coordinate a drawing holds); hypot, several times slower, guards the rest
@@ -32,10 +35,12 @@ impl Point {
             self.x.hypot(self.y)
         }
     }
+    #[inline]
     pub fn dist(self, o: Point) -> f64 {
         (self - o).len()
     }
     /// The unit vector in this direction, or zero for the zero vector.
+    #[inline]
     pub fn unit(self) -> Point {
         let l = self.len();
         if l > 0.0 {
@@ -45,12 +50,15 @@ impl Point {
         }
     }
     /// This vector turned 90° counter-clockwise (its left normal).
+    #[inline]
     pub fn perp(self) -> Point {
         Point::new(-self.y, self.x)
     }
+    #[inline]
     pub fn lerp(self, o: Point, t: f64) -> Point {
         self + (o - self) * t
     }
+    #[inline]
     pub fn is_finite(self) -> bool {
         self.x.is_finite() && self.y.is_finite()
     }
@@ -58,24 +66,28 @@ impl Point {
 
 impl Add for Point {
     type Output = Point;
+    #[inline]
     fn add(self, o: Point) -> Point {
         Point::new(self.x + o.x, self.y + o.y)
     }
 }
 impl Sub for Point {
     type Output = Point;
+    #[inline]
     fn sub(self, o: Point) -> Point {
         Point::new(self.x - o.x, self.y - o.y)
     }
 }
 impl Mul<f64> for Point {
     type Output = Point;
+    #[inline]
     fn mul(self, k: f64) -> Point {
         Point::new(self.x * k, self.y * k)
     }
 }
 impl Neg for Point {
     type Output = Point;
+    #[inline]
     fn neg(self) -> Point {
         Point::new(-self.x, -self.y)
     }

@@ -257,11 +257,34 @@ fn written_arc_deviation(
 }
 
 /// `v` in thousandths, rounded as `format!("{v:.3}")` rounds it: to nearest from the exact
-/// value of the double, ties to even. Exact integer arithmetic on the double's significand
-/// and exponent (v = m · 2^e, so 1000 v = 1000 m · 2^e, split at the binary point), so no
-/// near tie is left to the float formatter. None for non-finite values and where the count
-/// reaches 2⁵³ (beyond 9·10¹² mm, where k / 1000 would round twice).
+/// value of the double, ties to even. The double product 1000 v decides it unless it lands
+/// on a half exactly; then exact integer arithmetic on the double's significand and
+/// exponent ([`thousandths_exact`]), so no near tie is left to the float formatter. None for
+/// non-finite values and where the count reaches 2⁵³ (beyond 9·10¹² mm, where k / 1000
+/// would round twice).
 fn thousandths(v: f64) -> Option<i64> {
+    // First the double product t = 1000 v, rounded once. Below 2⁵¹ every n + ½ is a
+    // double, and rounding is monotonic: if t lies above n + ½ so does the exact product,
+    // if below, below. Only t = n + ½ exactly leaves the side open, and that (rare) case
+    // takes the exact arithmetic below. (Floor and fraction of such a t are exact.)
+    let t = v * 1000.0;
+    if t.abs() < (1u64 << 51) as f64 {
+        // the floor through an integer (`f64::floor` is a library call on x86-64)
+        let mut whole = t as i64;
+        if whole as f64 > t {
+            whole -= 1;
+        }
+        let fraction = t - whole as f64;
+        if fraction != 0.5 {
+            return Some(whole + i64::from(fraction > 0.5));
+        }
+    }
+    thousandths_exact(v)
+}
+
+/// [`thousandths`] by exact integer arithmetic (v = m · 2^e, so 1000 v = 1000 m · 2^e, split
+/// at the binary point), for the products that land on a half and the large values.
+fn thousandths_exact(v: f64) -> Option<i64> {
     if !v.is_finite() {
         return None;
     }
@@ -314,27 +337,32 @@ pub fn push_num(out: &mut String, v: f64) {
         }
         return;
     };
-    if k < 0 {
-        out.push('-');
-    }
+    // written right to left into a buffer, then appended at once: `-`, the integer digits,
+    // `.`, three decimals (k < 2⁵³: at most 16 digits)
     let m = k.unsigned_abs();
     let (mut int, frac) = (m / 1000, m % 1000);
-    let mut digits = [0u8; 20];
-    let mut i = digits.len();
+    let mut text = [0u8; 24];
+    let mut i = text.len() - 4;
+    text[i] = b'.';
+    text[i + 1] = b'0' + (frac / 100) as u8;
+    text[i + 2] = b'0' + (frac / 10 % 10) as u8;
+    text[i + 3] = b'0' + (frac % 10) as u8;
     loop {
         i -= 1;
-        digits[i] = b'0' + (int % 10) as u8;
+        text[i] = b'0' + (int % 10) as u8;
         int /= 10;
         if int == 0 {
             break;
         }
     }
-    for &d in &digits[i..] {
-        out.push(d as char);
+    if k < 0 {
+        i -= 1;
+        text[i] = b'-';
     }
-    out.push('.');
-    for d in [frac / 100, frac / 10 % 10, frac % 10] {
-        out.push((b'0' + d as u8) as char);
+    // byte by byte as chars: a check that the buffer is UTF-8 cost more than the pushes
+    out.reserve(text.len() - i);
+    for &d in &text[i..] {
+        out.push(char::from(d));
     }
 }
 
@@ -531,11 +559,14 @@ impl Writer {
         // wants when the planned end is off the circle). I and J are rounded too: of the
         // written centres on the 0.001 mm grid around both, keep the one whose arc, as
         // GRBL runs it, stays closest to the planned arc and passes GRBL's check.
-        let mut bases = vec![center];
+        // (an array, not a vector: one allocation per arc was a tenth of the post's time)
+        let mut bases = [center; 2];
+        let mut nbases = 1;
         if chord >= 0.05 {
             let mid = a.lerp(b, 0.5);
             let n = (b - a).unit().perp();
-            bases.push(mid + n * (center - mid).dot(n));
+            bases[1] = mid + n * (center - mid).dot(n);
+            nbases = 2;
         }
         // the planned centre, rounded, when GRBL takes it and it runs within a micrometre
         // of the plan: on a short arc many centres run about as close, and the planned one
@@ -547,10 +578,10 @@ impl Writer {
             let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &planned, 2e-3);
             if dev <= 1e-3 {
                 best = Some((dev, planned_ij));
-                bases.clear();
+                nbases = 0;
             }
         }
-        for base in bases {
+        for &base in &bases[..nbases] {
             let ij0 = Point::new(q(base.x - a.x), q(base.y - a.y));
             for dx in -3..=3 {
                 for dy in -3..=3 {

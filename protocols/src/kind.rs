@@ -310,6 +310,11 @@ impl<U: Unit> AnyPost for ErasedPost<U> {
         Ok(Program::new(self.0.name(), self.0.units(tp)?))
     }
     fn file(&self, program: &Program, label: &str) -> Result<Vec<u8>, PostError> {
+        // a program in memory (what a post just made) is written from its own units; one
+        // read page by page is gathered first
+        if let Some(units) = program.units::<U>() {
+            return self.0.file(units, label);
+        }
         let units = program.view::<U>().ok_or_else(|| {
             PostError::new(
                 self.0.name(),

@@ -64,6 +64,11 @@ impl<P: Post> AnyPost for P {
         Ok(Program::new(Post::name(self), self.units(tp)?))
     }
     fn file(&self, program: &Program, label: &str) -> Result<Vec<u8>, PostError> {
+        // a program in memory (what a post just made) is written from its own units; one
+        // read page by page is gathered first
+        if let Some(units) = program.units::<P::Unit>() {
+            return Post::file(self, units, label);
+        }
         let units = program.view::<P::Unit>().ok_or_else(|| {
             PostError::new(
                 Post::name(self),
@@ -86,9 +91,11 @@ pub type PostFor<U> = Arc<dyn Post<Unit = U>>;
 
 /// Text units written one per line, each ended by a newline.
 pub fn lines_file<U: std::fmt::Display>(units: &[U]) -> Vec<u8> {
-    let mut out = String::new();
+    use std::fmt::Write;
+    // written in place (`to_string` made a string per unit)
+    let mut out = String::with_capacity(32 * units.len());
     for u in units {
-        out.push_str(&u.to_string());
+        write!(out, "{u}").expect("a String takes any text");
         out.push('\n');
     }
     out.into_bytes()

@@ -62,8 +62,13 @@ pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The stages that are geometry: the import's arc fitting, the operation, the tool path's
+/// arc fitting. `--timings` reports the time outside them.
+pub const GEOMETRY_STAGES: [&str; 3] = ["import fit", "plan", "fit"];
+
 /// The `--timings` line: each stage's milliseconds in the order they ran, then the total
-/// since `main` began and the part of it outside planning and fitting (all but `plan` and `fit`).
+/// since `main` began and the part of it outside the geometry (all but
+/// [`GEOMETRY_STAGES`]).
 pub fn timings(stages: &Stages, started: Option<Instant>) -> String {
     let ms = |d: std::time::Duration| d.as_secs_f64() * 1e3;
     let mut out = String::from("  timings (ms):");
@@ -74,11 +79,11 @@ pub fn timings(stages: &Stages, started: Option<Instant>) -> String {
     let geometry: std::time::Duration = stages
         .0
         .iter()
-        .filter(|(n, _)| matches!(*n, "plan" | "fit"))
+        .filter(|(n, _)| GEOMETRY_STAGES.contains(n))
         .map(|(_, t)| *t)
         .sum();
     out.push_str(&format!(
-        " total {:.3}, outside plan and fit {:.3}",
+        " total {:.3}, outside the geometry {:.3}",
         ms(total),
         ms(total.saturating_sub(geometry))
     ));

@@ -240,8 +240,9 @@ pub struct Planned {
 }
 
 /// The wall-clock time of each stage of a plan, in the order they ran (`machlink plan
-/// --timings` prints them): `read` (the shape file parsed), `plan` (the operation's
-/// geometry), `fit` (runs of lines fitted into arcs), `post` (the program's units).
+/// --timings` prints them): `read` (the shape file parsed), `import fit` (the geometry
+/// JSON's polylines fitted with arcs), `plan` (the operation's geometry), `fit` (the tool
+/// path's runs of lines fitted into arcs), `post` (the program's units).
 #[derive(Clone, Debug, Default)]
 pub struct Stages(pub Vec<(&'static str, std::time::Duration)>);
 
@@ -310,7 +311,7 @@ pub fn plan_timed(
             (p.toolpath, Some(p.shape), None, p.warnings)
         }
         InputKind::Shape => {
-            let (shape, warnings) = stages.time("read", || read_shape(spec))?;
+            let (shape, warnings) = read_shape_timed(spec, stages)?;
             let toolpath = toolpath_timed(spec, &shape, stages)?;
             (toolpath, Some(shape), None, warnings)
         }
@@ -482,9 +483,19 @@ fn crossing_named(spec: &JobSpec, e: offset_core::ops::OpError) -> String {
 
 /// Reads the job's shape with its layers and tolerance; the readers' warnings beside it.
 pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
+    read_shape_timed(spec, &mut Stages::default())
+}
+
+/// [`read_shape`], timed in `stages` as `read` (the file parsed) and, where the import
+/// fits arcs as a step of its own (geometry JSON), `import fit`.
+fn read_shape_timed(
+    spec: &JobSpec,
+    stages: &mut Stages,
+) -> Result<(Shape, Vec<String>), IntakeError> {
+    let started = std::time::Instant::now();
     let bytes = spec.input.bytes()?;
     let file = &spec.input.file_name;
-    let (shape, warnings) = offset_core::io::read_shape_with(
+    let read = offset_core::io::read_shape_timed(
         &bytes,
         file,
         &offset_core::io::ReadOptions {
@@ -492,8 +503,16 @@ pub fn read_shape(spec: &JobSpec) -> Result<(Shape, Vec<String>), IntakeError> {
             tolerance: spec.tolerance.unwrap_or(DEFAULT_TOLERANCE),
             ..Default::default()
         },
-    )
-    .map_err(|e| IntakeError::Input(e.to_string()))?;
+    );
+    let fit = read.as_ref().ok().and_then(|(_, _, t)| t.fit);
+    stages.add(
+        "read",
+        started.elapsed().saturating_sub(fit.unwrap_or_default()),
+    );
+    if let Some(fit) = fit {
+        stages.add("import fit", fit);
+    }
+    let (shape, warnings, _) = read.map_err(|e| IntakeError::Input(e.to_string()))?;
     let vertices: usize = shape.paths.iter().map(|p| p.vertices.len()).sum();
     if vertices > MAX_SHAPE_VERTICES {
         return Err(IntakeError::Input(format!(

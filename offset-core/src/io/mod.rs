@@ -46,6 +46,29 @@ pub fn read_shape_with(
     file: &str,
     opts: &ReadOptions,
 ) -> Result<(Shape, Vec<String>), ImportError> {
+    read_shape_timed(bytes, file, opts).map(|(s, w, _)| (s, w))
+}
+
+/// How long [`read_shape_timed`] took: the reading, and the arc fitting where it is a
+/// step of its own.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ReadTimes {
+    /// The file parsed into paths (for DXF and SVG with their fitting, which runs
+    /// piece by piece as they read).
+    pub parse: std::time::Duration,
+    /// The geometry JSON's polylines fitted with lines and arcs, a step after the parse;
+    /// `None` for DXF and SVG, whose fitting is inside `parse`.
+    pub fit: Option<std::time::Duration>,
+}
+
+/// [`read_shape_with`], with the time of its steps.
+pub fn read_shape_timed(
+    bytes: &[u8],
+    file: &str,
+    opts: &ReadOptions,
+) -> Result<(Shape, Vec<String>, ReadTimes), ImportError> {
+    let started = std::time::Instant::now();
+    let mut fit = None;
     let ext = std::path::Path::new(file)
         .extension()
         .and_then(|e| e.to_str())
@@ -77,7 +100,9 @@ pub fn read_shape_with(
         "json" => {
             let shape = json::read(bytes, file)?;
             check_range(&shape, file)?;
+            let fitting = std::time::Instant::now();
             let (shape, _) = crate::biarc::fit_shape(&shape, &BiarcOptions::with_tolerance(tol));
+            fit = Some(fitting.elapsed());
             (shape, Vec::new())
         }
         other => {
@@ -88,7 +113,8 @@ pub fn read_shape_with(
         }
     };
     check_range(&shape, file)?;
-    Ok((shape, warnings))
+    let parse = started.elapsed().saturating_sub(fit.unwrap_or_default());
+    Ok((shape, warnings, ReadTimes { parse, fit }))
 }
 
 /// The drawing's entities that pass near `at` (within ten times the tolerance), as messages
