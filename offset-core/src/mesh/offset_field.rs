@@ -476,15 +476,29 @@ pub(crate) fn offset_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset,
     let tris = outer_faces(&m);
     let bvh = Bvh::new(&tris, false);
     let part = Mesh::from_triangles(&m.name, &tris, 1e-9);
-    // a flat triangle across a crease strays about a third of its size; across a cylinder
-    // of radius |d| about 3h²/(8|d|)
-    let mut h = (3.0 * tol)
-        .min((8.0 * d.abs() * tol / 3.0).sqrt())
-        .min(d.abs() / 2.0);
+    refined("trimmed", &m.name, &part, d, tol, |h| {
+        contour(&m, &tris, &bvh, d, h, tol, false).map(|(mesh, _points)| mesh)
+    })
+}
+
+/// Contours with `at_step(h)` from a grid step set by the tolerance and refines the step (up
+/// to six times) while the worst error sampled against `part` passes the tolerance. A flat
+/// triangle across a crease strays about a third of its size, across a cylinder of radius
+/// |d| about 3h²/(8|d|); the error of a crease goes with the step.
+fn refined(
+    what: &str,
+    name: &str,
+    part: &Mesh,
+    d: f64,
+    tol: f64,
+    mut at_step: impl FnMut(f64) -> Result<Mesh, MeshError>,
+) -> Result<FieldOffset, MeshError> {
+    let ad = d.abs();
+    let mut h = (3.0 * tol).min((8.0 * ad * tol / 3.0).sqrt()).min(ad / 2.0);
     let mut last = None;
     for _ in 0..6 {
-        let (mesh, _points) = contour(&m, &tris, &bvh, d, h, tol, false)?;
-        let (worst, _) = measure_error(&part, &mesh, d, 2);
+        let mesh = at_step(h)?;
+        let (worst, _) = measure_error(part, &mesh, d, 2);
         if worst <= tol {
             return Ok(FieldOffset {
                 mesh,
@@ -493,12 +507,10 @@ pub(crate) fn offset_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffset,
             });
         }
         last = Some(worst);
-        // the error of a crease goes with the step
         h *= (0.9 * tol / worst).clamp(0.3, 0.8);
     }
     Err(MeshError::BadParam(format!(
-        "{}: the trimmed offset by {d} reaches a worst error of {:.4} mm at a grid step of {h:.4} mm, not the tolerance {tol}: ask for a larger tolerance",
-        m.name,
+        "{name}: the {what} offset by {d} reaches a worst error of {:.4} mm at a grid step of {h:.4} mm, not the tolerance {tol}: ask for a larger tolerance",
         last.unwrap_or(f64::NAN)
     )))
 }
@@ -557,9 +569,7 @@ pub(crate) fn one_sided_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffs
         }
         (p - q).dot(n)
     };
-    let mut h = (3.0 * tol).min((8.0 * ad * tol / 3.0).sqrt()).min(ad / 2.0);
-    let mut last = None;
-    for _ in 0..6 {
+    refined("one-sided", &m.name, m, d, tol, |h| {
         let (whole, _points) = contour(m, &tris, &bvh, ad, h, tol, true)?;
         // the faces on the asked side, by their centres
         let keep: Vec<usize> = (0..whole.faces.len())
@@ -592,20 +602,6 @@ pub(crate) fn one_sided_by_field(m: &Mesh, d: f64, tol: f64) -> Result<FieldOffs
                 m.name
             )));
         }
-        let (worst, _) = measure_error(m, &mesh, d, 2);
-        if worst <= tol {
-            return Ok(FieldOffset {
-                mesh,
-                step: h,
-                worst,
-            });
-        }
-        last = Some(worst);
-        h *= (0.9 * tol / worst).clamp(0.3, 0.8);
-    }
-    Err(MeshError::BadParam(format!(
-        "{}: the one-sided offset by {d} reaches a worst error of {:.4} mm at a grid step of {h:.4} mm, not the tolerance {tol}: ask for a larger tolerance",
-        m.name,
-        last.unwrap_or(f64::NAN)
-    )))
+        Ok(mesh)
+    })
 }
