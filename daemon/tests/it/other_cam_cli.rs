@@ -450,27 +450,14 @@ fn paused_for(sock: &Path, id: i64, reason: &str) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_linuxcnc_program_on_a_modbus_plc_stops_at_its_tool_change_until_resume() {
     use machlink_protocols::modbus::map::BlockKind;
-    use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent};
+    use machlink_sim::modbus::TraceEvent;
     let dir = tempfile::tempdir().unwrap();
-    let press = ModbusSim::spawn_tcp(
-        SimConfig {
-            time_scale: 20.0,
-            capacity: 16,
-            ..Default::default()
-        },
-        "127.0.0.1:0".parse().unwrap(),
-    )
-    .await
-    .unwrap();
-    proc::write_config(
+    let press = proc::modbus_press(
         dir.path(),
-        &format!(
-            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\
-             allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
-             tools = [ {{ number = 1, diameter = 6.35, name = \"1/4 in end mill\" }} ]\n",
-            press.addr().port()
-        ),
-    );
+        "allowed_m_codes = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 30]\n\
+         tools = [ { number = 1, diameter = 6.35, name = \"1/4 in end mill\" } ]\n",
+    )
+    .await;
     let daemon = proc::Daemon::start(dir.path()).await;
     let sock = daemon.socket.clone();
     let id = submit_at(&sock, &data("freecad_linuxcnc_plate_inch.ngc"), "press");

@@ -1079,26 +1079,13 @@ fn a_modbus_program_holds_a_tool_block_at_each_tool_change() {
 /// program is executed once, in order.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_simulated_modbus_plc_stops_at_each_tool_change_until_the_operator_resumes() {
-    use machlink_sim::modbus::{ModbusSim, SimConfig, TraceEvent as ModbusEvent};
+    use machlink_sim::modbus::{ModbusSim, TraceEvent as ModbusEvent};
     let dir = tempfile::tempdir().unwrap();
-    let press = ModbusSim::spawn_tcp(
-        SimConfig {
-            time_scale: 20.0,
-            capacity: 16,
-            ..Default::default()
-        },
-        "127.0.0.1:0".parse().unwrap(),
-    )
-    .await
-    .unwrap();
-    proc::write_config(
+    let press = proc::modbus_press(
         dir.path(),
-        &format!(
-            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n\
-             tools = [ {{ number = 1, diameter = 3.0, name = \"3 mm drill\" }}, {{ number = 2, diameter = 5.0, name = \"5 mm drill\" }} ]\n",
-            press.addr().port()
-        ),
-    );
+        "tools = [ { number = 1, diameter = 3.0, name = \"3 mm drill\" }, { number = 2, diameter = 5.0, name = \"5 mm drill\" } ]\n",
+    )
+    .await;
     let dxf = dir.path().join("holes.dxf");
     std::fs::write(&dxf, holes_dxf()).unwrap();
     let recipe = dir.path().join("holes.toml");

@@ -100,6 +100,30 @@ pub fn write_config(dir: &Path, machines: &str) {
     std::fs::write(dir.join("machlink.toml"), text).unwrap();
 }
 
+/// A simulated Modbus PLC on loopback TCP (20 times real time, a ring of 16 blocks) and
+/// `dir`'s config naming it machine `press` (`modbus-tcp`, 300 ms timeout) with the TOML
+/// lines `extra` (its tools, allowed M-codes).
+pub async fn modbus_press(dir: &Path, extra: &str) -> machlink_sim::modbus::ModbusSim {
+    let press = machlink_sim::modbus::ModbusSim::spawn_tcp(
+        machlink_sim::modbus::SimConfig {
+            time_scale: 20.0,
+            capacity: 16,
+            ..Default::default()
+        },
+        "127.0.0.1:0".parse().unwrap(),
+    )
+    .await
+    .unwrap();
+    write_config(
+        dir,
+        &format!(
+            "[[machine]]\nname = \"press\"\nlink = \"modbus-tcp\"\nhost = \"127.0.0.1\"\nport = {}\ntimeout_ms = 300\n{extra}",
+            press.addr().port()
+        ),
+    );
+    press
+}
+
 /// A posted G-code program: `rows` rows of 30 short feed moves joined by half circles, a
 /// plunge first; `shift` moves it in X so that every job's program differs.
 pub fn serpentine(rows: usize, shift: f64) -> Vec<String> {
