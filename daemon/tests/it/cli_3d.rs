@@ -348,7 +348,7 @@ fn roughing_blocks_whose_allowances_overlap_keeps_it_from_both() {
 /// `machlink offset` on a mesh whose offsets interfere: a U-channel with a 2 mm slot grown
 /// by 1.5 mm and shrunk by 1.5 mm, written as STL by the binary and read back. Each result
 /// is closed and manifold, no two faces cross and every sampled point is 1.5 mm from the
-/// channel within the tolerance (testkit/mesh_check.rs, independent of the library).
+/// channel within the tolerance (testkit/src/mesh_check.rs, independent of the library).
 #[test]
 fn offset_of_a_u_channel_narrower_than_2d_is_a_valid_solid_at_the_distance() {
     use common::mesh_check as mc;
@@ -410,7 +410,7 @@ fn offset_of_a_u_channel_narrower_than_2d_is_a_valid_solid_at_the_distance() {
 /// one line that the input is open and the result one-sided, and the STL it writes, read
 /// back, is open, has no two faces crossing, and every sampled point is 1 mm from the patch
 /// within the tolerance, on the side its normals point to (up) for +1 and below for -1
-/// (testkit/mesh_check.rs, independent of the library).
+/// (testkit/src/mesh_check.rs, independent of the library).
 #[test]
 fn offset_of_an_open_surface_is_one_sided_at_the_distance() {
     use common::mesh_check as mc;

@@ -1,7 +1,7 @@
 //! The trimmed mesh offset on parts whose offsets interfere — a U-channel whose slot is
 //! narrower than twice the distance, a stepped block whose fillets are smaller than it, two
 //! cubes sharing a face and two sharing an edge — grown and shrunk, each checked by the
-//! independent checks of testkit/mesh_check.rs: closed and manifold, no two faces crossing
+//! independent checks of testkit/src/mesh_check.rs: closed and manifold, no two faces crossing
 //! (triangle–triangle), every vertex and face sample at |d| from the part within the
 //! tolerance (exact point–triangle distances), and on the right side of the part; and an
 //! open height-field patch offset one-sided, checked the same way (open, on its side).

@@ -4,8 +4,7 @@
 //! own stay apart (docs/testing.md, "One binary per crate").
 
 /// Test helpers shared with other crates' tests (testkit/README.md).
-#[path = "../../../testkit/pyembroidery.rs"]
-mod pyembroidery;
+use machlink_testkit::pyembroidery;
 
 mod canopen_decoders;
 mod canopen_socketcan;

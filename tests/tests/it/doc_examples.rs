@@ -19,7 +19,8 @@
 //! gives it a pty) where the answer is `y`. A command fails if it exits non-zero or runs
 //! longer than a minute. Commands that run until
 //! stopped (`serve`, `events`, `watch`, `machlink-sim`) pass when they are still running
-//! after a few seconds or ended with 0; each `serve` runs in a copy of the cell, beside the
+//! after a few seconds (half a second after their ready line, for `serve` and the
+//! simulators) or ended with 0; each `serve` runs in a copy of the cell, beside the
 //! fixture's daemon. Lines run in the page's order (a `plan … -o part.nc` feeds a later
 //! `preview part.nc`), with `bash -e -o pipefail`, so `a ; b` and `a | jq .` fail on `a`.
 //! Pages run side by side, three at a time (`DOC_EXAMPLES_JOBS`), each in its own cell.
@@ -643,39 +644,88 @@ fn runs_until_stopped(command: &str) -> bool {
         || (command.starts_with("machlink submit") && command.contains("--watch"))
 }
 
+/// What a command that runs until stopped prints once it is up, if it prints anything: the
+/// daemon once it listens, a simulator once its device is open. Such a command passes once
+/// the line is out and it is still running [`READY_GRACE`] later, instead of after the whole
+/// [`STAYS_UP`]; one without a mark (`events`, `watch`, `submit --watch`) waits it out.
+fn ready_mark(command: &str) -> Option<&'static str> {
+    if command.starts_with("machlink serve") {
+        Some("machlink daemon listening at")
+    } else if command.starts_with("machlink-sim modbus") {
+        Some("modbus device")
+    } else if command.starts_with("machlink-sim ") {
+        Some("stop with Ctrl-C")
+    } else {
+        None
+    }
+}
+
+/// How long a command must still run after printing its ready mark.
+const READY_GRACE: Duration = Duration::from_millis(500);
+
+/// How a command is expected to behave.
+#[derive(Clone, Copy)]
+enum Runs {
+    /// It ends, with 0, within [`LIMIT`].
+    ToTheEnd,
+    /// It runs until stopped (or ends with 0): up for [`STAYS_UP`], or for
+    /// [`READY_GRACE`] after its ready mark.
+    UntilStopped { ready: Option<&'static str> },
+}
+
 /// Runs one filled command; `Err` says what went wrong.
-fn run(mut cmd: Command, stays: bool) -> Result<(), String> {
+fn run(mut cmd: Command, runs: Runs) -> Result<(), String> {
     cmd.stdout(Stdio::piped()).stderr(Stdio::piped());
     let mut child = cmd.spawn().map_err(|e| format!("cannot start: {e}"))?;
     let started = Instant::now();
-    let limit = if stays { STAYS_UP } else { LIMIT };
-    // drain the pipes on threads so a chatty command never blocks on a full pipe
-    let mut out = child.stdout.take().unwrap();
-    let mut err = child.stderr.take().unwrap();
-    let out_t = std::thread::spawn(move || {
-        let mut s = Vec::new();
-        let _ = out.read_to_end(&mut s);
-        s
-    });
-    let err_t = std::thread::spawn(move || {
-        let mut s = Vec::new();
-        let _ = err.read_to_end(&mut s);
-        s
-    });
+    let (limit, mark) = match runs {
+        Runs::ToTheEnd => (LIMIT, None),
+        Runs::UntilStopped { ready } => (STAYS_UP, ready),
+    };
+    // drain the pipes on threads so a chatty command never blocks on a full pipe; what
+    // has come so far is readable while the command runs (for its ready mark)
+    let drain = |mut pipe: Box<dyn Read + Send>| {
+        let got = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
+        let to = got.clone();
+        let t = std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = pipe.read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+                to.lock()
+                    .unwrap_or_else(|e| e.into_inner())
+                    .extend_from_slice(&buf[..n]);
+            }
+        });
+        (got, t)
+    };
+    let (out, out_t) = drain(Box::new(child.stdout.take().unwrap()));
+    let (err, err_t) = drain(Box::new(child.stderr.take().unwrap()));
+    let text = |b: &std::sync::Mutex<Vec<u8>>| {
+        String::from_utf8_lossy(&b.lock().unwrap_or_else(|e| e.into_inner())).to_string()
+    };
+    let mut ready_at: Option<Instant> = None;
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
             break Some(s);
         }
-        if started.elapsed() > limit {
+        if started.elapsed() > limit || ready_at.is_some_and(|t| t.elapsed() > READY_GRACE) {
             break None;
+        }
+        if let (Some(mark), None) = (mark, ready_at) {
+            if text(&out).contains(mark) || text(&err).contains(mark) {
+                ready_at = Some(Instant::now());
+            }
         }
         std::thread::sleep(Duration::from_millis(50));
     };
     if status.is_none() {
         stop(&mut child);
     }
-    let stdout = String::from_utf8_lossy(&out_t.join().unwrap()).to_string();
-    let stderr = String::from_utf8_lossy(&err_t.join().unwrap()).to_string();
+    let _ = out_t.join();
+    let _ = err_t.join();
+    let (stdout, stderr) = (text(&out), text(&err));
     let tail = |s: &str| {
         s.split(['\n', '\r'])
             .filter(|l| !l.trim().is_empty())
@@ -688,7 +738,7 @@ fn run(mut cmd: Command, stays: bool) -> Result<(), String> {
             .join("\n")
     };
     match status {
-        None if stays => Ok(()),
+        None if matches!(runs, Runs::UntilStopped { .. }) => Ok(()),
         None => Err(format!(
             "still running after {} s\n{}",
             limit.as_secs(),
@@ -821,7 +871,13 @@ fn run_page(list: &[(usize, Example)]) -> (usize, Vec<(usize, String)>) {
     let mut ran = 0;
     for (n, ex) in list {
         let filled = cell.fill(&ex.command);
-        let stays = runs_until_stopped(&filled);
+        let runs = if runs_until_stopped(&filled) {
+            Runs::UntilStopped {
+                ready: ready_mark(&filled),
+            }
+        } else {
+            Runs::ToTheEnd
+        };
         let mut cmd = cell.command(&filled);
         if asks(&filled) {
             // at a terminal, where the operator answers the question with y
@@ -840,7 +896,7 @@ fn run_page(list: &[(usize, Example)]) -> (usize, Vec<(usize, String)>) {
         }
         eprintln!("run {}:{}: {filled}", ex.file, ex.line);
         ran += 1;
-        if let Err(why) = run(cmd, stays) {
+        if let Err(why) = run(cmd, runs) {
             failures.push((
                 *n,
                 format!(

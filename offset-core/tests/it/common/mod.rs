@@ -3,8 +3,7 @@
 #![allow(dead_code)]
 
 /// Independent checks of solid meshes (testkit/README.md).
-#[path = "../../../../testkit/mesh_check.rs"]
-pub mod mesh_check;
+pub use machlink_testkit::mesh_check;
 
 use offset_core::check::{check_offset, first_crossing, Report};
 use offset_core::geom::{Point, Polyline, Region, Vertex};

@@ -6,8 +6,7 @@ pub mod bin;
 /// The daemon tests' nats-server on loopback (one helper for both crates).
 #[path = "../../../../daemon/tests/it/common/nats.rs"]
 pub mod nats;
-#[path = "../../../../testkit/sewing.rs"]
-pub mod sewing;
+pub use machlink_testkit::sewing;
 
 use machlink::config::Config;
 use machlink::core::intake::{Input, JobSpec};

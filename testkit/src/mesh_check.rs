@@ -6,7 +6,6 @@
 //! the nearest of the three edges), sampled at vertices, edge midpoints and inner points.
 //! Plain `[f64; 3]` points and the standard library only: nothing of offset-core's geometry
 //! is used, so a mistake there cannot hide here.
-#![allow(dead_code)]
 
 use std::collections::HashMap;
 
