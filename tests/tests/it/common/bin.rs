@@ -26,7 +26,28 @@ pub fn bin_dir() -> PathBuf {
             .to_path_buf();
         let target = profile.parent().expect("a target folder").to_path_buf();
         let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-        let status = std::process::Command::new(cargo)
+        let mut build = std::process::Command::new(cargo);
+        // What cargo sets for this test process only (the package's manifest and metadata)
+        // is taken out again: the `cargo test` that built everything did not have it, and a
+        // build script that watches one of them (ring's watches CARGO_MANIFEST_DIR) would
+        // see it change and rebuild TLS, NATS and the daemon here, and once more in the
+        // next `cargo test` (it cost this binary about 30 s in CI).
+        for (key, _) in std::env::vars_os() {
+            let key = key.to_string_lossy();
+            if key.starts_with("CARGO_PKG_")
+                || matches!(
+                    &*key,
+                    "CARGO_MANIFEST_DIR"
+                        | "CARGO_MANIFEST_PATH"
+                        | "CARGO_CRATE_NAME"
+                        | "CARGO_PRIMARY_PACKAGE"
+                        | "CARGO_TARGET_TMPDIR"
+                )
+            {
+                build.env_remove(&*key);
+            }
+        }
+        let status = build
             .args([
                 "build",
                 "--quiet",
