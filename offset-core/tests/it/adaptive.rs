@@ -93,6 +93,14 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
         .iter()
         .max_by(|a, b| a.engagement.total_cmp(&b.engagement));
     let cut = worst.map_or(0.0, |m| m.engagement);
+    if std::env::var("ADAPTIVE_DEBUG").is_ok() {
+        let mut v: Vec<_> = levels.iter().filter(|m| m.engagement > bound).collect();
+        eprintln!("{name}: {} level moves over {bound}", v.len());
+        v.sort_by(|a, b| b.engagement.total_cmp(&a.engagement));
+        for m in v.iter().take(25) {
+            eprintln!("  move {} {:.1}° {:?} -> {:?} len {:.3} {:?}", m.index, m.engagement, m.from, m.to, m.length, tp.moves[m.index]);
+        }
+    }
     let entries: Vec<_> = rep.moves.iter().filter(|m| helix[m.index]).collect();
     let entry = entries.iter().map(|m| m.engagement).fold(0.0, f64::max);
     let entries = entries.len();
