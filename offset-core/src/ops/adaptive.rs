@@ -55,6 +55,11 @@ pub const DEFAULT_ENGAGEMENT: f64 = 70.0;
 /// How far under the bound the planner aims, degrees (the check's raster differs).
 const MARGIN_DEG: f64 = 6.0;
 
+/// The planning raster is cut by a disc this many cells smaller than the tool: a cell
+/// counts as cut only where the simulation's finer cells in it surely are, so the slivers
+/// the finer raster keeps at the edge of each cut still read as material.
+const SHRINK: f64 = 0.5;
+
 /// How far over the last level's floor a lifted link goes, mm (as the pocket's).
 pub const LINK_LIFT: f64 = super::pocket::LINK_LIFT;
 
@@ -620,7 +625,7 @@ impl Plan {
             self.g.cut(
                 P3::at_z(p, -1.0),
                 P3::at_z(bq, -1.0),
-                r,
+                r - SHRINK * h,
                 true,
                 |_, _, _| removed += 1,
             );
@@ -932,7 +937,13 @@ fn cut_chord(g: &mut Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
         let p = a + d * (s as f64 / n as f64);
         worst = worst.max(side_engagement(g, P3::at_z(p, -1.0), u, r));
     }
-    g.cut(P3::at_z(a, -1.0), P3::at_z(b, -1.0), r, true, |_, _, _| {});
+    g.cut(
+        P3::at_z(a, -1.0),
+        P3::at_z(b, -1.0),
+        r - SHRINK * h,
+        true,
+        |_, _, _| {},
+    );
     worst
 }
 
@@ -954,7 +965,7 @@ fn chord_engagement(g: &Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
 /// [`cut_chord`], the cells it lowers and their old heights added to `log`.
 fn cut_logged(g: &mut Grid, a: Point, b: Point, r: f64, h: f64, log: &mut Vec<(usize, f32)>) -> f64 {
     let e = chord_engagement(g, a, b, r, h);
-    g.cut(P3::at_z(a, -1.0), P3::at_z(b, -1.0), r, true, |k, old, _| {
+    g.cut(P3::at_z(a, -1.0), P3::at_z(b, -1.0), r - SHRINK * h, true, |k, old, _| {
         log.push((k, old))
     });
     e
