@@ -472,9 +472,11 @@ impl Plan {
                 fresh = false;
             }
             let at = self.at;
-            let Some(&k) = cands.iter().filter(|&&k| !tried[k]).min_by(|&&a, &&b| {
-                self.xy(a).dist(at).total_cmp(&self.xy(b).dist(at))
-            }) else {
+            let Some(&k) = cands
+                .iter()
+                .filter(|&&k| !tried[k])
+                .min_by(|&&a, &&b| self.xy(a).dist(at).total_cmp(&self.xy(b).dist(at)))
+            else {
                 break;
             };
             tried[k] = true;
@@ -485,7 +487,12 @@ impl Plan {
                 continue;
             }
             let u = if self.climb { v.perp() } else { -v.perp() };
-            let mut bx = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+            let mut bx = [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ];
             if self.run_pass(&mine, &reach, self.xy(k), u, &mut bx) > 0 {
                 fresh = true;
                 // the candidates near the pass may take something now
@@ -676,7 +683,6 @@ impl Plan {
         *at = to;
     }
 
-
     /// One wall loop at depth from its first vertex (the tool there), cut on `g` into
     /// `steps` as exact lines and arcs: in steps of two cells, each looked at half a
     /// millimetre ahead; where the straight way would pass the bound, trochoidal loops
@@ -742,10 +748,16 @@ impl Plan {
                 }
                 // loops from here: write the stretch so far
                 if t > t_from {
-                    steps.push(Step::Seg { seg: part(t_from, t) });
+                    steps.push(Step::Seg {
+                        seg: part(t_from, t),
+                    });
                 }
                 let side = if self.climb { u.perp() } else { -u.perp() };
-                let room = if stuck < 2 { self.loop_radius(a, side) } else { None };
+                let room = if stuck < 2 {
+                    self.loop_radius(a, side)
+                } else {
+                    None
+                };
                 let Some(rho) = room else {
                     // no room for a loop: straight on
                     note(cut_chord(g, a, b, r, h), a, worst);
@@ -763,6 +775,8 @@ impl Plan {
                 let trial = |g: &mut Grid, rho: f64, adv: f64, log: &mut Vec<(usize, f32)>| {
                     let tn = (t + adv / len).min(t1);
                     let an = along.at(tn);
+                    // the room for the loop where it is (a corner ahead leaves less)
+                    let rho = rho.min(self.loop_radius(an, side)?);
                     let mut e = 0.0f64;
                     if an.dist(a) > 1e-9 {
                         e = e.max(cut_logged(g, a, an, r, h, log));
@@ -774,14 +788,16 @@ impl Plan {
                             e = e.max(cut_logged(g, w[0], w[1], r, h, log));
                         }
                     }
-                    (e, tn, an, circle)
+                    Some((e, tn, an, circle))
                 };
                 let mut done = None;
                 let mut least: Option<(f64, f64, f64)> = None;
                 'trials: for f in [1.0, 0.5, 0.25] {
                     for adv in [0.25, 0.15, 0.08, 0.04, 0.02, 0.0] {
                         let mut log = Vec::new();
-                        let (e, tn, an, circle) = trial(g, f * rho, adv, &mut log);
+                        let Some((e, tn, an, circle)) = trial(g, f * rho, adv, &mut log) else {
+                            continue;
+                        };
                         if e <= bound {
                             done = Some((tn, an, circle, e));
                             break 'trials;
@@ -796,8 +812,9 @@ impl Plan {
                 }
                 if done.is_none() {
                     if let Some((_, rho, adv)) = least {
-                        let (e, tn, an, circle) = trial(g, rho, adv, &mut Vec::new());
-                        done = Some((tn, an, circle, e));
+                        if let Some((e, tn, an, circle)) = trial(g, rho, adv, &mut Vec::new()) {
+                            done = Some((tn, an, circle, e));
+                        }
                     }
                 }
                 let Some((tn, an, circle, e)) = done else {
@@ -818,7 +835,9 @@ impl Plan {
                 t_from = t;
             }
             if t > t_from {
-                steps.push(Step::Seg { seg: part(t_from, t) });
+                steps.push(Step::Seg {
+                    seg: part(t_from, t),
+                });
             }
         }
     }
@@ -947,7 +966,6 @@ fn cut_chord(g: &mut Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
     worst
 }
 
-
 /// The largest engagement along the chord a→b on `g` (bottom −1), nothing cut.
 fn chord_engagement(g: &Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
     let d = b - a;
@@ -963,11 +981,22 @@ fn chord_engagement(g: &Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
 }
 
 /// [`cut_chord`], the cells it lowers and their old heights added to `log`.
-fn cut_logged(g: &mut Grid, a: Point, b: Point, r: f64, h: f64, log: &mut Vec<(usize, f32)>) -> f64 {
+fn cut_logged(
+    g: &mut Grid,
+    a: Point,
+    b: Point,
+    r: f64,
+    h: f64,
+    log: &mut Vec<(usize, f32)>,
+) -> f64 {
     let e = chord_engagement(g, a, b, r, h);
-    g.cut(P3::at_z(a, -1.0), P3::at_z(b, -1.0), r - SHRINK * h, true, |k, old, _| {
-        log.push((k, old))
-    });
+    g.cut(
+        P3::at_z(a, -1.0),
+        P3::at_z(b, -1.0),
+        r - SHRINK * h,
+        true,
+        |k, old, _| log.push((k, old)),
+    );
     e
 }
 
