@@ -818,7 +818,14 @@ impl Plan {
                     }
                 }
                 let Some((tn, an, circle, e)) = done else {
-                    break;
+                    // no loop fits here: straight on
+                    note(cut_chord(g, a, b, r, h), a, worst);
+                    steps.push(Step::Seg { seg: part(t, t1) });
+                    t = t1;
+                    t_from = t;
+                    i += 1;
+                    stuck = 0;
+                    continue;
                 };
                 note(e, an, worst);
                 if tn > t {
