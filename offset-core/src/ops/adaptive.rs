@@ -1,41 +1,47 @@
-//! Adaptive clearing: a region with islands cleared by passes that grow outward from a helix-cut core, each step chosen so the simulated engagement of the tool stays at or under a bound, links kept inside cleared material.
+//! Adaptive clearing: a region with islands cleared by passes that advance from a helix-cut core, each step's direction chosen so the simulated engagement of the tool stays at or under a bound, links kept inside cleared material.
 //!
 //! The method (docs/toolpaths.md, "Adaptive clearing"), one plan in XY repeated at every
 //! depth pass (each level starts from the same uncut cross-section):
 //! - A planning raster of the cutting simulation's kind ([`crate::cutsim::grid::Grid`],
-//!   cell D/40) holds the level's material. The tool centre may go where the region's
-//!   boundary is at least R + allowance (+ the finishing stock) + 1.5 cells away: the
-//!   raster's distance transform, the 1.5 cells covering its error of at most 0.71 cell.
-//! - Each connected part of that area gets a core: a helix at its deepest point (a circle
-//!   of at most the tool radius). From the core, the geodesic distance inside the area
-//!   (Dijkstra over 16 neighbours, within 3 % of the true length) orders the material: the
-//!   passes are its iso-lines, the boundaries of the cleared area offset outward and
-//!   clipped by the walls, traced by marching squares with the cleared side on the left
-//!   (climb: counter-clockwise about what is cleared).
-//! - Step: each next iso-line is tried at the last step × 1.2 (at most R(1 − cos E), the
-//!   straight cut's), cut on a copy of the raster with the simulation's own engagement
-//!   probe ([`crate::cutsim::side_engagement`]); while the largest engagement passes the
-//!   bound less 3°, the step shrinks by a quarter, down to two cells. So corners, necks and
-//!   the first rings round the core get the small steps they need and open stretches the
-//!   large one.
-//! - A pass's stretches that cut nothing are replaced by links; a pass that cuts all round
-//!   (the rings round the core) is entered by a lead-in from a point whose tool disc is
-//!   already cleared, at a slant of a few degrees. Links: at depth where the tool's disc
-//!   swept along the straight link (R + 1 cell) touches no material at that moment; else
-//!   lifted 0.5 mm over the last level's floor where the level's final raster is clear
-//!   there (the level above cut it); else at the safe height. Every link ends over a spot
-//!   already cleared at depth, so the tool goes down through air.
+//!   cell D/40) holds the level's material, the part included (the simulation's probes see
+//!   it too). It is cut by a disc half a cell smaller than the tool, so a cell counts as cut
+//!   only where the simulation's finer cells surely are.
+//! - Each connected part of the area where the raster puts the tool centre R + allowance
+//!   (+ the finishing stock) + 1.5 cells or more from the part gets a core: a helix at its
+//!   deepest point (a circle of at most the tool radius).
+//! - Engagement-controlled advancement (after FreeCAD's Adaptive2d): a pass starts at the
+//!   cleared spot nearest the tool whose disc is clear (2 cells to spare) and that has
+//!   material it may remove within 4 cells, setting off with that material on the right
+//!   (climb; on the left conventional). Each step of two cells takes the direction, of 25
+//!   within ±120° of the last then bisected towards the material, whose engagement read by
+//!   the simulation's own probe ([`crate::cutsim::side_engagement`]) on the raster is the
+//!   largest at or under the bound less [`MARGIN_DEG`]; its end must be a centre of the
+//!   part, the exact distance from the part's boundary (bucketed segments) at least
+//!   R + allowance + 0.02 mm, a step that would pass it pushed back onto it. The pass ends
+//!   where no direction engages material or nothing was removed for a tool diameter; the
+//!   next starts where the first rule says, until none is left. So fronts turn away before
+//!   they run into a wall or a corner, and passes reach the walls only as the bound allows.
+//! - Links: at depth where the tool's disc swept along the straight link (R + 1 cell)
+//!   touches no material at that moment; else lifted 0.5 mm over the last level's floor
+//!   where the level's final raster is clear there (the level above cut it); else at the
+//!   safe height. Every link ends over a spot already cleared at depth.
 //! - Then each wall (the region offset inward by R + allowance, by the offset kernel)
-//!   once round, exact arcs and lines: it takes the last 1.5 cells, the coverage to the
-//!   wall. With `finish`, those passes leave [`finish_stock`] and one last pass round each
-//!   wall at the full depth takes it (in from the roughing wall, out again).
-//! - What the bound does not cover: the helix into each level's core goes down through
-//!   material (the simulation reads 180° for any move that descends into material);
-//!   where no step down to two cells keeps the bound, the pass is kept and the tool
-//!   path's warnings say where and how much. That happens today wherever a front meets a
-//!   wall (the pass runs along the wall into the corner the front makes with it: 90° to
-//!   180° whatever the step) and in necks (a slot): the bound is NOT yet held there.
-//! - The passes' runs of cuts go out fitted into lines and arcs within a quarter of a cell.
+//!   once round, entered from a spot 3 cells inside it whose disc is clear, in steps of two
+//!   cells looked at half a millimetre ahead: where the straight way would pass the bound,
+//!   trochoidal loops (full circles inside the walls, up to 0.5 mm, each advanced along
+//!   the wall by the most of 0.25 … 0.02 mm that keeps the bound, tried and undone on the
+//!   raster) take the material. With `finish`, those passes leave [`finish_stock`] and one
+//!   last pass round each wall at the full depth takes it (in from the roughing wall, out
+//!   again).
+//! - What the bound does not cover (the tool path's warnings say where and how much): the
+//!   helix into each level's core goes down through material (the simulation reads 180°
+//!   for any move that descends into material, and for its closing flat turn, which cuts
+//!   the wedge the last descending turn leaves); the tool's way into a sharp corner of a
+//!   wall (the last half millimetre, about 100° on the plate: the passes do not clear such
+//!   corners first); and necks narrower than D + 2 × 0.5 mm, where the loops are small
+//!   (a 6.4 mm neck with a 6 mm tool still reads up to about 165°).
+//! - The passes' runs of cuts go out fitted into lines and arcs within an eighth of a
+//!   cell; the walls and loops as exact lines and arcs.
 
 use super::entry;
 use super::profile::cut;
@@ -467,7 +473,7 @@ impl Plan {
                 d_rem = self.g.distance_to(&rem);
                 cands = (j0..=j1)
                     .flat_map(|j| (i0..=i1).map(move |i| j * nx + i))
-                    .filter(|&k| mine[k] && d_all[k] >= r + h && d_rem[k] < r + 3.0 * h)
+                    .filter(|&k| mine[k] && d_all[k] >= r + 2.0 * h && d_rem[k] < r + 4.0 * h)
                     .collect();
                 fresh = false;
             }
@@ -587,7 +593,7 @@ impl Plan {
         let mut worst = (0.0f64, Point::default());
         let dth = 10f64.to_radians();
         while total < usize::MAX / 2 {
-            let samples: Vec<(i32, f64, Option<(f64, Point)>)> = (-12..=12)
+            let samples: Vec<Sample> = (-12..=12)
                 .map(|k| {
                     let t = th + sgn * k as f64 * dth;
                     (k, t, eval(self, p, t))
@@ -605,7 +611,7 @@ impl Plan {
                     }
                 }
             }
-            let Some((bk, mut bt, mut be, mut bq)) = best else {
+            let Some((bk, bt, mut be, mut bq)) = best else {
                 break;
             };
             if be <= 0.0 {
@@ -620,7 +626,7 @@ impl Plan {
                             Some((e, q)) if e <= bound => {
                                 lo = mid;
                                 if e >= be {
-                                    (bt, be, bq) = (mid, e, q);
+                                    (be, bq) = (e, q);
                                 }
                             }
                             _ => hi = mid,
@@ -645,8 +651,8 @@ impl Plan {
             bx[1] = bx[1].min(bq.y);
             bx[2] = bx[2].max(bq.x);
             bx[3] = bx[3].max(bq.y);
+            // on from the way the step went (a pushed-back step turns along the wall)
             th = (bq - p).y.atan2((bq - p).x);
-            let _ = bt;
             p = bq;
             total += removed;
             if removed == 0 {
@@ -895,7 +901,7 @@ impl Plan {
             let pick = mids
                 .iter()
                 .find(|&&(_, li, si)| {
-                    !disc_has(&self.g, inward(&todo[li], si), self.r + 0.5 * self.h, -1.0)
+                    !disc_has(&self.g, inward(&todo[li], si), self.r + 2.0 * self.h, -1.0)
                 })
                 .or(mids.first())
                 .map(|&(_, li, si)| (li, si));
@@ -903,7 +909,7 @@ impl Plan {
                 break;
             };
             let q_in = inward(&todo[li], si);
-            let open = !disc_has(&self.g, q_in, self.r + 0.5 * self.h, -1.0);
+            let open = !disc_has(&self.g, q_in, self.r + 2.0 * self.h, -1.0);
             let pl = todo.swap_remove(li);
             let pl = entry::restart(&pl, si, 0.5 * pl.segment(si).length());
             let q = pl.vertices[0].pos();
@@ -1067,6 +1073,10 @@ fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
     }
     false
 }
+
+/// A direction tried for a step: its index from the last (positive towards the material),
+/// its angle, and the engagement and end of the step if its end may be a centre.
+type Sample = (i32, f64, Option<(f64, Point)>);
 
 /// How far inside the least distance from the part the passes keep, mm (more than the
 /// fit of the runs into lines and arcs, an eighth of a cell for the 6 mm tool's cells).
