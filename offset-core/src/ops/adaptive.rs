@@ -288,7 +288,7 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
     );
     if let Some(&(q, e)) = summary.over.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
         tp.warnings.push(format!(
-            "{} passes could not keep the engagement at {}° even at the smallest step; the worst reads {e:.0}° at ({:.2}, {:.2})",
+            "{} wall passes could not keep the engagement at {}° (going into a sharp corner or through a neck); the worst reads {e:.0}° at ({:.2}, {:.2})",
             summary.over.len(),
             p.engagement,
             q.x,
