@@ -67,9 +67,11 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
         engagement: bound,
         ..AdaptiveParams::default()
     };
+    let t0 = std::time::Instant::now();
     let tp = adaptive(shape, &p).unwrap();
+    let planned = t0.elapsed().as_secs_f64();
     if let Move::Comment { text } = &tp.moves[0] {
-        eprintln!("{name}: {text}; {:?}", tp.warnings);
+        eprintln!("{name}: planned in {planned:.1} s: {text}; {:?}", tp.warnings);
     }
     let b = shape.bounds();
     let stock = Stock::block(
@@ -203,7 +205,7 @@ fn time_at_bound(tp: &Toolpath, worst: f64, feed: f64, max_feed: f64) -> (f64, f
 }
 
 #[test]
-#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): about 200 s in the test profile, the slowest test of the workspace; run: cargo test -p offset-core --test it adaptive:: -- --ignored --nocapture"]
+#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows); run: cargo test -p offset-core --test it adaptive::the_plate_with -- --ignored --nocapture"]
 fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_the_pocket() {
     let a = check("plate", &plate(), 2.0, 70.0);
     // the pocket at 40 %, simulated the same way, for the benchmark
