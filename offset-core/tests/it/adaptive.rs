@@ -71,7 +71,10 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
     let tp = adaptive(shape, &p).unwrap();
     let planned = t0.elapsed().as_secs_f64();
     if let Move::Comment { text } = &tp.moves[0] {
-        eprintln!("{name}: planned in {planned:.1} s: {text}; {:?}", tp.warnings);
+        eprintln!(
+            "{name}: planned in {planned:.1} s: {text}; {:?}",
+            tp.warnings
+        );
     }
     let b = shape.bounds();
     let stock = Stock::block(
