@@ -481,9 +481,13 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
                 let (i, j) = (k % g.nx, k / g.nx);
                 let p = g.centre(i, j);
                 let cl = clear.as_ref().expect("gouges need a part");
+                // outside the raster's regions (their boundaries flattened to an eighth of
+                // a cell): a gouge farther than the tolerance from the true boundary and
+                // not inside it (a cell between a chord and its arc is not the part)
                 let real = cl[k] || {
                     let part = o.part.as_ref().expect("gouges need a part");
                     distance_to_regions(&part.clear, p) > o.tolerance
+                        && !part.clear.iter().any(|r| r.contains(p))
                 };
                 if real {
                     mr.gouges += 1;

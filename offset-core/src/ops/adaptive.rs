@@ -1,59 +1,70 @@
-//! Adaptive clearing: a region with islands cleared by passes that grow outward from a helix-cut core, each step chosen so the simulated engagement of the tool stays at or under a bound, links kept inside cleared material.
+//! Adaptive clearing: a region with islands cleared by passes that advance from a helix-cut core, each step's direction chosen so the simulated engagement of the tool stays at or under a bound, links kept inside cleared material.
 //!
 //! The method (docs/toolpaths.md, "Adaptive clearing"), one plan in XY repeated at every
 //! depth pass (each level starts from the same uncut cross-section):
 //! - A planning raster of the cutting simulation's kind ([`crate::cutsim::grid::Grid`],
-//!   cell D/40) holds the level's material. The tool centre may go where the region's
-//!   boundary is at least R + allowance (+ the finishing stock) + 1.5 cells away: the
-//!   raster's distance transform, the 1.5 cells covering its error of at most 0.71 cell.
-//! - Each connected part of that area gets a core: a helix at its deepest point (a circle
-//!   of at most the tool radius). From the core, the geodesic distance inside the area
-//!   (Dijkstra over 16 neighbours, within 3 % of the true length) orders the material: the
-//!   passes are its iso-lines, the boundaries of the cleared area offset outward and
-//!   clipped by the walls, traced by marching squares with the cleared side on the left
-//!   (climb: counter-clockwise about what is cleared).
-//! - Step: each next iso-line is tried at the last step × 1.2 (at most R(1 − cos E), the
-//!   straight cut's), cut on a copy of the raster with the simulation's own engagement
-//!   probe ([`crate::cutsim::side_engagement`]); while the largest engagement passes the
-//!   bound less 3°, the step shrinks by a quarter, down to two cells. So corners, necks and
-//!   the first rings round the core get the small steps they need and open stretches the
-//!   large one.
-//! - A pass's stretches that cut nothing are replaced by links; a pass that cuts all round
-//!   (the rings round the core) is entered by a lead-in from a point whose tool disc is
-//!   already cleared, at a slant of a few degrees. Links: at depth where the tool's disc
-//!   swept along the straight link (R + 1 cell) touches no material at that moment; else
-//!   lifted 0.5 mm over the last level's floor where the level's final raster is clear
-//!   there (the level above cut it); else at the safe height. Every link ends over a spot
-//!   already cleared at depth, so the tool goes down through air.
+//!   cell D/40) holds the level's material, the part included (the simulation's probes see
+//!   it too). It is cut by a disc half a cell smaller than the tool, so a cell counts as cut
+//!   only where the simulation's finer cells surely are.
+//! - Each connected part of the area where the raster puts the tool centre R + allowance
+//!   (+ the finishing stock) + 1.5 cells or more from the part gets a core: a helix at its
+//!   deepest point (a circle of at most the tool radius).
+//! - Engagement-controlled advancement (after FreeCAD's Adaptive2d): a pass starts at the
+//!   cleared spot nearest the tool whose disc is clear (2 cells to spare) and that has
+//!   material it may remove within 4 cells, setting off with that material on the right
+//!   (climb; on the left conventional). Each step of two cells takes the direction, of 25
+//!   within ±120° of the last then bisected towards the material, whose engagement read by
+//!   the simulation's own probe ([`crate::cutsim::side_engagement`]) on the raster is the
+//!   largest at or under the bound less [`MARGIN_DEG`]; its end must be a centre of the
+//!   part, the exact distance from the part's boundary (bucketed segments) at least
+//!   R + allowance + 0.02 mm, a step that would pass it pushed back onto it. The pass ends
+//!   where no direction engages material or nothing was removed for a tool diameter; the
+//!   next starts where the first rule says, until none is left. So fronts turn away before
+//!   they run into a wall or a corner, and passes reach the walls only as the bound allows.
+//! - Links: at depth where the tool's disc swept along the straight link (R + 1 cell)
+//!   touches no material at that moment; else lifted 0.5 mm over the last level's floor
+//!   where the level's final raster is clear there (the level above cut it); else at the
+//!   safe height. Every link ends over a spot already cleared at depth.
 //! - Then each wall (the region offset inward by R + allowance, by the offset kernel)
-//!   once round, exact arcs and lines: it takes the last 1.5 cells, the coverage to the
-//!   wall. With `finish`, those passes leave [`finish_stock`] and one last pass round each
-//!   wall at the full depth takes it (in from the roughing wall, out again).
-//! - What the bound does not cover: the helix into each level's core goes down through
-//!   material (the simulation reads 180° for any move that descends into material);
-//!   where no step down to two cells keeps the bound, the pass is kept and the tool
-//!   path's warnings say where and how much. That happens today wherever a front meets a
-//!   wall (the pass runs along the wall into the corner the front makes with it: 90° to
-//!   180° whatever the step) and in necks (a slot): the bound is NOT yet held there.
-//! - The passes' runs of cuts go out fitted into lines and arcs within a quarter of a cell.
+//!   once round, entered from a spot 3 cells inside it whose disc is clear, in steps of two
+//!   cells looked at half a millimetre ahead: where the straight way would pass the bound,
+//!   trochoidal loops (full circles inside the walls, up to 0.5 mm, each advanced along
+//!   the wall by the most of 0.25 … 0.02 mm that keeps the bound, tried and undone on the
+//!   raster) take the material. With `finish`, those passes leave [`finish_stock`] and one
+//!   last pass round each wall at the full depth takes it (in from the roughing wall, out
+//!   again).
+//! - What the bound does not cover (the tool path's warnings say where and how much): the
+//!   helix into each level's core goes down through material (the simulation reads 180°
+//!   for any move that descends into material, and for its closing flat turn, which cuts
+//!   the wedge the last descending turn leaves); the tool's way into a sharp corner of a
+//!   wall (the last half millimetre, about 100° on the plate: the passes do not clear such
+//!   corners first); and necks narrower than D + 2 × 0.5 mm, where the loops are small
+//!   (a 6.4 mm neck with a 6 mm tool still reads up to about 165°).
+//! - The passes' runs of cuts go out fitted into lines and arcs within an eighth of a
+//!   cell; the walls and loops as exact lines and arcs.
 
 use super::entry;
 use super::profile::cut;
 use super::{pass_depths, Cutting, OpError};
 use crate::cutsim::grid::{flatten_segment, Grid};
 use crate::cutsim::side_engagement;
-use crate::geom::{Point, Polyline, Region, Shape};
+use crate::geom::{Point, Polyline, Region, Segment, Shape};
 use crate::offset::{offset_region, OffsetOptions};
 use crate::toolpath::{Move, Toolpath, P3};
 use serde::{Deserialize, Serialize};
 use std::cmp::Reverse;
-use std::collections::{BTreeMap, BinaryHeap};
+use std::collections::BinaryHeap;
 
 /// The engagement bound when none is given, degrees.
 pub const DEFAULT_ENGAGEMENT: f64 = 70.0;
 
 /// How far under the bound the planner aims, degrees (the check's raster differs).
-const MARGIN_DEG: f64 = 3.0;
+const MARGIN_DEG: f64 = 6.0;
+
+/// The planning raster is cut by a disc this many cells smaller than the tool: a cell
+/// counts as cut only where the simulation's finer cells in it surely are, so the slivers
+/// the finer raster keeps at the edge of each cut still read as material.
+const SHRINK: f64 = 0.5;
 
 /// How far over the last level's floor a lifted link goes, mm (as the pocket's).
 pub const LINK_LIFT: f64 = super::pocket::LINK_LIFT;
@@ -128,8 +139,8 @@ enum Step {
     Go { to: Point, depth: bool },
     /// A cut at depth to `to`.
     Cut { to: Point },
-    /// A wall loop from its first vertex (the tool stands there at depth).
-    Wall { pl: Polyline },
+    /// A line or arc at depth from where the tool stands (walls and their loops).
+    Seg { seg: Segment },
     /// A wall loop the tool must go down into: a ramp round it.
     Ramp { pl: Polyline },
 }
@@ -158,6 +169,12 @@ struct Plan {
     found: Found,
     bound: f64,
     climb: bool,
+    /// The region's boundary segments by bucket, for exact distances near the walls.
+    near: Near,
+    /// The raster distance to the part per cell (set by `clear`).
+    wall: Vec<f64>,
+    /// The least exact distance of a tool centre from the part: R + allowance (+ stock).
+    kexact: f64,
 }
 
 /// Plans adaptive clearing of every region of `shape` (see the module).
@@ -209,6 +226,8 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
         }
         let mut plan = Plan::new(region, r, h, p.engagement - MARGIN_DEG, p.cut.climb);
         plan.at = at.xy();
+        plan.kexact = r + p.allowance + fs;
+        plan.near = Near::new(region, r, plan.kexact + 4.0 * h);
         plan.clear(r + p.allowance + fs + 1.5 * h);
         plan.walls(&walls);
         let finals = if p.finish {
@@ -269,7 +288,7 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
     );
     if let Some(&(q, e)) = summary.over.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
         tp.warnings.push(format!(
-            "{} passes could not keep the engagement at {}° even at the smallest step; the worst reads {e:.0}° at ({:.2}, {:.2})",
+            "{} wall passes could not keep the engagement at {}° (going into a sharp corner or through a neck); the worst reads {e:.0}° at ({:.2}, {:.2})",
             summary.over.len(),
             p.engagement,
             q.x,
@@ -318,6 +337,9 @@ impl Plan {
             found: Found::default(),
             bound,
             climb,
+            near: Near::default(),
+            wall: Vec::new(),
+            kexact: r,
         }
     }
 
@@ -331,6 +353,7 @@ impl Plan {
         let (nx, ny) = (self.g.nx, self.g.ny);
         let wall = self.g.distance_to(&self.part);
         let allowed: Vec<bool> = wall.iter().map(|&w| w >= keep).collect();
+        self.wall = wall.clone();
         let mut geo = vec![f64::INFINITY; nx * ny];
         let mut comp = vec![u32::MAX; nx * ny];
         // cells by depth, deepest first: each next unreached one starts a part
@@ -343,7 +366,7 @@ impl Plan {
             }
             let id = next_comp;
             next_comp += 1;
-            let (cells, bbox) = self.spread(seed, id, &allowed, &mut geo, &mut comp);
+            let (_, bbox) = self.spread(seed, id, &allowed, &mut geo, &mut comp);
             let c = self.xy(seed);
             let rho = (wall[seed] - keep).min(self.r);
             if rho < 0.1 * self.r {
@@ -368,8 +391,7 @@ impl Plan {
                 );
             }
             self.at = c + Point::new(rho, 0.0);
-            let far = cells.iter().map(|&k| geo[k]).fold(0.0, f64::max);
-            self.grow(&geo, &comp, id, bbox, rho, far, c);
+            self.advance(&comp, id, bbox);
         }
     }
 
@@ -421,134 +443,240 @@ impl Plan {
         (cells, bbox)
     }
 
-    /// The passes of one part: iso-lines of `geo` from the core's ring (`from`) out to
-    /// the farthest cell (`far`), each step tried on a copy of the raster.
-    #[allow(clippy::too_many_arguments)]
-    fn grow(
-        &mut self,
-        geo: &[f64],
-        comp: &[u32],
-        id: u32,
-        bbox: [usize; 4],
-        from: f64,
-        far: f64,
-        core: Point,
-    ) {
-        let s_max = self.r * (1.0 - (self.bound.to_radians()).cos());
-        let s_min = 2.0 * self.h;
-        let mut s = s_max * 0.5;
-        let mut level = from;
-        while level < far + self.h * 0.5 {
-            let mut step = (s * 1.2).min(s_max);
-            loop {
-                let next = (level + step).min(far + self.h);
-                let loops = iso_lines(&self.g, geo, comp, id, bbox, next, self.h);
-                let mut trial = self.g.clone();
-                let mut steps = Vec::new();
-                let mut at = self.at;
-                let (worst, where_) =
-                    self.pass(&mut trial, &loops, &mut steps, &mut at, core, step);
-                if worst <= self.bound || step <= s_min {
-                    if worst > self.bound {
-                        self.found.over.push((where_, worst));
-                    }
-                    if worst > self.found.worst {
-                        self.found.worst = worst;
-                        self.found.worst_at = where_;
-                    }
-                    self.g = trial;
-                    self.steps.extend(steps);
-                    self.at = at;
-                    self.found.passes += 1;
-                    level = next;
-                    s = step;
+    /// The passes of one part (the cells of `comp` equal to `id`, their box `bbox`):
+    /// engagement-controlled advancement from the cleared core until nothing the part's
+    /// tool centres can remove is left that a pass can take under the bound.
+    fn advance(&mut self, comp: &[u32], id: u32, bbox: [usize; 4]) {
+        let (nx, ny) = (self.g.nx, self.g.ny);
+        let (r, h) = (self.r, self.h);
+        let mine: Vec<bool> = comp.iter().map(|&c| c == id).collect();
+        // the cells a centre of this part reaches (within R less half a cell)
+        let reach = self.g.distance_to(&mine);
+        let removable: Vec<bool> = reach.iter().map(|&d| d <= r - 0.5 * h).collect();
+        let pad = (r / h).ceil() as usize + 4;
+        let i0 = bbox[0].saturating_sub(pad).max(1);
+        let j0 = bbox[1].saturating_sub(pad).max(1);
+        let i1 = (bbox[2] + pad).min(nx - 2);
+        let j1 = (bbox[3] + pad).min(ny - 2);
+        let mut tried = vec![false; nx * ny];
+        let mut cands: Vec<usize> = Vec::new();
+        let mut d_rem: Vec<f64> = Vec::new();
+        let mut fresh = true;
+        loop {
+            if fresh {
+                let mat: Vec<bool> = self.g.top.iter().map(|&t| t > -0.5).collect();
+                let rem: Vec<bool> = mat.iter().zip(&removable).map(|(&m, &q)| m && q).collect();
+                if !rem.iter().any(|&x| x) {
                     break;
                 }
-                step = (step * 0.75).max(s_min);
+                let d_all = self.g.distance_to(&mat);
+                d_rem = self.g.distance_to(&rem);
+                cands = (j0..=j1)
+                    .flat_map(|j| (i0..=i1).map(move |i| j * nx + i))
+                    .filter(|&k| mine[k] && d_all[k] >= r + 2.0 * h && d_rem[k] < r + 4.0 * h)
+                    .collect();
+                fresh = false;
             }
-        }
-    }
-
-    /// Cuts the loops of one pass on `g`, nearest first, into `steps`: the largest
-    /// engagement and where.
-    fn pass(
-        &self,
-        g: &mut Grid,
-        loops: &[Vec<Point>],
-        steps: &mut Vec<Step>,
-        at: &mut Point,
-        core: Point,
-        step: f64,
-    ) -> (f64, Point) {
-        let mut worst = (0.0, Point::default());
-        let mut todo: Vec<&Vec<Point>> = loops.iter().filter(|l| l.len() >= 3).collect();
-        while !todo.is_empty() {
-            // the loop with the vertex nearest the tool
-            let (li, vi) = todo
+            let at = self.at;
+            let Some(&k) = cands
                 .iter()
-                .enumerate()
-                .flat_map(|(li, l)| l.iter().enumerate().map(move |(vi, q)| (li, vi, *q)))
-                .min_by(|a, b| a.2.dist(*at).total_cmp(&b.2.dist(*at)))
-                .map(|(li, vi, _)| (li, vi))
-                .expect("loops left");
-            let lp = todo.swap_remove(li);
-            let n = lp.len();
-            let air: Vec<bool> = (0..n)
-                .map(|i| !capsule_has(g, lp[i], lp[(i + 1) % n], self.r + self.h, -1.0))
-                .collect();
-            if air.iter().all(|&a| a) {
+                .filter(|&&k| !tried[k])
+                .min_by(|&&a, &&b| self.xy(a).dist(at).total_cmp(&self.xy(b).dist(at)))
+            else {
+                break;
+            };
+            tried[k] = true;
+            // towards the nearest material the part may remove: down its distance
+            let grad = Point::new(d_rem[k + 1] - d_rem[k - 1], d_rem[k + nx] - d_rem[k - nx]);
+            let v = -grad.unit();
+            if v.len() < 0.5 {
                 continue;
             }
-            // start where the loop comes out of air into material, or by a lead-in
-            let start = (0..n).find(|&i| air[(i + n - 1) % n] && !air[i]);
-            let order: Vec<Point> = match start {
-                Some(i0) => {
-                    self.link(g, steps, at, lp[i0]);
-                    (1..=n).map(|k| lp[(i0 + k) % n]).collect()
+            let u = if self.climb { v.perp() } else { -v.perp() };
+            let mut bx = [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ];
+            if self.run_pass(&mine, &reach, self.xy(k), u, &mut bx) > 0 {
+                fresh = true;
+                // the candidates near the pass may take something now
+                let m = 2.0 * r + 2.0 * h;
+                let a0 = self.g.cell_of(Point::new(bx[0] - m, bx[1] - m));
+                let a1 = self.g.cell_of(Point::new(bx[2] + m, bx[3] + m));
+                let (ci0, cj0) = a0.map_or((0, 0), |a| (a % nx, a / nx));
+                let (ci1, cj1) = a1.map_or((nx - 1, ny - 1), |a| (a % nx, a / nx));
+                for j in cj0..=cj1 {
+                    for i in ci0..=ci1 {
+                        tried[j * nx + i] = false;
+                    }
                 }
-                None => {
-                    // a ring that cuts all round: a spiral out to it from the last ring
-                    // over one turn, then once round on it
-                    let q = lp[vi];
-                    let Some(a) = self.lead_from(g, q, core, step) else {
-                        // no cleared spot found: take the loop from the nearest vertex
-                        self.link(g, steps, at, q);
-                        let pts: Vec<Point> = (1..=n).map(|k| lp[(vi + k) % n]).collect();
-                        self.chain(g, steps, at, &pts, &mut worst);
-                        continue;
-                    };
-                    let inset = a.dist(q);
-                    self.link(g, steps, at, a);
-                    let mut order: Vec<Point> = (1..=n)
-                        .map(|k| {
-                            let p = lp[(vi + k) % n];
-                            let u = (core - p) * (1.0 / p.dist(core).max(1e-12));
-                            let f = 1.0 - k as f64 / n as f64;
-                            p + u * (inset.min(p.dist(core)) * f)
-                        })
-                        .collect();
-                    order.extend((1..=n).map(|k| lp[(vi + k) % n]));
-                    order
-                }
-            };
-            self.chain(g, steps, at, &order, &mut worst);
+            }
         }
-        worst
     }
 
-    /// A spot on the way from `q` to the core whose tool disc is cleared.
-    fn lead_from(&self, g: &Grid, q: Point, core: Point, step: f64) -> Option<Point> {
-        let len = q.dist(core);
-        let u = (core - q) * (1.0 / len.max(1e-12));
-        let mut t = step;
-        while t < len {
-            let a = q + u * t;
-            if !disc_has(g, a, self.r + self.h, -1.0) {
-                return Some(a);
+    /// `q`, or `q` pushed out from the walls to the least distance (plus [`INSIDE`]), if a
+    /// tool centre of the part (`mine`) may go there: within three cells of its cells
+    /// (`reach`), the exact distance from the part checked wherever the raster's is not
+    /// clearly enough.
+    fn fit_centre(&self, mine: &[bool], reach: &[f64], q: Point) -> Option<Point> {
+        let keep = self.kexact + INSIDE;
+        let mut q = q;
+        for _ in 0..3 {
+            let k = self.g.cell_of(q)?;
+            if reach[k] > 3.0 * self.h || self.wall[k] < self.kexact - self.h {
+                return None;
             }
-            t += 0.5 * step.max(self.h);
+            if mine[k] && self.wall[k] >= self.kexact + 3.0 * self.h {
+                return Some(q);
+            }
+            match self.near.closest(q) {
+                None => return Some(q),
+                Some((d, _)) if d >= keep => return Some(q),
+                Some((d, c)) => {
+                    if d < 1e-9 {
+                        return None;
+                    }
+                    q = c + (q - c) * ((keep + 1e-6) / d);
+                }
+            }
         }
-        (!disc_has(g, core, self.r + self.h, -1.0)).then_some(core)
+        None
+    }
+
+    /// One pass from `p` (its tool disc cleared), setting off along `u`: steps of two
+    /// cells, each in the direction (searched over ±120° from the last, then bisected
+    /// towards the material) whose engagement on the raster is the largest at or under
+    /// the bound, its end inside the part's centres `mine`; the pass ends where no
+    /// direction engages material or the tool has removed nothing for a tool diameter.
+    /// The cells removed (the pass is kept only if some); `bx` grows by its points.
+    fn run_pass(
+        &mut self,
+        mine: &[bool],
+        reach: &[f64],
+        p0: Point,
+        u: Point,
+        bx: &mut [f64; 4],
+    ) -> usize {
+        let (r, h, bound) = (self.r, self.h, self.bound);
+        let s = 2.0 * h;
+        // turning towards the material: clockwise when climbing (material on the right)
+        let sgn = if self.climb { -1.0 } else { 1.0 };
+        let eval = |me: &Plan, p: Point, t: f64| -> Option<(f64, Point)> {
+            let q = me.fit_centre(mine, reach, p + Point::new(t.cos(), t.sin()) * s)?;
+            let l = q.dist(p);
+            if l < 0.25 * s {
+                return None;
+            }
+            let mid = p.lerp(q, 0.5);
+            if me.fit_centre(mine, reach, mid) != Some(mid) {
+                return None;
+            }
+            let u = (q - p) * (1.0 / l);
+            let n = ((l / h).ceil() as usize).max(1);
+            let mut e = 0.0f64;
+            for i in 1..=n {
+                let x = p.lerp(q, i as f64 / n as f64);
+                e = e.max(side_engagement(&me.g, P3::at_z(x, -1.0), u, r));
+            }
+            Some((e, q))
+        };
+        let mut th = u.y.atan2(u.x);
+        let mut p = p0;
+        let mut steps = Vec::new();
+        let mut at = self.at;
+        self.link(&self.g, &mut steps, &mut at, p0);
+        let (mut useful, mut at_useful) = (steps.len(), at);
+        let mut total = 0usize;
+        let mut idle = 0.0;
+        let mut worst = (0.0f64, Point::default());
+        let dth = 10f64.to_radians();
+        while total < usize::MAX / 2 {
+            let samples: Vec<Sample> = (-12..=12)
+                .map(|k| {
+                    let t = th + sgn * k as f64 * dth;
+                    (k, t, eval(self, p, t))
+                })
+                .collect();
+            let mut best: Option<(i32, f64, f64, Point)> = None;
+            for &(k, t, ev) in &samples {
+                if let Some((e, q)) = ev {
+                    let better = match best {
+                        None => true,
+                        Some((bk, _, be, _)) => e > be || (e == be && k.abs() < bk.abs()),
+                    };
+                    if e <= bound && better {
+                        best = Some((k, t, e, q));
+                    }
+                }
+            }
+            let Some((bk, bt, mut be, mut bq)) = best else {
+                break;
+            };
+            if be <= 0.0 {
+                break;
+            }
+            if let Some(&(_, t_hi, ev_hi)) = samples.iter().find(|x| x.0 == bk + 1) {
+                if ev_hi.is_some_and(|(e, _)| e > bound) || ev_hi.is_none() {
+                    let (mut lo, mut hi) = (bt, t_hi);
+                    for _ in 0..4 {
+                        let mid = 0.5 * (lo + hi);
+                        match eval(self, p, mid) {
+                            Some((e, q)) if e <= bound => {
+                                lo = mid;
+                                if e >= be {
+                                    (be, bq) = (e, q);
+                                }
+                            }
+                            _ => hi = mid,
+                        }
+                    }
+                }
+            }
+            let mut removed = 0usize;
+            self.g.cut(
+                P3::at_z(p, -1.0),
+                P3::at_z(bq, -1.0),
+                r - SHRINK * h,
+                true,
+                |_, _, _| removed += 1,
+            );
+            if be > worst.0 {
+                worst = (be, p);
+            }
+            steps.push(Step::Cut { to: bq });
+            at = bq;
+            bx[0] = bx[0].min(bq.x);
+            bx[1] = bx[1].min(bq.y);
+            bx[2] = bx[2].max(bq.x);
+            bx[3] = bx[3].max(bq.y);
+            // on from the way the step went (a pushed-back step turns along the wall)
+            th = (bq - p).y.atan2((bq - p).x);
+            p = bq;
+            total += removed;
+            if removed == 0 {
+                idle += s;
+                if idle > 2.0 * r {
+                    break;
+                }
+            } else {
+                idle = 0.0;
+                useful = steps.len();
+                at_useful = at;
+            }
+        }
+        if total > 0 {
+            steps.truncate(useful);
+            self.steps.extend(steps);
+            self.at = at_useful;
+            self.found.passes += 1;
+            if worst.0 > self.found.worst {
+                self.found.worst = worst.0;
+                self.found.worst_at = worst.1;
+            }
+        }
+        total
     }
 
     /// A link from `at` to `to`, at depth when the swept disc meets no material now.
@@ -561,49 +689,186 @@ impl Plan {
         *at = to;
     }
 
-    /// Cuts the points in turn from `at` (a cut to each), stretches in air longer than the
-    /// tool diameter replaced by links.
-    fn chain(
+    /// One wall loop at depth from its first vertex (the tool there), cut on `g` into
+    /// `steps` as exact lines and arcs: in steps of two cells, each looked at half a
+    /// millimetre ahead; where the straight way would pass the bound, trochoidal loops
+    /// (circles inside the walls, each advanced as far along the wall as keeps the
+    /// bound) take the material until the straight way keeps it again.
+    fn trace_wall(
         &self,
         g: &mut Grid,
+        pl: &Polyline,
         steps: &mut Vec<Step>,
-        at: &mut Point,
-        pts: &[Point],
         worst: &mut (f64, Point),
     ) {
-        let mut pending: Vec<Point> = Vec::new();
-        let mut pending_len = 0.0;
-        let mut last = *at;
-        for &b in pts {
-            let a = last;
-            last = b;
-            if a.dist(b) < 1e-9 {
-                continue;
-            }
-            if !capsule_has(g, a, b, self.r + self.h, -1.0) {
-                pending_len += a.dist(b);
-                pending.push(b);
-                continue;
-            }
-            // material ahead: the air before it, as cuts or a link
-            if pending_len > 2.0 * self.r {
-                self.link(g, steps, at, a);
-            } else {
-                for &q in &pending {
-                    steps.push(Step::Cut { to: q });
-                }
-            }
-            pending.clear();
-            pending_len = 0.0;
-            let e = cut_chord(g, a, b, self.r, self.h);
+        let (r, h, bound) = (self.r, self.h, self.bound);
+        let look = 0.5_f64.max(2.0 * h);
+        let note = |e: f64, p: Point, worst: &mut (f64, Point)| {
             if e > worst.0 {
-                *worst = (e, a);
+                *worst = (e, p);
             }
-            steps.push(Step::Cut { to: b });
-            *at = b;
+        };
+        for seg in pl.segments() {
+            let len = seg.length();
+            if len < 1e-12 {
+                continue;
+            }
+            let n = ((len / (2.0 * h)).ceil() as usize).max(1);
+            let along = crate::geom::PointsAlong::new(&seg);
+            let part = |t0: f64, t1: f64| -> Segment {
+                let (a, b) = (along.at(t0), along.at(t1));
+                match seg {
+                    Segment::Line { .. } => Segment::Line { a, b },
+                    Segment::Arc {
+                        center,
+                        radius,
+                        ccw,
+                        ..
+                    } => Segment::Arc {
+                        a,
+                        b,
+                        center,
+                        radius,
+                        ccw,
+                    },
+                }
+            };
+            // the stretch of this segment cut but not yet written
+            let mut t_from = 0.0;
+            let mut t = 0.0;
+            let mut i = 0usize;
+            // loops in a row that did not advance
+            let mut stuck = 0;
+            while i < n {
+                let t1 = (i + 1) as f64 / n as f64;
+                let (a, b) = (along.at(t), along.at(t1));
+                let u = (b - a).unit();
+                let ahead = a + u * look;
+                let e_here = chord_engagement(g, a, b, r, h);
+                let e_ahead = side_engagement(g, P3::at_z(ahead, -1.0), u, r);
+                if e_here.max(e_ahead) <= bound {
+                    note(cut_chord(g, a, b, r, h), a, worst);
+                    t = t1;
+                    i += 1;
+                    continue;
+                }
+                // loops from here: write the stretch so far
+                if t > t_from {
+                    steps.push(Step::Seg {
+                        seg: part(t_from, t),
+                    });
+                }
+                let side = if self.climb { u.perp() } else { -u.perp() };
+                let room = if stuck < 2 {
+                    self.loop_radius(a, side)
+                } else {
+                    None
+                };
+                let Some(rho) = room else {
+                    // no room for a loop: straight on
+                    note(cut_chord(g, a, b, r, h), a, worst);
+                    steps.push(Step::Seg { seg: part(t, t1) });
+                    t = t1;
+                    t_from = t;
+                    i += 1;
+                    stuck = 0;
+                    continue;
+                };
+                // advance along the wall by the largest of a few distances that keeps the
+                // bound (the smallest if none does)
+                // each loop tried on the raster and undone; the first that keeps the bound
+                // stays, else the one that advances with the least engagement
+                let trial = |g: &mut Grid, rho: f64, adv: f64, log: &mut Vec<(usize, f32)>| {
+                    let tn = (t + adv / len).min(t1);
+                    let an = along.at(tn);
+                    // the room for the loop where it is (a corner ahead leaves less)
+                    let rho = rho.min(self.loop_radius(an, side)?);
+                    let mut e = 0.0f64;
+                    if an.dist(a) > 1e-9 {
+                        e = e.max(cut_logged(g, a, an, r, h, log));
+                    }
+                    let circle = circle_segments(an, an + side * rho, rho, self.climb);
+                    for cs in &circle {
+                        let pts = flatten_segment(cs, h / 8.0);
+                        for w in pts.windows(2) {
+                            e = e.max(cut_logged(g, w[0], w[1], r, h, log));
+                        }
+                    }
+                    Some((e, tn, an, circle))
+                };
+                let mut done = None;
+                let mut least: Option<(f64, f64, f64)> = None;
+                'trials: for f in [1.0, 0.5, 0.25] {
+                    for adv in [0.25, 0.15, 0.08, 0.04, 0.02, 0.0] {
+                        let mut log = Vec::new();
+                        let Some((e, tn, an, circle)) = trial(g, f * rho, adv, &mut log) else {
+                            continue;
+                        };
+                        if e <= bound {
+                            done = Some((tn, an, circle, e));
+                            break 'trials;
+                        }
+                        if adv > 0.0 && least.is_none_or(|l| e < l.0) {
+                            least = Some((e, f * rho, adv));
+                        }
+                        for &(k, old) in log.iter().rev() {
+                            g.top[k] = old;
+                        }
+                    }
+                }
+                if done.is_none() {
+                    if let Some((_, rho, adv)) = least {
+                        if let Some((e, tn, an, circle)) = trial(g, rho, adv, &mut Vec::new()) {
+                            done = Some((tn, an, circle, e));
+                        }
+                    }
+                }
+                let Some((tn, an, circle, e)) = done else {
+                    // no loop fits here: straight on
+                    note(cut_chord(g, a, b, r, h), a, worst);
+                    steps.push(Step::Seg { seg: part(t, t1) });
+                    t = t1;
+                    t_from = t;
+                    i += 1;
+                    stuck = 0;
+                    continue;
+                };
+                note(e, an, worst);
+                if tn > t {
+                    steps.push(Step::Seg { seg: part(t, tn) });
+                }
+                for cs in circle {
+                    steps.push(Step::Seg { seg: cs });
+                }
+                if tn >= t1 - 1e-12 {
+                    i += 1;
+                }
+                stuck = if tn > t { 0 } else { stuck + 1 };
+                t = tn;
+                t_from = t;
+            }
+            if t > t_from {
+                steps.push(Step::Seg {
+                    seg: part(t_from, t),
+                });
+            }
         }
-        // trailing air is left out: the tool stays where it last cut
-        let _ = at;
+    }
+
+    /// The radius of a trochoidal loop at `a` on a wall loop (the loop's centre at
+    /// `a + side·ρ`), as large as half a millimetre and the walls allow; none under 0.05 mm.
+    fn loop_radius(&self, a: Point, side: Point) -> Option<f64> {
+        for rho in [0.5, 0.35, 0.25, 0.18, 0.12, 0.08, 0.05] {
+            let c = a + side * rho;
+            let d = match self.near.closest(c) {
+                None => f64::INFINITY,
+                Some((d, _)) => d,
+            };
+            if d >= self.kexact + rho - 1e-6 {
+                return Some(rho);
+            }
+        }
+        None
     }
 
     /// Each wall loop once round, nearest first, from its vertex nearest the tool.
@@ -615,35 +880,60 @@ impl Plan {
             .collect();
         while !todo.is_empty() {
             let at = self.at;
-            let (li, vi) = todo
+            // the middles of the segments, nearest first; the first whose spot three cells
+            // inside (towards the cleared side) has a clear tool disc starts its loop
+            let mut mids: Vec<(f64, usize, usize)> = todo
                 .iter()
                 .enumerate()
                 .flat_map(|(li, l)| {
-                    l.vertices
-                        .iter()
+                    l.segments()
                         .enumerate()
-                        .map(move |(vi, v)| (li, vi, v.pos()))
+                        .map(move |(si, sg)| (sg.point_at(0.5).dist(at), li, si))
                 })
-                .min_by(|a, b| a.2.dist(at).total_cmp(&b.2.dist(at)))
-                .map(|(li, vi, _)| (li, vi))
-                .expect("walls left");
+                .collect();
+            mids.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let inward = |pl: &Polyline, si: usize| {
+                let sg = pl.segment(si);
+                let u0 = sg.tangent_at(0.5);
+                let side = if self.climb { u0.perp() } else { -u0.perp() };
+                sg.point_at(0.5) + side * (3.0 * self.h)
+            };
+            let pick = mids
+                .iter()
+                .find(|&&(_, li, si)| {
+                    !disc_has(&self.g, inward(&todo[li], si), self.r + 2.0 * self.h, -1.0)
+                })
+                .or(mids.first())
+                .map(|&(_, li, si)| (li, si));
+            let Some((li, si)) = pick else {
+                break;
+            };
+            let q_in = inward(&todo[li], si);
+            let open = !disc_has(&self.g, q_in, self.r + 2.0 * self.h, -1.0);
             let pl = todo.swap_remove(li);
-            let pl = entry::restart(&pl, vi, 0.0);
+            let pl = entry::restart(&pl, si, 0.5 * pl.segment(si).length());
             let q = pl.vertices[0].pos();
-            let open = !disc_has(&self.g, q, self.r + self.h, -1.0);
             let mut g = std::mem::replace(&mut self.g, Grid::new(Point::default(), 1.0, 0, 0));
             let mut steps = Vec::new();
             if open {
                 let mut here = self.at;
-                self.link(&g, &mut steps, &mut here, q);
+                self.link(&g, &mut steps, &mut here, q_in);
+                cut_chord(&mut g, q_in, q, self.r, self.h);
+                steps.push(Step::Seg {
+                    seg: Segment::Line { a: q_in, b: q },
+                });
             }
             let mut worst = (0.0, Point::default());
-            for seg in pl.segments() {
-                let pts = flatten_segment(&seg, self.h / 8.0);
-                for w in pts.windows(2) {
-                    let e = cut_chord(&mut g, w[0], w[1], self.r, self.h);
-                    if e > worst.0 {
-                        worst = (e, w[0]);
+            if open {
+                self.trace_wall(&mut g, &pl, &mut steps, &mut worst);
+            } else {
+                for seg in pl.segments() {
+                    let pts = flatten_segment(&seg, self.h / 8.0);
+                    for w in pts.windows(2) {
+                        let e = cut_chord(&mut g, w[0], w[1], self.r, self.h);
+                        if e > worst.0 {
+                            worst = (e, w[0]);
+                        }
                     }
                 }
             }
@@ -656,11 +946,9 @@ impl Plan {
             if worst.0 > self.bound {
                 self.found.over.push((worst.1, worst.0));
             }
-            self.steps.push(if open {
-                Step::Wall { pl }
-            } else {
-                Step::Ramp { pl }
-            });
+            if !open {
+                self.steps.push(Step::Ramp { pl });
+            }
             self.at = q;
         }
     }
@@ -681,8 +969,70 @@ fn cut_chord(g: &mut Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
         let p = a + d * (s as f64 / n as f64);
         worst = worst.max(side_engagement(g, P3::at_z(p, -1.0), u, r));
     }
-    g.cut(P3::at_z(a, -1.0), P3::at_z(b, -1.0), r, true, |_, _, _| {});
+    g.cut(
+        P3::at_z(a, -1.0),
+        P3::at_z(b, -1.0),
+        r - SHRINK * h,
+        true,
+        |_, _, _| {},
+    );
     worst
+}
+
+/// The largest engagement along the chord a→b on `g` (bottom −1), nothing cut.
+fn chord_engagement(g: &Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
+    let d = b - a;
+    let l = d.len();
+    if l < 1e-12 {
+        return 0.0;
+    }
+    let u = d * (1.0 / l);
+    let n = ((l / h).ceil() as usize).max(1);
+    (1..=n)
+        .map(|s| side_engagement(g, P3::at_z(a + d * (s as f64 / n as f64), -1.0), u, r))
+        .fold(0.0, f64::max)
+}
+
+/// [`cut_chord`], the cells it lowers and their old heights added to `log`.
+fn cut_logged(
+    g: &mut Grid,
+    a: Point,
+    b: Point,
+    r: f64,
+    h: f64,
+    log: &mut Vec<(usize, f32)>,
+) -> f64 {
+    let e = chord_engagement(g, a, b, r, h);
+    g.cut(
+        P3::at_z(a, -1.0),
+        P3::at_z(b, -1.0),
+        r - SHRINK * h,
+        true,
+        |k, old, _| log.push((k, old)),
+    );
+    e
+}
+
+/// A full circle from `a` about `c` (radius `rho`) as two half arcs, counter-clockwise
+/// when `ccw`.
+fn circle_segments(a: Point, c: Point, rho: f64, ccw: bool) -> [Segment; 2] {
+    let o = c + (c - a);
+    [
+        Segment::Arc {
+            a,
+            b: o,
+            center: c,
+            radius: rho,
+            ccw,
+        },
+        Segment::Arc {
+            a: o,
+            b: a,
+            center: c,
+            radius: rho,
+            ccw,
+        },
+    ]
 }
 
 /// Whether material stands above `z` in the disc of radius `rad` about `p`.
@@ -724,128 +1074,78 @@ fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
     false
 }
 
-/// The closed iso-lines at `level` of the geodesic distance of part `id` (cells of other
-/// parts and outside count as infinitely far), by marching squares over cell centres with
-/// the nearer side on the left, simplified to within a quarter of a cell.
-fn iso_lines(
-    g: &Grid,
-    geo: &[f64],
-    comp: &[u32],
-    id: u32,
-    bbox: [usize; 4],
-    level: f64,
-    h: f64,
-) -> Vec<Vec<Point>> {
-    let nx = g.nx;
-    let val = |i: usize, j: usize| {
-        let k = j * nx + i;
-        if comp[k] == id {
-            geo[k]
-        } else {
-            f64::INFINITY
-        }
-    };
-    let i0 = bbox[0].saturating_sub(1);
-    let j0 = bbox[1].saturating_sub(1);
-    let i1 = (bbox[2] + 1).min(g.nx - 2);
-    let j1 = (bbox[3] + 1).min(g.ny - 2);
-    // edge ids: horizontal (i,j)-(i+1,j) 2k, vertical (i,j)-(i,j+1) 2k+1
-    // ordered, so each loop starts at the same edge in every run (the same job plans the
-    // same program twice)
-    let mut next: BTreeMap<usize, (usize, Point)> = BTreeMap::new();
-    for j in j0..=j1 {
-        for i in i0..=i1 {
-            let c = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
-            let v: Vec<f64> = c.iter().map(|&(a, b)| val(a, b)).collect();
-            let inside: Vec<bool> = v.iter().map(|&x| x <= level).collect();
-            if inside.iter().all(|&x| x) || inside.iter().all(|&x| !x) {
-                continue;
-            }
-            let edge = |e: usize| -> usize {
-                match e {
-                    0 => 2 * (j * nx + i),
-                    1 => 2 * (j * nx + i + 1) + 1,
-                    2 => 2 * ((j + 1) * nx + i),
-                    _ => 2 * (j * nx + i) + 1,
-                }
-            };
-            let point = |e: usize| -> Point {
-                let (a, b) = (e, (e + 1) % 4);
-                let (pa, pb) = (g.centre(c[a].0, c[a].1), g.centre(c[b].0, c[b].1));
-                let (va, vb) = (v[a], v[b]);
-                let t = if va.is_finite() && vb.is_finite() {
-                    ((level - va) / (vb - va)).clamp(0.0, 1.0)
-                } else if va.is_finite() {
-                    0.0
-                } else {
-                    1.0
-                };
-                pa + (pb - pa) * t
-            };
-            for e in 0..4 {
-                // entry: this corner inside, the next (counter-clockwise) outside
-                if !inside[e] || inside[(e + 1) % 4] {
-                    continue;
-                }
-                // its exit: the first edge clockwise from it going outside → inside
-                for back in 1..4 {
-                    let x = (e + 4 - back) % 4;
-                    if !inside[x] && inside[(x + 1) % 4] {
-                        next.insert(edge(e), (edge(x), point(e)));
-                        break;
-                    }
-                }
-            }
-        }
-    }
-    let mut loops = Vec::new();
-    while let Some(&start) = next.keys().next() {
-        let mut pts = Vec::new();
-        let mut e = start;
-        while let Some((to, p)) = next.remove(&e) {
-            pts.push(p);
-            e = to;
-        }
-        if pts.len() >= 3 {
-            loops.push(simplify_closed(&pts, h / 4.0));
-        }
-    }
-    loops
+/// A direction tried for a step: its index from the last (positive towards the material),
+/// its angle, and the engagement and end of the step if its end may be a centre.
+type Sample = (i32, f64, Option<(f64, Point)>);
+
+/// How far inside the least distance from the part the passes keep, mm (more than the
+/// fit of the runs into lines and arcs, an eighth of a cell for the 6 mm tool's cells).
+const INSIDE: f64 = 0.02;
+
+/// The boundary segments of a region in square buckets, each holding every segment within
+/// `reach` of it: exact distances to the boundary near it.
+#[derive(Clone, Debug, Default)]
+struct Near {
+    segs: Vec<crate::geom::Segment>,
+    origin: Point,
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    buckets: Vec<Vec<u32>>,
+    reach: f64,
 }
 
-/// Douglas–Peucker on a closed loop of points, within `tol`.
-fn simplify_closed(pts: &[Point], tol: f64) -> Vec<Point> {
-    let n = pts.len();
-    // split at the point farthest from the first
-    let far = (0..n)
-        .max_by(|&a, &b| pts[0].dist(pts[a]).total_cmp(&pts[0].dist(pts[b])))
-        .unwrap_or(0);
-    let mut keep = vec![false; n + 1];
-    keep[0] = true;
-    keep[far] = true;
-    keep[n] = true;
-    let at = |k: usize| pts[k % n];
-    let mut stack = vec![(0usize, far), (far, n)];
-    while let Some((a, b)) = stack.pop() {
-        if b <= a + 1 {
-            continue;
-        }
-        let seg = crate::geom::Segment::Line { a: at(a), b: at(b) };
-        let (mut best, mut bd) = (a, -1.0);
-        for k in a + 1..b {
-            let d = seg.distance_to(at(k));
-            if d > bd {
-                bd = d;
-                best = k;
+impl Near {
+    fn new(region: &Region, cell: f64, reach: f64) -> Near {
+        let segs: Vec<_> = region.boundaries().flat_map(|b| b.segments()).collect();
+        let b = region.bounds();
+        let origin = b.min - Point::new(reach + cell, reach + cell);
+        let nx = ((b.width() + 2.0 * (reach + cell)) / cell).ceil() as usize + 1;
+        let ny = ((b.height() + 2.0 * (reach + cell)) / cell).ceil() as usize + 1;
+        let mut buckets = vec![Vec::new(); nx * ny];
+        for (k, sg) in segs.iter().enumerate() {
+            let sb = sg.bounds();
+            let i0 = ((sb.min.x - reach - origin.x) / cell).floor().max(0.0) as usize;
+            let j0 = ((sb.min.y - reach - origin.y) / cell).floor().max(0.0) as usize;
+            let i1 = (((sb.max.x + reach - origin.x) / cell).floor() as usize).min(nx - 1);
+            let j1 = (((sb.max.y + reach - origin.y) / cell).floor() as usize).min(ny - 1);
+            for j in j0..=j1 {
+                for i in i0..=i1 {
+                    buckets[j * nx + i].push(k as u32);
+                }
             }
         }
-        if bd > tol {
-            keep[best] = true;
-            stack.push((a, best));
-            stack.push((best, b));
+        Near {
+            segs,
+            origin,
+            cell,
+            nx,
+            ny,
+            buckets,
+            reach,
         }
     }
-    (0..n).filter(|&k| keep[k]).map(|k| pts[k]).collect()
+
+    /// The nearest boundary point to `p` and its distance, if one is within `reach`.
+    fn closest(&self, p: Point) -> Option<(f64, Point)> {
+        if self.cell <= 0.0 {
+            return None;
+        }
+        let i = ((p.x - self.origin.x) / self.cell).floor();
+        let j = ((p.y - self.origin.y) / self.cell).floor();
+        if i < 0.0 || j < 0.0 || i >= self.nx as f64 || j >= self.ny as f64 {
+            return None;
+        }
+        let mut best: Option<(f64, Point)> = None;
+        for &k in &self.buckets[j as usize * self.nx + i as usize] {
+            let c = self.segs[k as usize].closest_point(p);
+            let d = c.dist(p);
+            if best.is_none_or(|b| d < b.0) {
+                best = Some((d, c));
+            }
+        }
+        best.filter(|b| b.0 < self.reach)
+    }
 }
 
 /// Writes the plan at each level.
@@ -950,10 +1250,8 @@ impl Emit<'_> {
                 }
                 // gathered into the run above
                 Step::Cut { .. } => {}
-                Step::Wall { pl } => {
-                    for seg in pl.segments() {
-                        self.push(cut(seg, z, feed));
-                    }
+                Step::Seg { seg } => {
+                    self.push(cut(*seg, z, feed));
                 }
                 Step::Ramp { pl } => {
                     let q = pl.vertices[0].pos();
@@ -985,7 +1283,7 @@ impl Emit<'_> {
         let fit = crate::biarc::fit_points(
             run,
             false,
-            &crate::biarc::BiarcOptions::with_tolerance(self.g.h / 4.0),
+            &crate::biarc::BiarcOptions::with_tolerance(self.g.h / 8.0),
         );
         for seg in fit.segments() {
             self.push(cut(seg, z, self.c.feed));

@@ -9,7 +9,8 @@
 
 use offset_core::cutsim::feed::chip_factor;
 use offset_core::cutsim::{retracts, simulate, MoveKind, Part, SimOptions, Stock};
-use offset_core::geom::{Point, Polyline, Shape};
+use offset_core::geom::{Point, Polyline, Shape, Vertex};
+use offset_core::offset::{offset_region, OffsetOptions};
 use offset_core::ops::{adaptive, pocket, AdaptiveParams, Cutting, PocketParams, Stepover};
 use offset_core::stats::Kinematics;
 use offset_core::toolpath::{Move, Tool, Toolpath, P3};
@@ -45,6 +46,8 @@ fn neck() -> Shape {
 
 pub struct Outcome {
     pub tp: Toolpath,
+    /// Every level cut (helices left out): its index, engagement, start and end.
+    pub levels: Vec<(usize, f64, P3, P3)>,
     /// The largest engagement of a level cut (helices left out), and where.
     pub worst: f64,
     pub worst_at: (P3, usize),
@@ -64,9 +67,14 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
         engagement: bound,
         ..AdaptiveParams::default()
     };
+    let t0 = std::time::Instant::now();
     let tp = adaptive(shape, &p).unwrap();
+    let planned = t0.elapsed().as_secs_f64();
     if let Move::Comment { text } = &tp.moves[0] {
-        eprintln!("{name}: {text}; {:?}", tp.warnings);
+        eprintln!(
+            "{name}: planned in {planned:.1} s: {text}; {:?}",
+            tp.warnings
+        );
     }
     let b = shape.bounds();
     let stock = Stock::block(
@@ -93,6 +101,27 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
         .iter()
         .max_by(|a, b| a.engagement.total_cmp(&b.engagement));
     let cut = worst.map_or(0.0, |m| m.engagement);
+    if std::env::var("ADAPTIVE_DEBUG").is_ok() {
+        let mut v: Vec<_> = levels.iter().filter(|m| m.engagement > bound).collect();
+        eprintln!("{name}: {} level moves over {bound}", v.len());
+        for m in rep.moves.iter().filter(|m| m.gouges > 0).take(5) {
+            eprintln!(
+                "  gouge move {} {:?} -> {:?} {:?} prev {:?}",
+                m.index,
+                m.from,
+                m.to,
+                tp.moves[m.index],
+                tp.moves[m.index - 1]
+            );
+        }
+        v.sort_by(|a, b| b.engagement.total_cmp(&a.engagement));
+        for m in v.iter().take(25) {
+            eprintln!(
+                "  move {} {:.1}° {:?} -> {:?} len {:.3} {:?}",
+                m.index, m.engagement, m.from, m.to, m.length, tp.moves[m.index]
+            );
+        }
+    }
     let entries: Vec<_> = rep.moves.iter().filter(|m| helix[m.index]).collect();
     let entry = entries.iter().map(|m| m.engagement).fold(0.0, f64::max);
     let entries = entries.len();
@@ -120,8 +149,13 @@ fn check(name: &str, shape: &Shape, depth: f64, bound: f64) -> Outcome {
         );
     }
     let worst_at = worst.map_or((P3::default(), 0), |m| (m.from, m.index));
+    let levels = levels
+        .iter()
+        .map(|m| (m.index, m.engagement, m.from, m.to))
+        .collect();
     Outcome {
         tp,
+        levels,
         worst: cut,
         worst_at,
     }
@@ -174,7 +208,7 @@ fn time_at_bound(tp: &Toolpath, worst: f64, feed: f64, max_feed: f64) -> (f64, f
 }
 
 #[test]
-#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows): about 200 s in the test profile, the slowest test of the workspace; run: cargo test -p offset-core --test it adaptive:: -- --ignored --nocapture"]
+#[ignore = "a measurement (docs/BENCHMARKS.md, adaptive rows); run: cargo test -p offset-core --test it adaptive::the_plate_with -- --ignored --nocapture"]
 fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_the_pocket() {
     let a = check("plate", &plate(), 2.0, 70.0);
     // the pocket at 40 %, simulated the same way, for the benchmark
@@ -210,17 +244,188 @@ fn the_plate_with_two_islands_is_cleared_without_a_gouge_and_measured_against_th
     );
 }
 
-/// The bound itself: NOT met yet where a pass's front meets a wall (measured in
-/// docs/BENCHMARKS.md); run with `--ignored`.
+/// The sharp corners of the tool centre's path round the walls (each region offset inward
+/// by the tool radius): where it turns on the spot, going into a corner of the region.
+fn sharp_corners(shape: &Shape, r: f64) -> Vec<Point> {
+    let mut out = Vec::new();
+    for region in shape.regions() {
+        for w in offset_region(&region, -r, &OffsetOptions::default()).unwrap() {
+            for pl in w.boundaries() {
+                let n = pl.segment_count();
+                for k in 0..n {
+                    let (a, b) = (pl.segment(k), pl.segment((k + 1) % n));
+                    if a.tangent_at(1.0).dot(b.tangent_at(0.0)) < 0.999 {
+                        out.push(a.end());
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The level cuts that read more than `bound`, apart from those ending within `near` mm of
+/// one of `corners`; and the most those near the corners read.
+fn over_bound(
+    a: &Outcome,
+    bound: f64,
+    corners: &[Point],
+    near: f64,
+) -> (Vec<(usize, f64, P3)>, f64) {
+    let close = |p: P3| corners.iter().any(|c| c.dist(p.xy()) <= near);
+    let mut away = Vec::new();
+    let mut at_corners = 0.0f64;
+    for &(i, e, from, to) in &a.levels {
+        if close(to) {
+            at_corners = at_corners.max(e);
+        } else if e > bound {
+            away.push((i, e, from));
+        }
+    }
+    (away, at_corners)
+}
+
+/// The bound on every level cut of the plate, checked by the simulation, but for the
+/// tool's way into the four sharp corners of the outer wall (the last 0.5 mm before each):
+/// there the wall pass reads about 100° (measured, docs/BENCHMARKS.md), asserted in the
+/// ignored test after this one.
 #[test]
-#[ignore = "the engagement bound is not yet held where the fronts meet the walls (docs/BENCHMARKS.md)"]
 fn the_plate_keeps_the_engagement_bound() {
+    let a = check("plate", &plate(), 2.0, 70.0);
+    let corners = sharp_corners(&plate(), 3.0);
+    assert_eq!(corners.len(), 4, "{corners:?}");
+    let (away, at_corners) = over_bound(&a, 70.0, &corners, 0.5);
+    eprintln!("plate: worst going into the sharp corners {at_corners:.1}°");
+    assert!(
+        away.is_empty(),
+        "{} level cuts over 70°, the worst {:?}",
+        away.len(),
+        away.iter().max_by(|x, y| x.1.total_cmp(&y.1))
+    );
+}
+
+#[test]
+#[ignore = "going into the four sharp corners of the plate's outer wall the wall pass reads about 100° (simulated; docs/BENCHMARKS.md): the adaptive passes do not clear those corners first"]
+fn the_plate_keeps_the_engagement_bound_in_its_sharp_corners() {
     let a = check("plate", &plate(), 2.0, 70.0);
     assert!(
         a.worst <= 70.0,
         "move {} reads {:.1}°",
         a.worst_at.1,
         a.worst
+    );
+}
+
+#[test]
+#[ignore = "through the 6.4 mm neck (6 mm tool) the trochoidal loops of the wall pass still read up to about 165° in the simulation (docs/BENCHMARKS.md)"]
+fn a_neck_just_wider_than_the_tool_keeps_the_engagement_bound() {
+    let a = check("neck", &neck(), 1.0, 70.0);
+    assert!(
+        a.worst <= 70.0,
+        "move {} reads {:.1}° at {:?}",
+        a.worst_at.1,
+        a.worst,
+        a.worst_at.0
+    );
+}
+
+/// An outline of 10,000 vertices, wavy (a circle of 28 mm with 10 waves of 1 mm), with a
+/// round island and a wavy one.
+fn wavy() -> Shape {
+    let ring = |c: Point, r0: f64, amp: f64, waves: f64, n: usize, ccw: bool| {
+        let pts: Vec<Point> = (0..n)
+            .map(|i| {
+                let t = i as f64 / n as f64 * std::f64::consts::TAU;
+                let t = if ccw { t } else { -t };
+                let r = r0 + amp * (waves * t).sin();
+                c + Point::new(r * t.cos(), r * t.sin())
+            })
+            .collect();
+        Polyline::from_points(&pts, true)
+    };
+    Shape::new(vec![
+        ring(Point::new(30.0, 30.0), 28.0, 1.0, 10.0, 10_000, true),
+        ring(Point::new(18.0, 30.0), 4.0, 0.0, 0.0, 400, false),
+        ring(Point::new(42.0, 32.0), 5.0, 0.4, 7.0, 600, false),
+    ])
+}
+
+#[test]
+fn a_wavy_region_of_10000_vertices_with_islands_keeps_the_engagement_bound() {
+    let shape = wavy();
+    assert!(shape.paths[0].len() == 10_000);
+    let a = check("wavy", &shape, 1.0, 70.0);
+    let corners = sharp_corners(&shape, 3.0);
+    let (away, at_corners) = over_bound(&a, 70.0, &corners, 0.5);
+    eprintln!(
+        "wavy: {} sharp wall corners, worst near them {at_corners:.1}°",
+        corners.len()
+    );
+    assert!(
+        away.is_empty(),
+        "{} level cuts over 70°, the worst {:?}",
+        away.len(),
+        away.iter().max_by(|x, y| x.1.total_cmp(&y.1))
+    );
+}
+
+/// shared/data/dxf/1_polylines.dxf, its closed outline of 19 vertices (its numbers read as
+/// µm, so scaled by 1/1000 into mm: 59 × 67 mm; the outline with two islands has an
+/// island that crosses itself, which the offset refuses).
+fn dxf_region() -> Shape {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data/dxf/1_polylines.dxf");
+    let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let (shape, _) = offset_core::io::read_shape_with(
+        &bytes,
+        "1_polylines.dxf",
+        &offset_core::io::ReadOptions {
+            layers: Vec::new(),
+            colors: Vec::new(),
+            tolerance: 0.01,
+        },
+    )
+    .unwrap();
+    let region = shape
+        .regions()
+        .into_iter()
+        .find(|r| r.boundaries().map(|b| b.len()).sum::<usize>() == 19)
+        .expect("the outline of 19 vertices");
+    let o = region.bounds().min;
+    Shape::new(
+        region
+            .boundaries()
+            .map(|pl| {
+                // a bulge is the same at any scale
+                let vs = pl
+                    .vertices
+                    .iter()
+                    .map(|v| {
+                        let p = (v.pos() - o) * 0.001;
+                        Vertex::new(p.x, p.y, v.bulge)
+                    })
+                    .collect();
+                Polyline::new(vs, true)
+            })
+            .collect(),
+    )
+}
+
+#[test]
+fn a_region_of_a_shared_dxf_drawing_keeps_the_engagement_bound_away_from_sharp_corners() {
+    let shape = dxf_region();
+    let a = check("dxf", &shape, 1.0, 70.0);
+    let corners = sharp_corners(&shape, 3.0);
+    let (away, at_corners) = over_bound(&a, 70.0, &corners, 0.5);
+    eprintln!(
+        "dxf: {} sharp wall corners, worst near them {at_corners:.1}°",
+        corners.len()
+    );
+    assert!(
+        away.is_empty(),
+        "{} level cuts over 70°, the worst {:?}",
+        away.len(),
+        away.iter().max_by(|x, y| x.1.total_cmp(&y.1))
     );
 }
 
