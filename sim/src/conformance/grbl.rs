@@ -258,19 +258,28 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Line<S> {
     }
     /// What the controller says until `marker` has come (within `within`) and it has then
     /// been quiet for 80 ms: for the power-up banner, which a loaded machine may print
-    /// long after the port opened.
+    /// long after the port opened. The marker is looked for after every read, so the wait
+    /// ends as soon as it is in.
     async fn said_through(&mut self, marker: &str, within: Duration) -> Result<String, String> {
         let give_up = Instant::now() + within;
-        let mut out = String::new();
-        while !out.contains(marker) {
+        let mut out = Vec::new();
+        let mut buf = [0u8; 1024];
+        while !String::from_utf8_lossy(&out).contains(marker) {
             let left = give_up.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Err(format!(
-                    "no {marker:?} within {within:?} of power-up; heard {out:?}"
+                    "no {marker:?} within {within:?} of power-up; heard {:?}",
+                    String::from_utf8_lossy(&out)
                 ));
             }
-            out += &self.said(left.min(Duration::from_millis(200))).await?;
+            match tokio::time::timeout(left, self.io.read(&mut buf)).await {
+                Err(_) => {}
+                Ok(Ok(0)) => return Err("the controller closed the line".into()),
+                Ok(Ok(n)) => out.extend_from_slice(&buf[..n]),
+                Ok(Err(e)) => return Err(format!("reading: {e}")),
+            }
         }
+        let mut out = String::from_utf8_lossy(&out).into_owned();
         out += &self.said(Duration::from_millis(80)).await?;
         Ok(out)
     }
