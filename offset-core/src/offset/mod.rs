@@ -1,6 +1,7 @@
 //! The offset kernel: grow or shrink closed polylines and regions with islands, and offset
 //! open polylines to one side, by pair-wise interference removal (Choi & Park 1999; Park 2001).
 
+mod convex;
 pub mod index;
 mod joins;
 mod prune;
@@ -405,6 +406,12 @@ fn check_input(
     eps: f64,
     tolerance: f64,
 ) -> Result<(), OffsetError> {
+    // one convex loop cannot cross itself: no crossing search (see `convex`)
+    if let [(segs, true)] = &*paths {
+        if convex::is_convex_ccw(segs) {
+            return Ok(());
+        }
+    }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
@@ -664,6 +671,12 @@ fn run_closed(
     opts: &OffsetOptions,
     eps: f64,
 ) -> Vec<Loop> {
+    // one convex loop of lines shrunk: the intersection of its moved sides, no global stage
+    if let [(segs, true)] = loops.as_mut_slice() {
+        if o > 0.0 && convex::is_convex_ccw(segs) && convex::shrink(segs, o, eps) {
+            return finish(loops, opts, eps);
+        }
+    }
     let mut rest = o;
     loop {
         let step = match opts.join {
@@ -719,13 +732,27 @@ fn run(
         if !closed && segs.iter().map(|s| s.length()).sum::<f64>() <= valid_eps {
             continue;
         }
-        let segs = joins::apply(segs, &whole_join, opts);
-        pieces.push((despike(segs, closed, valid_eps), closed));
+        pieces.push((joins::apply(segs, &whole_join, opts), closed));
     }
+    finish(pieces, opts, eps)
+}
+
+/// The offset's pieces as the result: slivers replaced (see `despike`), zig-zags cut off,
+/// then polylines.
+fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<Loop> {
+    let valid_eps = slack(opts.tolerance, eps);
+    let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
+        .into_iter()
+        .map(|(segs, closed)| (despike(segs, closed, valid_eps), closed))
+        .collect();
     // what the prune and the joins leave may still zig-zag by less than the bound where
     // nearly tangent offsets were cut and stitched: cut those lobes off here, so the result
-    // is valid input as it stands (the same repair the input check makes)
-    zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
+    // is valid input as it stands (the same repair the input check makes); one convex
+    // loop has none (despiking a convex loop keeps a subset of its vertices: still convex)
+    let convex = matches!(pieces.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs));
+    if !convex {
+        zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
+    }
     let mut out = Vec::with_capacity(pieces.len());
     for (segs, closed) in pieces {
         if let Some(p) = build(segs, closed, eps) {
@@ -804,20 +831,21 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
 /// and no point moves by more than `delta`. A loop shorter than three times `delta` stays
 /// as it is.
 fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
-    let total: f64 = segs.iter().map(|s| s.length()).sum();
-    if total < 3.0 * delta {
-        return segs;
-    }
     let first = segs[0].a;
-    let mut out: Vec<Seg> = Vec::with_capacity((total / delta) as usize + 2);
-    let (mut start, mut acc) = (first, 0.0);
+    let mut out: Vec<Seg> = Vec::new();
+    let (mut start, mut acc, mut total) = (first, 0.0, 0.0);
     for s in &segs {
-        acc += s.length();
+        let l = s.length();
+        acc += l;
+        total += l;
         if acc >= delta {
             out.push(Seg::line(start, s.b));
             start = s.b;
             acc = 0.0;
         }
+    }
+    if total < 3.0 * delta {
+        return segs;
     }
     // close the loop: the last line ends at the first point, a stub is absorbed
     match out.last_mut() {
