@@ -4,8 +4,13 @@
 //! is `gear:N` (the bench's gear of N vertices), `gear+:N` (with its 10 islands) or
 //! `circle:N` (N points on a circle of radius 10), and D the signed distance (`inr-1e-3`
 //! for the dense circle's inradius less 1e-3). `incremental:K` after the reps makes K
-//! passes, each from the previous result. Prints the best time and the output's size.
+//! passes, each from the previous result; `cav` offsets with cavalier_contours instead
+//! (the bench's anchor, its shape built outside the timing as there; callgrind it with
+//! `--toggle-collect='cavalier_contours::shape_algorithms::Shape*::parallel_offset*'`).
+//! Prints the best time and the output's size.
 
+use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
+use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
 use offset_core::geom::{Point, Polyline, Region};
 use offset_core::offset::{offset_regions, OffsetOptions};
 use std::time::Instant;
@@ -88,6 +93,37 @@ fn main() {
         .find_map(|a| a.strip_prefix("incremental:"))
         .and_then(|k| k.parse().ok())
         .unwrap_or(1);
+    if args.iter().any(|a| a == "cav") {
+        let to_cav = |p: &Polyline| {
+            let mut c = CPline::with_capacity(p.len(), p.closed);
+            for v in &p.vertices {
+                c.add(v.x, v.y, v.bulge);
+            }
+            c
+        };
+        let shape = CShape::from_plines(region.boundaries().map(to_cav));
+        let mut best = f64::INFINITY;
+        let mut verts = 0;
+        for _ in 0..reps {
+            let t = Instant::now();
+            let mut cur = shape.parallel_offset(-d, &ShapeOffsetOptions::default());
+            for _ in 1..passes {
+                cur = cur.parallel_offset(-d, &ShapeOffsetOptions::default());
+            }
+            best = best.min(t.elapsed().as_secs_f64());
+            verts = cur
+                .ccw_plines
+                .iter()
+                .chain(cur.cw_plines.iter())
+                .map(|p| p.polyline.vertex_count())
+                .sum();
+        }
+        println!(
+            "cavalier_contours {kind}:{n} d = {d}: best {:.2} ms of {reps}, {verts} output vertices",
+            best * 1e3
+        );
+        return;
+    }
     let opts = OffsetOptions::default();
     let mut best = f64::INFINITY;
     let mut out = Vec::new();

@@ -29,7 +29,7 @@ pub(super) fn is_convex_ccw(segs: &[Seg]) -> bool {
     let mut t_in = segs[m - 1].b - segs[m - 1].a;
     for s in segs {
         let t_out = s.b - s.a;
-        if !(t_in.cross(t_out) > 0.0) {
+        if !above(t_in.cross(t_out), 0.0) {
             return false;
         }
         east += usize::from(t_in.y < 0.0 && t_out.y >= 0.0);
@@ -38,16 +38,14 @@ pub(super) fn is_convex_ccw(segs: &[Seg]) -> bool {
     east == 1
 }
 
+/// `x` > `y`, false for NaN (so `!above` refuses a NaN).
+fn above(x: f64, y: f64) -> bool {
+    x > y
+}
+
 fn direction(s: &Seg) -> Point {
     let d = s.b - s.a;
     d * (1.0 / d.len())
-}
-
-/// A side's line: its start and unit direction.
-#[derive(Clone, Copy)]
-struct Line {
-    a: Point,
-    d: Point,
 }
 
 /// The convex loop `segs` (counter-clockwise, see `is_convex_ccw`) shrunk by `o` > 0:
@@ -57,42 +55,44 @@ struct Line {
 /// dense loop's result is as long as it.
 pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
     let m = segs.len();
-    if !(o > 0.0) || m < 3 {
+    if !above(o, 0.0) || m < 3 {
         return false;
     }
     let mut scale: f64 = 1.0;
-    let lines: Vec<Line> = segs
+    // the sides' unit directions
+    let dirs: Vec<Point> = segs
         .iter()
         .map(|s| {
-            scale = scale.max(s.a.x.abs()).max(s.a.y.abs());
-            Line {
-                a: s.a,
-                d: direction(s),
+            let a = s.a.x.abs().max(s.a.y.abs());
+            if a > scale {
+                scale = a;
             }
+            direction(s)
         })
         .collect();
-    // how far `q` lies left of line `l` moved by `o` to its left
-    let left = |l: &Line, q: Point| -> f64 { l.d.cross(q - l.a) - o };
-    // where the lines i and j moved meet: for neighbours from their corner (exact for
+    let sides: &[Seg] = segs;
+    // how far `q` lies left of side i moved by `o` to its left
+    let left = |i: usize, q: Point| -> f64 { dirs[i].cross(q - sides[i].a) - o };
+    // where the sides i and j moved meet: for neighbours from their corner (exact for
     // nearly parallel sides), else by intersecting the moved lines
     let meet = |i: usize, j: usize| -> Option<Point> {
-        let (a, b) = (lines[i], lines[j]);
+        let (da, db) = (dirs[i], dirs[j]);
         if j == i + 1 || (j == 0 && i == m - 1) {
-            let (n1, n2) = (a.d.perp(), b.d.perp());
+            let (n1, n2) = (da.perp(), db.perp());
             let den = 1.0 + n1.dot(n2);
-            if !(den > 0.0) {
+            if !above(den, 0.0) {
                 return None;
             }
-            return Some(b.a + (n1 + n2) * (o / den));
+            return Some(sides[j].a + (n1 + n2) * (o / den));
         }
-        let den = a.d.cross(b.d);
+        let den = da.cross(db);
         // more than a half turn apart (or parallel): their meeting point is behind them
-        if !(den > 1e-12) {
+        if !above(den, 1e-12) {
             return None;
         }
-        let (pa, pb) = (a.a + a.d.perp() * o, b.a + b.d.perp() * o);
-        let t = (pb - pa).cross(b.d) / den;
-        Some(pa + a.d * t)
+        let (pa, pb) = (sides[i].a + da.perp() * o, sides[j].a + db.perp() * o);
+        let t = (pb - pa).cross(db) / den;
+        Some(pa + da * t)
     };
     // how far outside a half-plane a point may lie and still count as inside it: rounding
     let slack = (eps * 1e-2).max(scale * 1e-13);
@@ -101,19 +101,19 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
     let mut dq: Vec<u32> = Vec::with_capacity(m);
     let mut pts: Vec<Point> = Vec::with_capacity(m);
     let mut head = 0;
-    for (k, l) in lines.iter().enumerate() {
-        while pts.len() > head && left(l, pts[pts.len() - 1]) <= 0.0 {
+    for k in 0..m {
+        while pts.len() > head && left(k, pts[pts.len() - 1]) <= 0.0 {
             pts.pop();
             dq.pop();
         }
-        while pts.len() > head && left(l, pts[head]) <= 0.0 {
+        while pts.len() > head && left(k, pts[head]) <= 0.0 {
             head += 1;
         }
         if dq.len() > head {
             let b = dq[dq.len() - 1] as usize;
             // a half turn or more from the line kept before: the result is empty, or
             // nearly so (the general way decides)
-            if !(lines[b].d.cross(l.d) > 0.0) {
+            if !above(dirs[b].cross(dirs[k]), 0.0) {
                 return false;
             }
             match meet(b, k) {
@@ -129,12 +129,12 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             return false;
         }
         let (first, last) = (dq[head] as usize, dq[dq.len() - 1] as usize);
-        if left(&lines[first], pts[pts.len() - 1]) <= 0.0 {
+        if left(first, pts[pts.len() - 1]) <= 0.0 {
             pts.pop();
             dq.pop();
             continue;
         }
-        if left(&lines[last], pts[head]) <= 0.0 {
+        if left(last, pts[head]) <= 0.0 {
             head += 1;
             continue;
         }
@@ -142,9 +142,9 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             return false;
         };
         let (second, before_last) = (dq[head + 1] as usize, dq[dq.len() - 2] as usize);
-        if !(lines[last].d.cross(lines[first].d) > 0.0)
-            || left(&lines[second], closing) <= 0.0
-            || left(&lines[before_last], closing) <= 0.0
+        if !above(dirs[last].cross(dirs[first]), 0.0)
+            || left(second, closing) <= 0.0
+            || left(before_last, closing) <= 0.0
         {
             return false;
         }
@@ -158,13 +158,13 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
     // line's half-plane holds the vertex between the kept lines around it (the lines after
     // the last kept one and before the first are dropped ones too)
     let holds = |range: std::ops::Range<usize>, v: Point| -> bool {
-        lines[range].iter().all(|l| left(l, v) >= -slack)
+        range.into_iter().all(|i| left(i, v) >= -slack)
     };
     for j in 0..n {
         let v0 = verts[if j == 0 { n - 1 } else { j - 1 }];
         let v1 = verts[j];
         let kj = kept[j] as usize;
-        if (v1 - v0).dot(lines[kj].d) < -slack {
+        if (v1 - v0).dot(dirs[kj]) < -slack {
             return false;
         }
         let ok = if j + 1 < n {

@@ -86,7 +86,7 @@ pub fn offset_polyline(
         let ccw = area >= 0.0;
         let segs = if ccw { segs } else { reverse(&segs) };
         let mut paths = vec![(segs, true)];
-        check_input(&mut paths, eps, opts.tolerance)?;
+        let convex = check_input(&mut paths, eps, opts.tolerance)?;
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -98,7 +98,7 @@ pub fn offset_polyline(
         if shrinks_away(&segs, distance) {
             return Ok(Vec::new());
         }
-        let loops = run_closed(vec![(segs, true)], -distance, opts, eps);
+        let loops = run_closed(vec![(segs, true)], convex, -distance, opts, eps);
         Ok(loops
             .into_iter()
             .map(|l| if ccw { l.poly } else { l.poly.reversed() })
@@ -185,7 +185,7 @@ pub fn offset_regions(
             loops.push((segs, true));
         }
     }
-    check_input(&mut loops, eps, opts.tolerance)?;
+    let convex = check_input(&mut loops, eps, opts.tolerance)?;
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -208,7 +208,7 @@ pub fn offset_regions(
             .filter_map(|(s, c)| build(s, c, eps))
             .collect()
     } else {
-        run_closed(loops, -distance, opts, eps)
+        run_closed(loops, convex, -distance, opts, eps)
     };
     Ok(assemble(polys))
 }
@@ -301,7 +301,17 @@ fn shrinks_away(outer: &[Seg], distance: f64) -> bool {
         f64::NEG_INFINITY,
     ];
     for s in outer {
-        let sb = s.bbox();
+        // a line's box is its ends' (no call, no sweep test)
+        let sb = if s.is_arc() {
+            s.bbox()
+        } else {
+            [
+                s.a.x.min(s.b.x),
+                s.a.y.min(s.b.y),
+                s.a.x.max(s.b.x),
+                s.a.y.max(s.b.y),
+            ]
+        };
         b = [
             b[0].min(sb[0]),
             b[1].min(sb[1]),
@@ -338,8 +348,12 @@ fn check_finite(pl: &Polyline, path: usize) -> Result<(), OffsetError> {
 fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
     let mut m: f64 = 1.0;
     for p in paths {
+        // (the vertices are finite here: a plain comparison, not f64::max's NaN rule)
         for v in &p.vertices {
-            m = m.max(v.x.abs()).max(v.y.abs());
+            let a = v.x.abs().max(v.y.abs());
+            if a > m {
+                m = a;
+            }
         }
     }
     (tol * 1e-4).max(m * 1e-14)
@@ -400,25 +414,26 @@ fn zigzag_bound(tolerance: f64, eps: f64) -> f64 {
 }
 
 /// The input check (see `check_crossings`), after cutting off the zig-zags narrower than
-/// `zigzag_bound` where paths cross themselves (see `zigzag`).
+/// `zigzag_bound` where paths cross themselves (see `zigzag`). Ok(true) when the paths are
+/// one convex loop of lines, counter-clockwise (see `convex`), which cannot cross itself
+/// and needs no crossing search.
 fn check_input(
     paths: &mut [(Vec<Seg>, bool)],
     eps: f64,
     tolerance: f64,
-) -> Result<(), OffsetError> {
-    // one convex loop cannot cross itself: no crossing search (see `convex`)
+) -> Result<bool, OffsetError> {
     if let [(segs, true)] = &*paths {
         if convex::is_convex_ccw(segs) {
-            return Ok(());
+            return Ok(true);
         }
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first;
+        return first.map(|()| false);
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps)
+    check_crossings(&views, eps).map(|()| false)
 }
 
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
@@ -665,15 +680,17 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
 /// Closed, oriented loops (outers counter-clockwise, islands clockwise) offset by `o` to
 /// the left: in one stage, or with round joins and a distance much larger than the
 /// loops' features in several (see `stages`), each from the loops the one before left.
+/// `convex`: the loops are one convex loop of lines (as `check_input` found).
 fn run_closed(
     mut loops: Vec<(Vec<Seg>, bool)>,
+    convex: bool,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
 ) -> Vec<Loop> {
     // one convex loop of lines shrunk: the intersection of its moved sides, no global stage
     if let [(segs, true)] = loops.as_mut_slice() {
-        if o > 0.0 && convex::is_convex_ccw(segs) && convex::shrink(segs, o, eps) {
+        if convex && o > 0.0 && convex::shrink(segs, o, eps) {
             return finish(loops, opts, eps);
         }
     }
@@ -773,7 +790,16 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
     }
     if closed {
         // start at a long segment, so no run wraps round the seam
-        match segs.iter().position(|s| s.length() >= delta) {
+        // (a line's squared length against delta², no root)
+        let long = |s: &Seg| {
+            if s.is_arc() {
+                s.length() >= delta
+            } else {
+                let d = s.b - s.a;
+                d.dot(d) >= delta * delta
+            }
+        };
+        match segs.iter().position(long) {
             Some(k) => segs.rotate_left(k),
             None => return resample_loop(segs, delta),
         }
