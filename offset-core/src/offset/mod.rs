@@ -386,12 +386,12 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
         k if pl.closed => k,
         k => k - 1,
     };
-    (0..segs_n)
-        .map(|i| {
-            let a = pts[i];
-            let b = pts[(i + 1) % pts.len()];
-            Seg::from_bulge(a.pos(), b.pos(), a.bulge)
-        })
+    // each vertex with the next (the first after the last when closed), no division
+    let next = pts.iter().skip(1).chain(pts.first());
+    pts.iter()
+        .zip(next)
+        .take(segs_n)
+        .map(|(a, b)| Seg::from_bulge(a.pos(), b.pos(), a.bulge))
         .collect()
 }
 
