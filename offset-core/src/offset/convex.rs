@@ -75,16 +75,20 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
     let left = |i: usize, q: Point| -> f64 { dirs[i].cross(q - sides[i].a) - o };
     // where the sides i and j moved meet: for neighbours from their corner (exact for
     // nearly parallel sides), else by intersecting the moved lines
-    let meet = |i: usize, j: usize| -> Option<Point> {
-        let (da, db) = (dirs[i], dirs[j]);
-        if j == i + 1 || (j == 0 && i == m - 1) {
-            let (n1, n2) = (da.perp(), db.perp());
-            let den = 1.0 + n1.dot(n2);
-            if !above(den, 0.0) {
-                return None;
-            }
-            return Some(sides[j].a + (n1 + n2) * (o / den));
+    // (the corner before side j, from side i = j - 1: the common case, kept small)
+    let corner = |i: usize, j: usize| -> Option<Point> {
+        let (n1, n2) = (dirs[i].perp(), dirs[j].perp());
+        let den = 1.0 + n1.dot(n2);
+        if !above(den, 0.0) {
+            return None;
         }
+        Some(sides[j].a + (n1 + n2) * (o / den))
+    };
+    let meet = |i: usize, j: usize| -> Option<Point> {
+        if j == i + 1 || (j == 0 && i == m - 1) {
+            return corner(i, j);
+        }
+        let (da, db) = (dirs[i], dirs[j]);
         let den = da.cross(db);
         // more than a half turn apart (or parallel): their meeting point is behind them
         if !above(den, 1e-12) {
@@ -116,7 +120,7 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             if !above(dirs[b].cross(dirs[k]), 0.0) {
                 return false;
             }
-            match meet(b, k) {
+            match if b + 1 == k { corner(b, k) } else { meet(b, k) } {
                 Some(x) => pts.push(x),
                 None => return false,
             }
