@@ -1,6 +1,7 @@
 //! The offset kernel: grow or shrink closed polylines and regions with islands, and offset
 //! open polylines to one side, by pair-wise interference removal (Choi & Park 1999; Park 2001).
 
+mod convex;
 pub mod index;
 mod joins;
 mod prune;
@@ -85,7 +86,7 @@ pub fn offset_polyline(
         let ccw = area >= 0.0;
         let segs = if ccw { segs } else { reverse(&segs) };
         let mut paths = vec![(segs, true)];
-        check_input(&mut paths, eps, opts.tolerance)?;
+        let convex = check_input(&mut paths, eps, opts.tolerance)?;
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -97,7 +98,7 @@ pub fn offset_polyline(
         if shrinks_away(&segs, distance) {
             return Ok(Vec::new());
         }
-        let loops = run_closed(vec![(segs, true)], -distance, opts, eps);
+        let loops = run_closed(vec![(segs, true)], convex, -distance, opts, eps);
         Ok(loops
             .into_iter()
             .map(|l| if ccw { l.poly } else { l.poly.reversed() })
@@ -184,7 +185,7 @@ pub fn offset_regions(
             loops.push((segs, true));
         }
     }
-    check_input(&mut loops, eps, opts.tolerance)?;
+    let convex = check_input(&mut loops, eps, opts.tolerance)?;
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -207,7 +208,7 @@ pub fn offset_regions(
             .filter_map(|(s, c)| build(s, c, eps))
             .collect()
     } else {
-        run_closed(loops, -distance, opts, eps)
+        run_closed(loops, convex, -distance, opts, eps)
     };
     Ok(assemble(polys))
 }
@@ -300,7 +301,17 @@ fn shrinks_away(outer: &[Seg], distance: f64) -> bool {
         f64::NEG_INFINITY,
     ];
     for s in outer {
-        let sb = s.bbox();
+        // a line's box is its ends' (no call, no sweep test)
+        let sb = if s.is_arc() {
+            s.bbox()
+        } else {
+            [
+                s.a.x.min(s.b.x),
+                s.a.y.min(s.b.y),
+                s.a.x.max(s.b.x),
+                s.a.y.max(s.b.y),
+            ]
+        };
         b = [
             b[0].min(sb[0]),
             b[1].min(sb[1]),
@@ -337,8 +348,12 @@ fn check_finite(pl: &Polyline, path: usize) -> Result<(), OffsetError> {
 fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
     let mut m: f64 = 1.0;
     for p in paths {
+        // (the vertices are finite here: a plain comparison, not f64::max's NaN rule)
         for v in &p.vertices {
-            m = m.max(v.x.abs()).max(v.y.abs());
+            let a = v.x.abs().max(v.y.abs());
+            if a > m {
+                m = a;
+            }
         }
     }
     (tol * 1e-4).max(m * 1e-14)
@@ -371,12 +386,12 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
         k if pl.closed => k,
         k => k - 1,
     };
-    (0..segs_n)
-        .map(|i| {
-            let a = pts[i];
-            let b = pts[(i + 1) % pts.len()];
-            Seg::from_bulge(a.pos(), b.pos(), a.bulge)
-        })
+    // each vertex with the next (the first after the last when closed), no division
+    let next = pts.iter().skip(1).chain(pts.first());
+    pts.iter()
+        .zip(next)
+        .take(segs_n)
+        .map(|(a, b)| Seg::from_bulge(a.pos(), b.pos(), a.bulge))
         .collect()
 }
 
@@ -399,19 +414,26 @@ fn zigzag_bound(tolerance: f64, eps: f64) -> f64 {
 }
 
 /// The input check (see `check_crossings`), after cutting off the zig-zags narrower than
-/// `zigzag_bound` where paths cross themselves (see `zigzag`).
+/// `zigzag_bound` where paths cross themselves (see `zigzag`). Ok(true) when the paths are
+/// one convex loop of lines, counter-clockwise (see `convex`), which cannot cross itself
+/// and needs no crossing search.
 fn check_input(
     paths: &mut [(Vec<Seg>, bool)],
     eps: f64,
     tolerance: f64,
-) -> Result<(), OffsetError> {
+) -> Result<bool, OffsetError> {
+    if let [(segs, true)] = &*paths {
+        if convex::is_convex_ccw(segs) {
+            return Ok(true);
+        }
+    }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first;
+        return first.map(|()| false);
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps)
+    check_crossings(&views, eps).map(|()| false)
 }
 
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
@@ -658,12 +680,20 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
 /// Closed, oriented loops (outers counter-clockwise, islands clockwise) offset by `o` to
 /// the left: in one stage, or with round joins and a distance much larger than the
 /// loops' features in several (see `stages`), each from the loops the one before left.
+/// `convex`: the loops are one convex loop of lines (as `check_input` found).
 fn run_closed(
     mut loops: Vec<(Vec<Seg>, bool)>,
+    convex: bool,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
 ) -> Vec<Loop> {
+    // one convex loop of lines shrunk: the intersection of its moved sides, no global stage
+    if let [(segs, true)] = loops.as_mut_slice() {
+        if convex && o > 0.0 && convex::shrink(segs, o, eps) {
+            return finish(loops, opts, eps);
+        }
+    }
     let mut rest = o;
     loop {
         let step = match opts.join {
@@ -719,13 +749,27 @@ fn run(
         if !closed && segs.iter().map(|s| s.length()).sum::<f64>() <= valid_eps {
             continue;
         }
-        let segs = joins::apply(segs, &whole_join, opts);
-        pieces.push((despike(segs, closed, valid_eps), closed));
+        pieces.push((joins::apply(segs, &whole_join, opts), closed));
     }
+    finish(pieces, opts, eps)
+}
+
+/// The offset's pieces as the result: slivers replaced (see `despike`), zig-zags cut off,
+/// then polylines.
+fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<Loop> {
+    let valid_eps = slack(opts.tolerance, eps);
+    let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
+        .into_iter()
+        .map(|(segs, closed)| (despike(segs, closed, valid_eps), closed))
+        .collect();
     // what the prune and the joins leave may still zig-zag by less than the bound where
     // nearly tangent offsets were cut and stitched: cut those lobes off here, so the result
-    // is valid input as it stands (the same repair the input check makes)
-    zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
+    // is valid input as it stands (the same repair the input check makes); one convex
+    // loop has none (despiking a convex loop keeps a subset of its vertices: still convex)
+    let convex = matches!(pieces.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs));
+    if !convex {
+        zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
+    }
     let mut out = Vec::with_capacity(pieces.len());
     for (segs, closed) in pieces {
         if let Some(p) = build(segs, closed, eps) {
@@ -746,7 +790,16 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
     }
     if closed {
         // start at a long segment, so no run wraps round the seam
-        match segs.iter().position(|s| s.length() >= delta) {
+        // (a line's squared length against delta², no root)
+        let long = |s: &Seg| {
+            if s.is_arc() {
+                s.length() >= delta
+            } else {
+                let d = s.b - s.a;
+                d.dot(d) >= delta * delta
+            }
+        };
+        match segs.iter().position(long) {
             Some(k) => segs.rotate_left(k),
             None => return resample_loop(segs, delta),
         }
@@ -804,20 +857,21 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
 /// and no point moves by more than `delta`. A loop shorter than three times `delta` stays
 /// as it is.
 fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
-    let total: f64 = segs.iter().map(|s| s.length()).sum();
-    if total < 3.0 * delta {
-        return segs;
-    }
     let first = segs[0].a;
-    let mut out: Vec<Seg> = Vec::with_capacity((total / delta) as usize + 2);
-    let (mut start, mut acc) = (first, 0.0);
+    let mut out: Vec<Seg> = Vec::new();
+    let (mut start, mut acc, mut total) = (first, 0.0, 0.0);
     for s in &segs {
-        acc += s.length();
+        let l = s.length();
+        acc += l;
+        total += l;
         if acc >= delta {
             out.push(Seg::line(start, s.b));
             start = s.b;
             acc = 0.0;
         }
+    }
+    if total < 3.0 * delta {
+        return segs;
     }
     // close the loop: the last line ends at the first point, a stub is absorbed
     match out.last_mut() {

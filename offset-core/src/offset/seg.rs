@@ -67,6 +67,10 @@ impl Seg {
 
     /// The segment from `a` to `b` with a DXF bulge.
     pub fn from_bulge(a: Point, b: Point, bulge: f64) -> Seg {
+        // what `Segment::from_bulge` makes of a bulge this small, without the chord's root
+        if bulge.abs() < 1e-12 {
+            return Seg::line(a, b);
+        }
         match Segment::from_bulge(a, b, bulge) {
             Segment::Line { a, b } => Seg::line(a, b),
             Segment::Arc {

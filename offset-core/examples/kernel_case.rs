@@ -1,0 +1,160 @@
+//! One of the offset bench's inputs (issue 25's), offset `reps` times, for profiling under
+//! callgrind or perf without the whole bench:
+//! `cargo run --release -p offset-core --example kernel_case -- CASE D [reps]`, where CASE
+//! is `gear:N` (the bench's gear of N vertices), `gear+:N` (with its 10 islands) or
+//! `circle:N` (N points on a circle of radius 10), and D the signed distance (`inr-1e-3`
+//! for the dense circle's inradius less 1e-3). `incremental:K` after the reps makes K
+//! passes, each from the previous result; `cav` offsets with cavalier_contours instead
+//! (the bench's anchor, its shape built outside the timing as there; callgrind it with
+//! `--toggle-collect='cavalier_contours::shape_algorithms::Shape*::parallel_offset*'`).
+//! Prints the best time and the output's size.
+
+use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
+use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
+use offset_core::geom::{Point, Polyline, Region};
+use offset_core::offset::{offset_regions, OffsetOptions};
+use std::time::Instant;
+
+fn gear(n: usize) -> Polyline {
+    let (r0, teeth) = (n as f64 / 10.0, n as f64 / 20.0);
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            let r = r0 + 3.0 * (teeth * a).sin();
+            Point::new(r * a.cos(), r * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+fn islands(n: usize) -> Vec<Polyline> {
+    let r0 = n as f64 / 10.0;
+    (0..10)
+        .map(|k| {
+            let a = k as f64 / 10.0 * std::f64::consts::TAU;
+            Polyline::circle(Point::new(a.cos(), a.sin()) * (0.6 * r0), 0.08 * r0).reversed()
+        })
+        .collect()
+}
+
+fn circle(n: usize) -> Polyline {
+    let pts: Vec<Point> = (0..n)
+        .map(|i| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            Point::new(10.0 * a.cos(), 10.0 * a.sin())
+        })
+        .collect();
+    Polyline::from_points(&pts, true)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let usage = "usage: kernel_case gear:N|gear+:N|circle:N D [reps] [incremental:K]";
+    let Some((kind, n)) = args.get(1).and_then(|a| a.split_once(':')) else {
+        eprintln!("{usage}");
+        std::process::exit(2);
+    };
+    let Ok(n) = n.parse::<usize>() else {
+        eprintln!("{usage}");
+        std::process::exit(2);
+    };
+    let region = match kind {
+        "gear" => Region {
+            outer: gear(n),
+            islands: Vec::new(),
+        },
+        "gear+" => Region {
+            outer: gear(n),
+            islands: islands(n),
+        },
+        "circle" => Region {
+            outer: circle(n),
+            islands: Vec::new(),
+        },
+        _ => {
+            eprintln!("{usage}");
+            std::process::exit(2);
+        }
+    };
+    let d = match args.get(2).map(String::as_str) {
+        Some("inr-1e-3") => -(10.0 * (std::f64::consts::PI / n as f64).cos() - 1e-3),
+        Some(x) => match x.parse::<f64>() {
+            Ok(d) => d,
+            Err(_) => {
+                eprintln!("{usage}");
+                std::process::exit(2);
+            }
+        },
+        None => -2.0,
+    };
+    let reps: usize = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1);
+    let passes: usize = args
+        .iter()
+        .find_map(|a| a.strip_prefix("incremental:"))
+        .and_then(|k| k.parse().ok())
+        .unwrap_or(1);
+    if args.iter().any(|a| a == "cav") {
+        let to_cav = |p: &Polyline| {
+            let mut c = CPline::with_capacity(p.len(), p.closed);
+            for v in &p.vertices {
+                c.add(v.x, v.y, v.bulge);
+            }
+            c
+        };
+        let shape = CShape::from_plines(region.boundaries().map(to_cav));
+        let mut best = f64::INFINITY;
+        let mut verts = 0;
+        for _ in 0..reps {
+            let t = Instant::now();
+            let mut cur = shape.parallel_offset(-d, &ShapeOffsetOptions::default());
+            for _ in 1..passes {
+                cur = cur.parallel_offset(-d, &ShapeOffsetOptions::default());
+            }
+            best = best.min(t.elapsed().as_secs_f64());
+            verts = cur
+                .ccw_plines
+                .iter()
+                .chain(cur.cw_plines.iter())
+                .map(|p| p.polyline.vertex_count())
+                .sum();
+        }
+        println!(
+            "cavalier_contours {kind}:{n} d = {d}: best {:.2} ms of {reps}, {verts} output vertices",
+            best * 1e3
+        );
+        return;
+    }
+    let opts = OffsetOptions::default();
+    let mut best = f64::INFINITY;
+    let mut out = Vec::new();
+    for _ in 0..reps {
+        let t = Instant::now();
+        let mut cur: Vec<Region> = Vec::new();
+        for k in 0..passes {
+            let from = if k == 0 {
+                std::slice::from_ref(&region)
+            } else {
+                cur.as_slice()
+            };
+            cur = match offset_regions(from, d, &opts) {
+                Ok(o) => o,
+                Err(e) => {
+                    eprintln!("offset failed: {e}");
+                    std::process::exit(1);
+                }
+            };
+        }
+        best = best.min(t.elapsed().as_secs_f64());
+        out = cur;
+    }
+    let verts: usize = out
+        .iter()
+        .flat_map(|r| r.boundaries())
+        .map(|p| p.len())
+        .sum();
+    println!(
+        "{kind}:{n} d = {d}: best {:.2} ms of {reps}, {} regions, {verts} output vertices",
+        best * 1e3,
+        out.len()
+    );
+}
