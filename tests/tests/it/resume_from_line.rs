@@ -77,7 +77,7 @@ async fn resume_at_an_arc(spec: JobSpec, at: usize) {
     let port = dir.path().join("grbl0");
     let sim = GrblSim::spawn_linked(
         GrblSimConfig {
-            time_scale: 20.0,
+            time_scale: 50.0,
             work_offsets: offsets(),
             ..Default::default()
         },
