@@ -36,6 +36,7 @@ mod profile_entries;
 mod profile_sides;
 mod robust_plan;
 mod rough3d;
+mod rough_links;
 mod soup3d;
 mod stitch;
 mod stitch_rows;
