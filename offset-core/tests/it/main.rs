@@ -33,6 +33,7 @@ mod opencamlib_interop;
 mod pocket;
 mod pocket_links;
 mod profile_entries;
+mod profile_links;
 mod profile_sides;
 mod robust_plan;
 mod rough3d;
