@@ -30,9 +30,12 @@
 //! level's free area, so it does not rest on the free area shrinking downward (which
 //! overhangs or the envelope's grid could break). Under the stock top, the first level's
 //! own P0 is used: nothing of the stock stands above the top, and the part above the top
-//! lies inside that level's islands. The entries go down through air to the floor above
-//! and from there into the material by the pocket's helix or ramp (they used to plunge
-//! the whole step-down). `rough3d_safe_links` plans the old way, for comparison.
+//! lies inside that level's islands. The entries go down to the floor above (through air
+//! where the level above cleared over the entry, which on a part without undercut is
+//! everywhere this level's P0 reaches; elsewhere the descent cuts what stands there at
+//! the plunge feed, as every entry did before) and from there into the material by the
+//! pocket's helix or ramp (they used to plunge the whole step-down).
+//! `rough3d_safe_links` plans the old way, for comparison.
 //!
 //! A section is all a cutter at that level meets only when the part is a closed solid and
 //! no face looks down above the floor (no undercut). Any other mesh — open, non-manifold,
