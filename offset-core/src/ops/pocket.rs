@@ -470,7 +470,9 @@ fn plan(
     // a level of 3D roughing links through what the level above cleared (all its trees
     // at once: the level above may have been one region where this one is several)
     let level_links = match above {
-        Some(a) if links_at_depth => Some(a.cleared.clone().unwrap_or_else(|| p0s.clone())),
+        Some(a) if links_at_depth => Some(LinkArea::new(
+            a.cleared.clone().unwrap_or_else(|| p0s.clone()),
+        )),
         _ => None,
     };
     for tree in &trees {
@@ -479,7 +481,8 @@ fn plan(
         // links at the safe height
         em.p0 = match &level_links {
             Some(c) => Some(c.clone()),
-            None => (links_at_depth && p.cut.depth > 0.0).then(|| vec![tree[0].region.clone()]),
+            None => (links_at_depth && p.cut.depth > 0.0)
+                .then(|| LinkArea::new(vec![tree[0].region.clone()])),
         };
         for (k, &z) in depths.iter().enumerate() {
             em.z = z;
@@ -521,7 +524,31 @@ struct Emitter<'a> {
     plunges: Plunges,
     /// Where links at depth may go: the first pass (P0) of the tree being cut, or for a
     /// level of 3D roughing the P0 of the level above.
-    p0: Option<Vec<Region>>,
+    p0: Option<LinkArea>,
+}
+
+/// The regions a link at depth must stay inside, with their boxes (shared, not copied,
+/// by the trees of a level).
+#[derive(Clone)]
+struct LinkArea(std::rc::Rc<Vec<(crate::geom::Bounds, Region)>>);
+
+impl LinkArea {
+    fn new(regions: Vec<Region>) -> LinkArea {
+        LinkArea(std::rc::Rc::new(
+            regions.into_iter().map(|r| (r.bounds(), r)).collect(),
+        ))
+    }
+
+    /// Whether the straight move a→b stays inside one of the regions.
+    fn holds(&self, a: Point, b: Point) -> bool {
+        let inside = |p: Point, bx: &crate::geom::Bounds| {
+            let e = 1e-7;
+            p.x >= bx.min.x - e && p.x <= bx.max.x + e && p.y >= bx.min.y - e && p.y <= bx.max.y + e
+        };
+        self.0
+            .iter()
+            .any(|(bx, r)| inside(a, bx) && inside(b, bx) && segment_inside(a, b, r))
+    }
 }
 
 /// How far over the last level's floor a link at depth lifts the tool, mm.
@@ -579,7 +606,7 @@ impl Emitter<'_> {
         if here.z > lift + 1e-9 || here.z < self.z - 1e-9 || lift >= self.p.cut.safe_z {
             return false;
         }
-        if here.xy().dist(q) > 1e-9 && !p0.iter().any(|r| segment_inside(here.xy(), q, r)) {
+        if here.xy().dist(q) > 1e-9 && !p0.holds(here.xy(), q) {
             return false;
         }
         if (here.z - lift).abs() > 1e-12 {
