@@ -615,10 +615,12 @@ impl Emitter<'_> {
                 feed: self.p.cut.plunge_feed,
             });
         }
-        self.push(Move::Linear {
-            to: P3::at_z(q, lift),
-            feed: self.p.cut.feed,
-        });
+        if here.xy().dist(q) > 1e-12 {
+            self.push(Move::Linear {
+                to: P3::at_z(q, lift),
+                feed: self.p.cut.feed,
+            });
+        }
         true
     }
 
