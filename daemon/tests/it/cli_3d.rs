@@ -125,6 +125,12 @@ fn roughing_an_stl_leaves_the_allowance_everywhere() {
         out.to_str().unwrap(),
     ]);
     ok(&o, "plan rough3d");
+    // the plan's figures count the retracts (links at depth make them fewer)
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        said.contains(" retracts to the safe height"),
+        "no retract count in {said}"
+    );
     let pts = cutting_points(&read_program(&out));
     assert!(pts.len() > 100, "{} cutting points", pts.len());
     let levels: std::collections::BTreeSet<i64> =

@@ -25,7 +25,7 @@ pub use finish::{finish3d, Finish3dParams};
 pub use offset::{
     measure_error, offset, MeshOffsetOptions, OffsetMethod, OffsetReport, OffsetResult,
 };
-pub use rough::{rough3d, Rough3dParams};
+pub use rough::{rough3d, rough3d_safe_links, Rough3dParams};
 pub use slice::slice_at;
 pub use stl::{read_stl, write_stl};
 pub use surface::{mesh_from_points, read_point_grid, BicubicSurface, PointGrid};

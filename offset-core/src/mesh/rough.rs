@@ -12,8 +12,30 @@
 //! in concave corners, and its folds there make crossing sections.) The levels are
 //! cleared from the top down with the 2D pocket (`ops::pocket`, with its entries and
 //! clean-up), whose outline is the stock's plan view grown by the tool radius so the tool
-//! runs off the stock's edge. Every level starts and ends at the safe height, so levels
-//! are linked by safe retracts.
+//! runs off the stock's edge.
+//!
+//! Links at depth: a level knows the level cut before it (its Z and its tool-centre
+//! regions P0, the pocket's first passes), or, for the first level cut, the stock top and
+//! its own P0. A link from one pass or region of the level to the next, and from the end
+//! of one level to the start of the next, lifts only [`crate::ops::pocket::LINK_LIFT`]
+//! over the floor above and feeds across there when the straight link keeps the tool
+//! centre inside that P0; else it goes to the safe height as before. Why that moves
+//! through air: the level above swept its flat tool (a cylinder) over every point within
+//! the tool radius of its P0 (the pocket's coverage), so over its floor nothing of the
+//! stock is left there; and the part does not reach there either, since the islands of
+//! that level hold the part above its plane (sections shrink upward on a part without
+//! undercut, the only kind roughed from sections, and the envelope's islands at a level
+//! hold everything above it by construction), and P0 keeps the tool radius from them.
+//! The check is made against what the level above really cleared, not against this
+//! level's free area, so it does not rest on the free area shrinking downward (which
+//! overhangs or the envelope's grid could break). Under the stock top, the first level's
+//! own P0 is used: nothing of the stock stands above the top, and the part above the top
+//! lies inside that level's islands. The entries go down to the floor above (through air
+//! where the level above cleared over the entry, which on a part without undercut is
+//! everywhere this level's P0 reaches; elsewhere the descent cuts what stands there at
+//! the plunge feed, as every entry did before) and from there into the material by the
+//! pocket's helix or ramp (they used to plunge the whole step-down).
+//! `rough3d_safe_links` plans the old way, for comparison.
 //!
 //! A section is all a cutter at that level meets only when the part is a closed solid and
 //! no face looks down above the floor (no undercut). Any other mesh — open, non-manifold,
@@ -27,8 +49,9 @@ use super::dropcutter::{Cutter, DropCutter};
 use super::envelope::{grid_step, HeightField};
 use super::slice::{flat_heights, slice_at};
 use super::{Mesh, MeshError, V3};
-use crate::geom::{Point, Polyline, Shape};
+use crate::geom::{Point, Polyline, Region, Shape};
 use crate::offset::{offset_shape, Join, OffsetError, OffsetOptions};
+use crate::ops::pocket::{pocket_level, Above};
 use crate::ops::{pass_depths, pocket, Cutting, OpError, PocketParams, Stepover};
 use crate::toolpath::{Move, Tool, Toolpath, P3};
 use serde::{Deserialize, Serialize};
@@ -127,6 +150,17 @@ pub const ENVELOPE_POINTS: usize = 1_000_000;
 /// closed solid with no undercut above the floor, else from its upper envelope (any
 /// triangle soup), with one warning naming what kept it from being a solid.
 pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
+    rough(mesh, p, true)
+}
+
+/// The rough as it was planned before links at depth: every level starts and ends at the
+/// safe height, and so does every link that is not the pocket's short hop at depth (for
+/// comparison: retract counts, machine time).
+pub fn rough3d_safe_links(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
+    rough(mesh, p, false)
+}
+
+fn rough(mesh: &Mesh, p: &Rough3dParams, links: bool) -> Result<Toolpath, MeshError> {
     p.check()?;
     mesh.check_finite()?;
     let (lo, hi) = mesh.bounds().ok_or_else(|| MeshError::Empty {
@@ -210,6 +244,9 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
         to: P3::new(lo.x - g, lo.y - g, safe),
     });
     let mut from_envelope = 0usize;
+    // links at depth: the P0 of the last level cut and its Z, and where the tool stands
+    let mut prev: Option<(Vec<Region>, f64)> = None;
+    let mut at: Option<P3> = None;
     for &z in &levels {
         let mut paths = vec![outline.clone()];
         let exact = match &solid {
@@ -243,7 +280,20 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
             stepover: p.stepover,
             ..PocketParams::default()
         };
-        let cut = match pocket(&shape, &level) {
+        let planned = if links {
+            let above = Above {
+                height: prev.as_ref().map_or(top, |(_, zp)| *zp) - z,
+                cleared: prev.as_ref().map(|(c, _)| c.clone()),
+                from: at.map(|e| P3::new(e.x, e.y, e.z - z)),
+            };
+            pocket_level(&shape, &level, &above).map(|(t, p0)| {
+                prev = Some((p0, z));
+                t
+            })
+        } else {
+            pocket(&shape, &level)
+        };
+        let cut = match planned {
             Ok(t) => t,
             // the part fills the stock at this level: nothing to clear
             Err(OpError::Empty(_)) => continue,
@@ -277,6 +327,12 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
                 other => other,
             });
         }
+        at = links.then_some(tp_at(&tp)).flatten();
+    }
+    if let Some(e) = at.filter(|e| e.z < safe) {
+        tp.push(Move::Rapid {
+            to: P3::new(e.x, e.y, safe),
+        });
     }
     if p.spindle_rpm > 0.0 {
         tp.push(Move::Spindle { rpm: 0.0 });
@@ -309,6 +365,14 @@ pub fn rough3d(mesh: &Mesh, p: &Rough3dParams) -> Result<Toolpath, MeshError> {
     }
     tp.warnings.extend(warnings);
     Ok(tp)
+}
+
+/// Where the tool path leaves the tool: the end of its last motion.
+fn tp_at(tp: &Toolpath) -> Option<P3> {
+    tp.moves.iter().rev().find_map(|mv| match mv {
+        Move::Rapid { to } | Move::Linear { to, .. } | Move::Arc { to, .. } => Some(*to),
+        _ => None,
+    })
 }
 
 /// Why a rough that clears nothing is refused: the stock is the part itself, or (a

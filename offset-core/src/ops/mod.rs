@@ -12,7 +12,7 @@ pub use drill::{drill, Cycle, DrillParams, Hole};
 pub use entry::Entry;
 pub use job::{join, Step, StepFigures, Take};
 pub use pocket::{pocket, pocket_safe_links, pocket_with, PocketParams, Stepover};
-pub use profile::{profile, ProfileParams, Side};
+pub use profile::{profile, profile_safe_links, ProfileParams, Side};
 
 use crate::offset::OffsetError;
 

@@ -333,7 +333,46 @@ pub fn pocket_with(
     p: &PocketParams,
     off: &RegionOffset,
 ) -> Result<Toolpath, OpError> {
-    plan(shape, p, off, true)
+    plan(shape, p, off, true, None).map(|(tp, _)| tp)
+}
+
+/// What a level of 3D roughing knows of the material over it, for links at depth.
+#[derive(Clone, Debug)]
+pub(crate) struct Above {
+    /// The floor the level above left (or the stock top), over this level, mm (> 0).
+    pub height: f64,
+    /// The tool-centre regions (P0) of the level above: everything within the tool radius
+    /// of them was cleared down to that floor. None for the first level cut, under the
+    /// stock top, where this level's own P0 is taken (it keeps off every island, and the
+    /// part over the stock top lies inside the islands of a part without undercut).
+    pub cleared: Option<Vec<Region>>,
+    /// Where the tool stands when this level begins, in the level's frame (the end of the
+    /// level above, on its floor), or None: at the safe height over the origin. A level
+    /// does not go up at its end (the rough retracts after its last).
+    pub from: Option<P3>,
+}
+
+/// A pocket of depth 0 that is a level of 3D roughing (`mesh::rough`) under `above`:
+/// entries go down from the floor above, and links stay at [`LINK_LIFT`] over it where
+/// the straight link keeps the tool centre inside the P0 of the level above (see
+/// [`Above`]), else at the safe height. Returns the tool path and this level's P0 (for
+/// the level below).
+pub(crate) fn pocket_level(
+    shape: &Shape,
+    p: &PocketParams,
+    above: &Above,
+) -> Result<(Toolpath, Vec<Region>), OpError> {
+    let opts = OffsetOptions {
+        tolerance: p.cut.tolerance,
+        ..Default::default()
+    };
+    plan(
+        shape,
+        p,
+        &|r: &Region, d: f64| offset_region(r, d, &opts),
+        true,
+        Some(above),
+    )
 }
 
 /// The pocket as it was planned before links at depth: every link that is not a short hop
@@ -348,7 +387,9 @@ pub fn pocket_safe_links(shape: &Shape, p: &PocketParams) -> Result<Toolpath, Op
         p,
         &|r: &Region, d: f64| offset_region(r, d, &opts),
         false,
+        None,
     )
+    .map(|(tp, _)| tp)
 }
 
 fn plan(
@@ -356,7 +397,8 @@ fn plan(
     p: &PocketParams,
     off: &RegionOffset,
     links_at_depth: bool,
-) -> Result<Toolpath, OpError> {
+    above: Option<&Above>,
+) -> Result<(Toolpath, Vec<Region>), OpError> {
     p.check()?;
     super::check_range(shape)?;
     let r = p.cut.tool.radius();
@@ -403,39 +445,62 @@ fn plan(
     }
     let mut tp = Toolpath::new("pocket");
     tp.tool = Some(p.cut.tool);
+    let from = above.and_then(|a| a.from);
     let mut em = Emitter {
         tp: &mut tp,
         p,
         s,
-        at: P3::new(0.0, 0.0, p.cut.safe_z),
+        at: from.unwrap_or(P3::new(0.0, 0.0, p.cut.safe_z)),
         z: 0.0,
         z_top: 0.0,
         slope: p.cut.ramp_angle.to_radians().tan(),
         plunges: Plunges::default(),
         p0: None,
     };
-    em.tp.push(Move::Rapid { to: em.at });
+    if from.is_none() {
+        em.tp.push(Move::Rapid { to: em.at });
+    }
     if p.cut.spindle_rpm > 0.0 {
         em.tp.push(Move::Spindle {
             rpm: p.cut.spindle_rpm,
         });
     }
     let depths = pass_depths(p.cut.depth, p.cut.stepdown);
+    let p0s: Vec<Region> = trees.iter().map(|t| t[0].region.clone()).collect();
+    // a level of 3D roughing links through what the level above cleared (all its trees
+    // at once: the level above may have been one region where this one is several)
+    let level_links = match above {
+        Some(a) if links_at_depth => Some(LinkArea::new(
+            a.cleared.clone().unwrap_or_else(|| p0s.clone()),
+        )),
+        _ => None,
+    };
     for tree in &trees {
         let root = Geo::new(std::iter::once(&tree[0].region));
-        // a pocket of depth 0 (a level of 3D roughing) does not know where the stock's
-        // top is: it links at the safe height
-        em.p0 = (links_at_depth && p.cut.depth > 0.0).then(|| tree[0].region.clone());
+        // a pocket of depth 0 without `above` does not know where the stock's top is: it
+        // links at the safe height
+        em.p0 = match &level_links {
+            Some(c) => Some(c.clone()),
+            None => (links_at_depth && p.cut.depth > 0.0)
+                .then(|| LinkArea::new(vec![tree[0].region.clone()])),
+        };
         for (k, &z) in depths.iter().enumerate() {
             em.z = z;
-            em.z_top = if k == 0 { 0.0 } else { depths[k - 1] };
+            em.z_top = match (k, above) {
+                (0, Some(a)) => a.height,
+                (0, None) => 0.0,
+                _ => depths[k - 1],
+            };
             if !em.link_low(em.at.xy()) {
                 em.retract();
             }
             em.tree(tree, &root);
         }
     }
-    em.retract();
+    // a level of 3D roughing stays where it ends (the rough goes on from there)
+    if above.is_none() {
+        em.retract();
+    }
     let warning = em.plunges.warning(
         "no helix fitted there and the pass was shorter than the tool diameter for a ramp",
     );
@@ -443,7 +508,7 @@ fn plan(
         tp.push(Move::Spindle { rpm: 0.0 });
     }
     tp.warnings.extend(warning);
-    Ok(tp)
+    Ok((tp, p0s))
 }
 
 struct Emitter<'a> {
@@ -457,8 +522,33 @@ struct Emitter<'a> {
     /// tan of the ramp angle
     slope: f64,
     plunges: Plunges,
-    /// The first pass (P0) of the tree being cut, for links at depth.
-    p0: Option<Region>,
+    /// Where links at depth may go: the first pass (P0) of the tree being cut, or for a
+    /// level of 3D roughing the P0 of the level above.
+    p0: Option<LinkArea>,
+}
+
+/// The regions a link at depth must stay inside, with their boxes (shared, not copied,
+/// by the trees of a level).
+#[derive(Clone)]
+struct LinkArea(std::rc::Rc<Vec<(crate::geom::Bounds, Region)>>);
+
+impl LinkArea {
+    fn new(regions: Vec<Region>) -> LinkArea {
+        LinkArea(std::rc::Rc::new(
+            regions.into_iter().map(|r| (r.bounds(), r)).collect(),
+        ))
+    }
+
+    /// Whether the straight move a→b stays inside one of the regions.
+    fn holds(&self, a: Point, b: Point) -> bool {
+        let inside = |p: Point, bx: &crate::geom::Bounds| {
+            let e = 1e-7;
+            p.x >= bx.min.x - e && p.x <= bx.max.x + e && p.y >= bx.min.y - e && p.y <= bx.max.y + e
+        };
+        self.0
+            .iter()
+            .any(|(bx, r)| inside(a, bx) && inside(b, bx) && segment_inside(a, b, r))
+    }
 }
 
 /// How far over the last level's floor a link at depth lifts the tool, mm.
@@ -516,17 +606,21 @@ impl Emitter<'_> {
         if here.z > lift + 1e-9 || here.z < self.z - 1e-9 || lift >= self.p.cut.safe_z {
             return false;
         }
-        if here.xy().dist(q) > 1e-9 && !segment_inside(here.xy(), q, p0) {
+        if here.xy().dist(q) > 1e-9 && !p0.holds(here.xy(), q) {
             return false;
         }
-        self.push(Move::Linear {
-            to: P3::at_z(here.xy(), lift),
-            feed: self.p.cut.plunge_feed,
-        });
-        self.push(Move::Linear {
-            to: P3::at_z(q, lift),
-            feed: self.p.cut.feed,
-        });
+        if (here.z - lift).abs() > 1e-12 {
+            self.push(Move::Linear {
+                to: P3::at_z(here.xy(), lift),
+                feed: self.p.cut.plunge_feed,
+            });
+        }
+        if here.xy().dist(q) > 1e-12 {
+            self.push(Move::Linear {
+                to: P3::at_z(q, lift),
+                feed: self.p.cut.feed,
+            });
+        }
         true
     }
 

@@ -1,4 +1,10 @@
 //! Profile: cut along a shape's outline with the tool outside, inside or on the line, with lead-in/lead-out arcs, holding tabs, and ramps down along the loop instead of plunges.
+//!
+//! Links between depth passes: a closed loop without leads steps down in place at its
+//! start (in its own slot). A loop with leads and no tabs goes back the way it came
+//! between passes, `LINK_LIFT` over its own path (`link_back`), instead of up to the safe
+//! height; between contours, on open paths and with tabs the tool goes to the safe
+//! height (a profile clears nothing between its contours to link through).
 
 use super::entry::{self, Entry, Plunges};
 use super::{pass_depths, Cutting, OpError};
@@ -117,6 +123,16 @@ impl ProfileParams {
 /// followed as they are (only `On` makes sense for them). Each loop is cut at every pass
 /// depth before the next loop starts.
 pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
+    plan(shape, p, true)
+}
+
+/// The profile as it was planned before links at depth: a loop with lead arcs goes up to
+/// the safe height after every depth pass (for comparison: retract counts, machine time).
+pub fn profile_safe_links(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
+    plan(shape, p, false)
+}
+
+fn plan(shape: &Shape, p: &ProfileParams, links: bool) -> Result<Toolpath, OpError> {
     p.check()?;
     super::check_range(shape)?;
     let opts = OffsetOptions {
@@ -288,10 +304,15 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         let room = tabs.first().map_or(pl.length(), |t| t.0);
         // the loop as this pass cuts it (a ramp around it restarts it where it reached depth)
         let mut cur = pl.clone();
+        // links at depth between the passes of a loop with leads (see `link_back`)
+        let link = links && !in_place && tabs.is_empty() && p.cut.safe_z > super::pocket::LINK_LIFT;
         for (k, &z) in depths.iter().enumerate() {
             let z_top = if k == 0 { 0.0 } else { depths[k - 1] };
             let entry = lead_in.map_or(start, |(a, _, _)| a);
-            if k == 0 || !in_place {
+            // where the lead-in ran at this pass: from the height at its start to the
+            // height at the loop's start
+            let mut lead_in_z = (z, z);
+            if k == 0 || !(in_place || link) {
                 tp.push(Move::Rapid {
                     to: P3::at_z(entry, p.cut.safe_z),
                 });
@@ -322,6 +343,7 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                     }
                     let len = crate::toolpath::arc_segment(a, start, center, ccw).length();
                     let za = (-(len * slope)).max(z);
+                    lead_in_z = (0.0, za);
                     tp.push(Move::Arc {
                         to: P3::at_z(start, za),
                         center,
@@ -374,7 +396,9 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
                 });
                 exit = b;
             }
-            if !in_place || k + 1 == depths.len() {
+            if link && k + 1 < depths.len() {
+                link_back(&mut tp, start, lead_in, lead_out, lead_in_z, z, p);
+            } else if !in_place || k + 1 == depths.len() {
                 tp.push(Move::Rapid {
                     to: P3::at_z(exit, p.cut.safe_z),
                 });
@@ -388,6 +412,54 @@ pub fn profile(shape: &Shape, p: &ProfileParams) -> Result<Toolpath, OpError> {
         "the pass was shorter than the tool diameter (or its first tab nearer) for a ramp",
     ));
     Ok(tp)
+}
+
+/// Links at depth between two depth passes of a closed loop with leads: instead of the
+/// safe height, the tool goes back the way it came, [`super::pocket::LINK_LIFT`] over it:
+/// up from the lead-out's end, back along the lead-out (cut at depth `z`), up at the loop's
+/// start, and back up the lead-in as it ran at this pass (from `lead_in_z.0` at its start
+/// to `lead_in_z.1` at the loop's start), to stand over the lead-in's start. Every
+/// position lies straight over one the flat tool took on this pass, whose column above its
+/// end the tool itself cleared, so the link moves through air; the next pass goes down from
+/// there as it did from the safe height.
+fn link_back(
+    tp: &mut Toolpath,
+    start: Point,
+    lead_in: Option<(Point, Point, bool)>,
+    lead_out: Option<(Point, Point, bool)>,
+    lead_in_z: (f64, f64),
+    z: f64,
+    p: &ProfileParams,
+) {
+    let lift = super::pocket::LINK_LIFT;
+    let (feed, plunge) = (p.cut.feed, p.cut.plunge_feed);
+    let Some(here) = tp_pos(tp) else { return };
+    tp.push(Move::Linear {
+        to: P3::at_z(here.xy(), z + lift),
+        feed: plunge,
+    });
+    if let Some((_, center, ccw)) = lead_out {
+        tp.push(Move::Arc {
+            to: P3::at_z(start, z + lift),
+            center,
+            ccw: !ccw,
+            feed,
+        });
+    }
+    if let Some((a, center, ccw)) = lead_in {
+        if lead_in_z.1 > z + 1e-12 {
+            tp.push(Move::Linear {
+                to: P3::at_z(start, lead_in_z.1 + lift),
+                feed: plunge,
+            });
+        }
+        tp.push(Move::Arc {
+            to: P3::at_z(a, lead_in_z.0 + lift),
+            center,
+            ccw: !ccw,
+            feed,
+        });
+    }
 }
 
 /// Where the tool path last moved to.

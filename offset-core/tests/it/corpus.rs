@@ -13,8 +13,8 @@
 
 use offset_core::io::{read_shape_with, ReadOptions};
 use offset_core::mesh::{
-    finish3d, read_stl, rough3d, waterline3d, write_stl, Cutter, CutterShape, Finish3dParams, Mesh,
-    Rough3dParams, WaterlineParams,
+    finish3d, read_stl, rough3d, rough3d_safe_links, waterline3d, write_stl, Cutter, CutterShape,
+    Finish3dParams, Mesh, Rough3dParams, WaterlineParams,
 };
 use offset_core::ops::{pocket, profile, PocketParams, ProfileParams, Stepover};
 use offset_core::toolpath::{Move, Tool, Toolpath, P3};
@@ -269,6 +269,18 @@ fn mesh_rows(path: &Path, rows: &mut Vec<Row>) {
     let r = rough3d(&m, &rp).map_err(|e| e.to_string());
     let ms = t.elapsed().as_secs_f64() * 1e3;
     if let Some(tp) = push("rough3d flat d6".into(), r, ms, rows) {
+        // links at depth: the retracts against the rough with every link at the safe height
+        if let Ok(safe_links) = rough3d_safe_links(&m, &rp) {
+            let (low, high) = (
+                offset_core::cutsim::retracts(&tp),
+                offset_core::cutsim::retracts(&safe_links),
+            );
+            eprintln!("{file}, rough3d: {high} retracts with every link at the safe height, {low} with links at depth");
+            assert!(
+                low <= high,
+                "{file}: links at depth retract more ({low}) than safe links ({high})"
+            );
+        }
         // the tool grown by a ball of the allowance: a bull of radius r + a, corner a; judged
         // a micrometre short of it (a tool whose rim stands exactly the allowance off a
         // wall does not cut it, but a drop-cutter height there jumps)

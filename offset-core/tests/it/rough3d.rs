@@ -4,13 +4,13 @@
 //! closed solid (undercuts, holes) are roughed from their upper envelope with a warning.
 
 use offset_core::mesh::shapes::{cube_with_boss, height_field_solid, sphere};
-use offset_core::mesh::{rough3d, Cutter, DropCutter, Mesh, Rough3dParams, V3};
+use offset_core::mesh::{rough3d, rough3d_safe_links, Cutter, DropCutter, Mesh, Rough3dParams, V3};
 use offset_core::ops::Stepover;
 use offset_core::toolpath::{Move, Tool, P3};
 
 /// Checks that the flat tool of `p` keeps `p.stock_allowance` (less `slack`) from `m` at
 /// every position of the path, and returns the cutting levels seen.
-fn keeps_allowance(case: &str, m: &Mesh, p: &Rough3dParams, slack: f64) -> Vec<f64> {
+pub(crate) fn keeps_allowance(case: &str, m: &Mesh, p: &Rough3dParams, slack: f64) -> Vec<f64> {
     let tp = rough3d(m, p).unwrap();
     let a = p.stock_allowance;
     let r = p.tool.radius();
@@ -46,11 +46,19 @@ fn keeps_allowance(case: &str, m: &Mesh, p: &Rough3dParams, slack: f64) -> Vec<f
             need - q.z
         );
     }
-    tp.walk(start, |_, mv, to| {
+    // the levels cut: the Z of every level feed move across but the links at depth (one
+    // that follows a feed straight up: passes never go up)
+    let mut rose = false;
+    tp.walk(start, |from, mv, to| {
         if let Move::Linear { .. } | Move::Arc { .. } = mv {
-            if !levels.iter().any(|z| (z - to.z).abs() < 1e-9) {
+            let across = from.xy().dist(to.xy()) > 1e-9;
+            let level = across && (from.z - to.z).abs() < 1e-12 && !rose;
+            rose = !across && to.z > from.z + 1e-9;
+            if level && !levels.iter().any(|z| (z - to.z).abs() < 1e-9) {
                 levels.push(to.z);
             }
+        } else {
+            rose = false;
         }
     });
     levels.sort_by(|a, b| b.total_cmp(a));
@@ -204,10 +212,13 @@ fn an_open_mesh_is_roughed_with_one_warning_naming_its_holes() {
 }
 
 #[test]
-fn rough_paths_retract_between_levels() {
+fn safe_link_rough_paths_retract_between_levels() {
+    // the rough as planned before links at depth (`rough3d_safe_links`, the comparison of
+    // rough_links.rs); with links at depth a level change goes through what the level
+    // above cleared instead, which rough_links.rs checks by simulation
     let m = cube_with_boss(30.0, 6.0, 8.0, 16);
     let p = params(6.0, 0.5);
-    let tp = rough3d(&m, &p).unwrap();
+    let tp = rough3d_safe_links(&m, &p).unwrap();
     let safe = 38.0 + p.safe_z;
     // every change of level passes through the safe height
     let mut last_cut: Option<P3> = None;
