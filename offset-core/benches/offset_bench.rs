@@ -37,43 +37,9 @@ impl clipper2::PointScaler for Fine {
     const MULTIPLIER: f64 = 1e5;
 }
 
-fn gear(n: usize) -> Polyline {
-    let (r0, teeth) = (n as f64 / 10.0, n as f64 / 20.0);
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            let r = r0 + 3.0 * (teeth * a).sin();
-            Point::new(r * a.cos(), r * a.sin())
-        })
-        .collect();
-    Polyline::from_points(&pts, true)
-}
-
-fn islands(n: usize) -> Vec<Polyline> {
-    let r0 = n as f64 / 10.0;
-    (0..10)
-        .map(|k| {
-            let a = k as f64 / 10.0 * std::f64::consts::TAU;
-            Polyline::circle(Point::new(a.cos(), a.sin()) * (0.6 * r0), 0.08 * r0).reversed()
-        })
-        .collect()
-}
-
-fn gear_with_islands(n: usize) -> Vec<Polyline> {
-    let mut b = vec![gear(n)];
-    b.extend(islands(n));
-    b
-}
-
-fn dense_circle(n: usize) -> Polyline {
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            Point::new(10.0 * a.cos(), 10.0 * a.sin())
-        })
-        .collect();
-    Polyline::from_points(&pts, true)
-}
+#[path = "support/inputs.rs"]
+mod inputs;
+use inputs::{dense_circle, gear, gear_with_islands};
 
 fn to_cav(p: &Polyline) -> CPline<f64> {
     let mut c = CPline::with_capacity(p.len(), p.closed);

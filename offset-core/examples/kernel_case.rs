@@ -11,41 +11,13 @@
 
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
-use offset_core::geom::{Point, Polyline, Region};
+use offset_core::geom::{Polyline, Region};
 use offset_core::offset::{offset_regions, OffsetOptions};
 use std::time::Instant;
 
-fn gear(n: usize) -> Polyline {
-    let (r0, teeth) = (n as f64 / 10.0, n as f64 / 20.0);
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            let r = r0 + 3.0 * (teeth * a).sin();
-            Point::new(r * a.cos(), r * a.sin())
-        })
-        .collect();
-    Polyline::from_points(&pts, true)
-}
-
-fn islands(n: usize) -> Vec<Polyline> {
-    let r0 = n as f64 / 10.0;
-    (0..10)
-        .map(|k| {
-            let a = k as f64 / 10.0 * std::f64::consts::TAU;
-            Polyline::circle(Point::new(a.cos(), a.sin()) * (0.6 * r0), 0.08 * r0).reversed()
-        })
-        .collect()
-}
-
-fn circle(n: usize) -> Polyline {
-    let pts: Vec<Point> = (0..n)
-        .map(|i| {
-            let a = i as f64 / n as f64 * std::f64::consts::TAU;
-            Point::new(10.0 * a.cos(), 10.0 * a.sin())
-        })
-        .collect();
-    Polyline::from_points(&pts, true)
-}
+#[path = "../benches/support/inputs.rs"]
+mod inputs;
+use inputs::{dense_circle as circle, gear, islands};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
