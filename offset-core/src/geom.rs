@@ -253,6 +253,25 @@ impl Segment {
             ccw: bulge > 0.0,
         }
     }
+    /// The same line, or an arc of the same circle turning the same way, from `a` to `b`
+    /// (two points on it): a piece of this segment.
+    pub fn with_ends(&self, a: Point, b: Point) -> Segment {
+        match *self {
+            Segment::Line { .. } => Segment::Line { a, b },
+            Segment::Arc {
+                center,
+                radius,
+                ccw,
+                ..
+            } => Segment::Arc {
+                a,
+                b,
+                center,
+                radius,
+                ccw,
+            },
+        }
+    }
     pub fn start(&self) -> Point {
         match *self {
             Segment::Line { a, .. } | Segment::Arc { a, .. } => a,

@@ -715,24 +715,7 @@ impl Plan {
             }
             let n = ((len / (2.0 * h)).ceil() as usize).max(1);
             let along = crate::geom::PointsAlong::new(&seg);
-            let part = |t0: f64, t1: f64| -> Segment {
-                let (a, b) = (along.at(t0), along.at(t1));
-                match seg {
-                    Segment::Line { .. } => Segment::Line { a, b },
-                    Segment::Arc {
-                        center,
-                        radius,
-                        ccw,
-                        ..
-                    } => Segment::Arc {
-                        a,
-                        b,
-                        center,
-                        radius,
-                        ccw,
-                    },
-                }
-            };
+            let part = |t0: f64, t1: f64| seg.with_ends(along.at(t0), along.at(t1));
             // the stretch of this segment cut but not yet written
             let mut t_from = 0.0;
             let mut t = 0.0;
@@ -957,18 +940,10 @@ impl Plan {
 /// The engagement along the chord a→b at the level (bottom −1) before it cuts, then the
 /// cut: the largest engagement, degrees.
 fn cut_chord(g: &mut Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
-    let d = b - a;
-    let l = d.len();
-    if l < 1e-12 {
+    if a.dist(b) < 1e-12 {
         return 0.0;
     }
-    let u = d * (1.0 / l);
-    let n = ((l / h).ceil() as usize).max(1);
-    let mut worst = 0.0f64;
-    for s in 1..=n {
-        let p = a + d * (s as f64 / n as f64);
-        worst = worst.max(side_engagement(g, P3::at_z(p, -1.0), u, r));
-    }
+    let worst = chord_engagement(g, a, b, r, h);
     g.cut(
         P3::at_z(a, -1.0),
         P3::at_z(b, -1.0),

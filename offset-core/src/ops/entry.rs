@@ -65,21 +65,7 @@ pub(crate) fn part(s: Segment, l0: f64, l1: f64) -> Segment {
     let (t0, t1) = ((l0 / len).clamp(0.0, 1.0), (l1 / len).clamp(0.0, 1.0));
     let a = if t0 == 0.0 { s.start() } else { s.point_at(t0) };
     let b = if t1 == 1.0 { s.end() } else { s.point_at(t1) };
-    match s {
-        Segment::Line { .. } => Segment::Line { a, b },
-        Segment::Arc {
-            center,
-            radius,
-            ccw,
-            ..
-        } => Segment::Arc {
-            a,
-            b,
-            center,
-            radius,
-            ccw,
-        },
-    }
+    s.with_ends(a, b)
 }
 
 /// `s` run the other way.

@@ -132,11 +132,7 @@ pub type RegionOffset<'a> = dyn Fn(&Region, f64) -> Result<Vec<Region>, OffsetEr
 
 /// Plans a pocket of every region of `shape` with the offset kernel.
 pub fn pocket(shape: &Shape, p: &PocketParams) -> Result<Toolpath, OpError> {
-    let opts = OffsetOptions {
-        tolerance: p.cut.tolerance,
-        ..Default::default()
-    };
-    pocket_with(shape, p, &|r: &Region, d: f64| offset_region(r, d, &opts))
+    plan_with_kernel(shape, p, true, None).map(|(tp, _)| tp)
 }
 
 /// One pass and the passes inside it, in a tree held in a list (children by index).
@@ -362,22 +358,22 @@ pub(crate) fn pocket_level(
     p: &PocketParams,
     above: &Above,
 ) -> Result<(Toolpath, Vec<Region>), OpError> {
-    let opts = OffsetOptions {
-        tolerance: p.cut.tolerance,
-        ..Default::default()
-    };
-    plan(
-        shape,
-        p,
-        &|r: &Region, d: f64| offset_region(r, d, &opts),
-        true,
-        Some(above),
-    )
+    plan_with_kernel(shape, p, true, Some(above))
 }
 
 /// The pocket as it was planned before links at depth: every link that is not a short hop
 /// goes up to the safe height (for comparison: retract counts, machine time).
 pub fn pocket_safe_links(shape: &Shape, p: &PocketParams) -> Result<Toolpath, OpError> {
+    plan_with_kernel(shape, p, false, None).map(|(tp, _)| tp)
+}
+
+/// [`plan`] with the offset kernel at the pocket's tolerance.
+fn plan_with_kernel(
+    shape: &Shape,
+    p: &PocketParams,
+    links_at_depth: bool,
+    above: Option<&Above>,
+) -> Result<(Toolpath, Vec<Region>), OpError> {
     let opts = OffsetOptions {
         tolerance: p.cut.tolerance,
         ..Default::default()
@@ -386,10 +382,9 @@ pub fn pocket_safe_links(shape: &Shape, p: &PocketParams) -> Result<Toolpath, Op
         shape,
         p,
         &|r: &Region, d: f64| offset_region(r, d, &opts),
-        false,
-        None,
+        links_at_depth,
+        above,
     )
-    .map(|(tp, _)| tp)
 }
 
 fn plan(

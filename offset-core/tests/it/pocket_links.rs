@@ -3,11 +3,10 @@
 //! counts printed), and the simulation shows every link moving through air only: no
 //! material removed by a link, no gouge, no rapid through material, nothing left.
 
-use offset_core::cutsim::{retracts, simulate, MoveKind, Part, SimOptions, Stock};
+use offset_core::cutsim::{simulate, MoveKind, Part, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Shape};
 use offset_core::ops::pocket::LINK_LIFT;
 use offset_core::ops::{pocket, pocket_safe_links, Cutting, PocketParams, Stepover};
-use offset_core::stats::Kinematics;
 use offset_core::toolpath::Tool;
 
 fn plate() -> Shape {
@@ -44,20 +43,7 @@ fn check(name: &str, shape: &Shape, depth: f64) {
     };
     let low = pocket(shape, &p).unwrap();
     let high = pocket_safe_links(shape, &p).unwrap();
-    let (n_low, n_high) = (retracts(&low), retracts(&high));
-    let k = Kinematics::default();
-    let (s_low, s_high) = (low.stats(&k), high.stats(&k));
-    eprintln!(
-        "{name}: {n_high} retracts, rapids {:.0} mm, {:.1} s with every link at the safe height; {n_low} retracts, rapids {:.0} mm, {:.1} s with links at depth",
-        s_high.rapid_length,
-        s_high.time(),
-        s_low.rapid_length,
-        s_low.time()
-    );
-    assert!(
-        n_low < n_high,
-        "{name}: {n_low} retracts with links at depth, {n_high} without"
-    );
+    crate::common::assert_fewer_retracts(name, &low, &high);
     let b = shape.bounds();
     let o = SimOptions {
         cell: 0.1,

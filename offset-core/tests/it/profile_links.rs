@@ -4,11 +4,10 @@
 //! moving through air only (no material removed), no gouge in the part, no rapid through
 //! material.
 
-use offset_core::cutsim::{retracts, simulate, MoveKind, Part, SimOptions, Stock};
+use offset_core::cutsim::{simulate, MoveKind, Part, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::pocket::LINK_LIFT;
 use offset_core::ops::{profile, profile_safe_links, Cutting, Entry, ProfileParams, Side};
-use offset_core::stats::Kinematics;
 use offset_core::toolpath::Tool;
 
 fn check(name: &str, side: Side, entry: Entry, lead_in: f64, lead_out: f64) {
@@ -31,20 +30,7 @@ fn check(name: &str, side: Side, entry: Entry, lead_in: f64, lead_out: f64) {
     };
     let low = profile(&shape, &p).unwrap();
     let high = profile_safe_links(&shape, &p).unwrap();
-    let (n_low, n_high) = (retracts(&low), retracts(&high));
-    let k = Kinematics::default();
-    let (s_low, s_high) = (low.stats(&k), high.stats(&k));
-    eprintln!(
-        "{name}: {n_high} retracts, rapids {:.0} mm, {:.1} s with every link at the safe height; {n_low} retracts, rapids {:.0} mm, {:.1} s with links at depth",
-        s_high.rapid_length,
-        s_high.time(),
-        s_low.rapid_length,
-        s_low.time()
-    );
-    assert!(
-        n_low < n_high,
-        "{name}: {n_low} retracts with links at depth, {n_high} without"
-    );
+    crate::common::assert_fewer_retracts(name, &low, &high);
     // the part: the plate with its hole; what may be cut lies round it (outside profile)
     // or in the hole (inside)
     let m = 10.0;

@@ -210,3 +210,27 @@ pub fn gear(n: usize, r0: f64, waves: &[(f64, f64, f64)]) -> Polyline {
         .collect();
     Polyline::from_points(&pts, true)
 }
+
+/// Links at depth against every link at the safe height, on one input: the retracts, rapids
+/// and machine time of both printed, and fewer retracts with links at depth asserted.
+pub fn assert_fewer_retracts(
+    name: &str,
+    at_depth: &offset_core::toolpath::Toolpath,
+    safe: &offset_core::toolpath::Toolpath,
+) {
+    use offset_core::cutsim::retracts;
+    let (n_low, n_high) = (retracts(at_depth), retracts(safe));
+    let k = offset_core::stats::Kinematics::default();
+    let (s_low, s_high) = (at_depth.stats(&k), safe.stats(&k));
+    eprintln!(
+        "{name}: {n_high} retracts, rapids {:.0} mm, {:.1} s with every link at the safe height; {n_low} retracts, rapids {:.0} mm, {:.1} s with links at depth",
+        s_high.rapid_length,
+        s_high.time(),
+        s_low.rapid_length,
+        s_low.time()
+    );
+    assert!(
+        n_low < n_high,
+        "{name}: {n_low} retracts with links at depth, {n_high} without"
+    );
+}
