@@ -177,13 +177,42 @@ pub fn summary(rep: &Report, tp: &Toolpath, lines: Option<&[usize]>, o: &SimOpti
             m.to.z
         )
     };
-    match rep.worst(&[MoveKind::Cut]) {
-        Some(m) => s.push_str(&format!(
+    // with the part known, the way into each sharp corner of its walls apart: no plan
+    // goes in there with less than the corner's turn (cutsim::corner_reading)
+    let corners = o
+        .part
+        .as_ref()
+        .map(|p| cutsim::sharp_corners(&p.clear, o.tool.radius()))
+        .unwrap_or_default();
+    let worst_of = |into: bool| {
+        rep.moves
+            .iter()
+            .filter(|m| m.kind == MoveKind::Cut)
+            .filter(|m| cutsim::going_into(&corners, m.to.xy()).is_some() == into)
+            .max_by(|a, b| a.engagement.total_cmp(&b.engagement))
+    };
+    match worst_of(false) {
+        Some(m) if corners.is_empty() => s.push_str(&format!(
             "  worst engagement {:.1}° at {}\n",
             m.engagement,
             at(m)
         )),
+        Some(m) => s.push_str(&format!(
+            "  worst engagement {:.1}° at {} (away from the sharp corners of the walls)\n",
+            m.engagement,
+            at(m)
+        )),
         None => s.push_str("  no cutting move at one depth\n"),
+    }
+    if let Some(m) = worst_of(true) {
+        let turn = cutsim::going_into(&corners, m.to.xy()).unwrap_or(0.0);
+        s.push_str(&format!(
+            "  going into the {} sharp corners of the walls: worst {:.1}° at {}, where the wall turns by {turn:.0}° (whatever its path, a round tool going into a corner meets material or the part over that turn; on these cells up to {:.1}° reads as that)\n",
+            corners.len(),
+            m.engagement,
+            at(m),
+            cutsim::corner_reading(turn, o.tool.radius(), rep.cell)
+        ));
     }
     if let Some(m) = rep.worst(&[MoveKind::Entry]) {
         s.push_str(&format!(

@@ -119,7 +119,9 @@ pub enum MoveKind {
     Rapid,
     /// A cutting move at one depth (or rising).
     Cut,
-    /// A cutting move that goes down while moving across (ramp, helix).
+    /// A cutting move that goes down while moving across (ramp, helix), and the flat turn
+    /// that closes a helix (an arc about the centre of the descending arc before it, which
+    /// cuts the wedge the last descending turn leaves).
     Entry,
     /// Straight down.
     Plunge,
@@ -351,6 +353,8 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
     let mut arrived = false;
     let mut pos = P3::default();
     let mut first = true;
+    // the centre and radius of the last arc that went down (a helix)
+    let mut helix: Option<(Point, f64)> = None;
     for (index, m) in tp.moves.iter().enumerate() {
         let (to, feed, rapid) = match m {
             Move::Rapid { to } => (*to, vrapid, true),
@@ -381,14 +385,27 @@ pub fn simulate(tp: &Toolpath, stock: &Stock, o: &SimOptions) -> Result<Report, 
         };
         let xy_len: f64 = pts.windows(2).map(|w| w[0].xy().dist(w[1].xy())).sum();
         let length: f64 = pts.windows(2).map(|w| w[0].dist(w[1])).sum();
+        let closes_helix = match (m, helix) {
+            (Move::Arc { center, .. }, Some((c, rho))) => {
+                center.dist(c) < 1e-6 && (from.xy().dist(c) - rho).abs() < 1e-6
+            }
+            _ => false,
+        };
         let kind = if rapid {
             MoveKind::Rapid
         } else if xy_len < 1e-9 {
             MoveKind::Plunge
-        } else if to.z < from.z - 1e-9 {
+        } else if to.z < from.z - 1e-9 || closes_helix {
             MoveKind::Entry
         } else {
             MoveKind::Cut
+        };
+        helix = match m {
+            Move::Arc { center, .. } if to.z < from.z - 1e-9 => {
+                Some((*center, from.xy().dist(*center)))
+            }
+            Move::Arc { .. } if closes_helix => helix,
+            _ => None,
         };
         let ri = rep.moves.len();
         let mut mr = MoveReport {
@@ -553,6 +570,65 @@ pub fn side_engagement(g: &Grid, p: P3, u: Point, r: f64) -> f64 {
         }
     }
     on * 180.0 / (PROBES - 1) as f64
+}
+
+/// The most [`side_engagement`] reads, on cells of `h` mm, as a tool of radius `r` arrives
+/// in a sharp corner where its centre's path turns by `turn` degrees, with nothing left
+/// to cut there; degrees. A round tool cannot go into a corner with less: the material
+/// only the tool at the corner reaches, and the part just beyond it, lie round its edge over
+/// the corner's normal cone, `turn` wide (180° less the corner's angle), and those
+/// directions face the tool's way whatever way it comes in. Beyond the cone the probes
+/// (R + 0.72 h) touch the wall ahead over arccos(R / (R + 0.72 h + h/√2)), the cell's
+/// half diagonal included; one probe's degree on top.
+pub fn corner_reading(turn: f64, r: f64, h: f64) -> f64 {
+    let reach = r + 0.72 * h + h * std::f64::consts::FRAC_1_SQRT_2;
+    turn + (r / reach).clamp(-1.0, 1.0).acos().to_degrees() + 1.0
+}
+
+/// The sharp corners of the tool centre's path round the walls of `regions` (each offset
+/// inward by `r`): the vertices where it turns on the spot, going into a corner of a
+/// region, and by how much it turns there, degrees.
+pub fn sharp_corners(regions: &[Region], r: f64) -> Vec<(Point, f64)> {
+    let mut out = Vec::new();
+    for region in regions {
+        let Ok(walls) = crate::offset::offset_region(region, -r, &Default::default()) else {
+            continue;
+        };
+        for pl in walls.iter().flat_map(|w| w.boundaries()) {
+            out.extend(path_corners(pl));
+        }
+    }
+    out
+}
+
+/// The vertices of a closed path where its tangent turns by more than 2.5°, and the turn,
+/// degrees.
+pub fn path_corners(pl: &crate::geom::Polyline) -> Vec<(Point, f64)> {
+    let n = pl.segment_count();
+    (0..n)
+        .filter_map(|k| {
+            let (a, b) = (pl.segment(k), pl.segment((k + 1) % n));
+            let cos = a.tangent_at(1.0).dot(b.tangent_at(0.0)).clamp(-1.0, 1.0);
+            (cos < 0.999).then(|| (a.end(), cos.acos().to_degrees()))
+        })
+        .collect()
+}
+
+/// How near a sharp corner turning by 90° a tool centre counts as going into it, mm; more
+/// before a sharper one (over the sine of half the corner's angle, times √½).
+pub const CORNER_NEAR: f64 = 0.75;
+
+/// The turn of the sharp corner among `corners` that `p` is going into ([`CORNER_NEAR`]),
+/// the sharpest if several.
+pub fn going_into(corners: &[(Point, f64)], p: Point) -> Option<f64> {
+    corners
+        .iter()
+        .filter(|&&(c, turn)| {
+            let half = (180.0 - turn).to_radians() / 2.0;
+            c.dist(p) <= CORNER_NEAR * std::f64::consts::FRAC_1_SQRT_2 / half.sin().max(0.05)
+        })
+        .map(|c| c.1)
+        .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.max(t))))
 }
 
 /// Whether any cell under the disc of radius `r` about `p` stands above its bottom.

@@ -36,10 +36,12 @@
 //! - What the bound does not cover (the tool path's warnings say where and how much): the
 //!   helix into each level's core goes down through material (the simulation reads 180°
 //!   for any move that descends into material, and for its closing flat turn, which cuts
-//!   the wedge the last descending turn leaves); the tool's way into a sharp corner of a
-//!   wall (the last half millimetre, about 100° on the plate: the passes do not clear such
-//!   corners first); and necks narrower than D + 2 × 0.5 mm, where the loops are small
-//!   (a 6.4 mm neck with a 6 mm tool still reads up to about 165°).
+//!   the wedge the last descending turn leaves; both are the entry, "going down"); the
+//!   tool's way into a sharp corner of a wall, where no path can hold a bound under the
+//!   wall's turn there (a round tool going into a corner meets material or the part over
+//!   the corner's normal cone, 180° less its angle: [`crate::cutsim::corner_reading`]),
+//!   warned apart; and necks narrower than D + 2 × 0.5 mm, where the loops are small (a
+//!   6.4 mm neck with a 6 mm tool still reads up to about 165°).
 //! - The passes' runs of cuts go out fitted into lines and arcs within an eighth of a
 //!   cell; the walls and loops as exact lines and arcs.
 
@@ -153,8 +155,47 @@ struct Found {
     worst: f64,
     worst_at: Point,
     over: Vec<(Point, f64)>,
+    /// The most read going into each sharp corner of a wall (the last half millimetre
+    /// before it and after), where no plan reads less than the corner's turn: where, how
+    /// much, and the turn, degrees.
+    corners: Vec<(Point, f64, f64)>,
     cores: usize,
     passes: usize,
+}
+
+/// The most a wall pass reads: away from its sharp corners, and going into each of them.
+#[derive(Clone, Debug)]
+struct Worst {
+    away: (f64, Point),
+    /// The wall loop's sharp corners (where it turns on the spot) and their turns, with
+    /// the most read going into each ([`crate::cutsim::going_into`]).
+    sharp: Vec<(Point, f64, f64)>,
+}
+
+impl Worst {
+    /// The sharp corners of a wall loop ([`crate::cutsim::path_corners`]).
+    fn of(pl: &Polyline) -> Worst {
+        let sharp = crate::cutsim::path_corners(pl)
+            .into_iter()
+            .map(|(c, turn)| (c, turn, 0.0))
+            .collect();
+        Worst {
+            away: (0.0, Point::default()),
+            sharp,
+        }
+    }
+
+    fn note(&mut self, e: f64, p: Point) {
+        if let Some(c) = self
+            .sharp
+            .iter_mut()
+            .find(|c| crate::cutsim::going_into(&[(c.0, c.1)], p).is_some())
+        {
+            c.2 = c.2.max(e);
+        } else if e > self.away.0 {
+            self.away = (e, p);
+        }
+    }
 }
 
 /// The planning raster of one region and what the planner asks of it.
@@ -243,6 +284,7 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
             summary.worst_at = f.worst_at;
         }
         summary.over.extend(f.over.iter().copied());
+        summary.corners.extend(f.corners.iter().copied());
         let mut em = Emit {
             tp: &mut tp,
             c: &p.cut,
@@ -288,8 +330,17 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
     );
     if let Some(&(q, e)) = summary.over.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
         tp.warnings.push(format!(
-            "{} wall passes could not keep the engagement at {}° (going into a sharp corner or through a neck); the worst reads {e:.0}° at ({:.2}, {:.2})",
+            "{} wall passes could not keep the engagement at {}° (through a neck, or along a wall the passes left too thick); the worst reads {e:.0}° at ({:.2}, {:.2})",
             summary.over.len(),
+            p.engagement,
+            q.x,
+            q.y
+        ));
+    }
+    if let Some(&(q, e, turn)) = summary.corners.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
+        tp.warnings.push(format!(
+            "going into {} sharp corners of the walls the tool meets the material over more than {}°, the most {e:.0}° at ({:.2}, {:.2}), where the wall turns by {turn:.0}°: a round tool cannot go into a corner with less than that turn (180° less the corner's angle)",
+            summary.corners.len(),
             p.engagement,
             q.x,
             q.y
@@ -694,20 +745,10 @@ impl Plan {
     /// millimetre ahead; where the straight way would pass the bound, trochoidal loops
     /// (circles inside the walls, each advanced as far along the wall as keeps the
     /// bound) take the material until the straight way keeps it again.
-    fn trace_wall(
-        &self,
-        g: &mut Grid,
-        pl: &Polyline,
-        steps: &mut Vec<Step>,
-        worst: &mut (f64, Point),
-    ) {
+    fn trace_wall(&self, g: &mut Grid, pl: &Polyline, steps: &mut Vec<Step>, worst: &mut Worst) {
         let (r, h, bound) = (self.r, self.h, self.bound);
         let look = 0.5_f64.max(2.0 * h);
-        let note = |e: f64, p: Point, worst: &mut (f64, Point)| {
-            if e > worst.0 {
-                *worst = (e, p);
-            }
-        };
+        let note = |e: f64, p: Point, worst: &mut Worst| worst.note(e, p);
         for seg in pl.segments() {
             let len = seg.length();
             if len < 1e-12 {
@@ -906,7 +947,7 @@ impl Plan {
                     seg: Segment::Line { a: q_in, b: q },
                 });
             }
-            let mut worst = (0.0, Point::default());
+            let mut worst = Worst::of(&pl);
             if open {
                 self.trace_wall(&mut g, &pl, &mut steps, &mut worst);
             } else {
@@ -914,21 +955,29 @@ impl Plan {
                     let pts = flatten_segment(&seg, self.h / 8.0);
                     for w in pts.windows(2) {
                         let e = cut_chord(&mut g, w[0], w[1], self.r, self.h);
-                        if e > worst.0 {
-                            worst = (e, w[0]);
-                        }
+                        worst.note(e, w[0]);
                     }
                 }
             }
             self.g = g;
             self.steps.extend(steps);
-            if worst.0 > self.found.worst {
-                self.found.worst = worst.0;
-                self.found.worst_at = worst.1;
+            let (e, at) = worst.away;
+            if e > self.found.worst {
+                self.found.worst = e;
+                self.found.worst_at = at;
             }
-            if worst.0 > self.bound {
-                self.found.over.push((worst.1, worst.0));
+            // the user's bound: the planner aims MARGIN_DEG under it
+            let user = self.bound + MARGIN_DEG;
+            if e > user {
+                self.found.over.push((at, e));
             }
+            self.found.corners.extend(
+                worst
+                    .sharp
+                    .iter()
+                    .filter(|c| c.2 > user)
+                    .map(|&(c, turn, e)| (c, e, turn)),
+            );
             if !open {
                 self.steps.push(Step::Ramp { pl });
             }

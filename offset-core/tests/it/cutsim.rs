@@ -6,7 +6,7 @@
 
 use crate::pocket_support;
 
-use offset_core::cutsim::{simulate, MoveKind, Part, Report, SimOptions, Stock};
+use offset_core::cutsim::{corner_reading, simulate, MoveKind, Part, Report, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Region, Shape};
 use offset_core::ops::{pocket, Cutting, PocketParams, Stepover};
 use offset_core::toolpath::{Move, Tool, Toolpath, P3};
@@ -314,4 +314,96 @@ fn gouges_rapids_through_material_and_air_cuts_are_found_where_they_are() {
     let air = rep.longest_air().unwrap();
     assert!((air.length - 50.5).abs() < 0.2, "longest air cut {air:?}");
     assert_eq!(by_index(7).engagement, 0.0);
+}
+
+/// Why no plan holds an engagement bound going into a sharp corner of a region: where the
+/// tool centre's path (the region offset inward by R) turns by τ on the spot, at C, the
+/// material only the tool at C reaches lies round its edge over the directions of the
+/// corner's normal cone, τ = 180° less the corner's angle. Whatever way the tool comes in,
+/// those directions face its way, so its edge meets material (or the part just beyond)
+/// over at least τ as it arrives. The simulation reads the same: the pocket is cut, then
+/// the wall loop is run once more through air, and each arrival at a corner reads at least
+/// τ though it removes nothing; and at most `corner_reading`, τ and the wall ahead that
+/// the probes just outside the tool touch, which shrinks with the cell. The adaptive tests
+/// hold corners to that.
+#[test]
+fn going_into_a_sharp_corner_reads_its_turn_even_with_nothing_left_to_cut() {
+    let p = Point::new;
+    let shapes = [
+        (
+            "rectangle",
+            vec![p(0.0, 0.0), p(40.0, 0.0), p(40.0, 30.0), p(0.0, 30.0)],
+        ),
+        ("triangle", vec![p(0.0, 0.0), p(50.0, 0.0), p(10.0, 30.0)]),
+    ];
+    for (name, pts) in shapes {
+        let shape = Shape::new(vec![Polyline::from_points(&pts, true)]);
+        let region = shape.regions()[0].clone();
+        let mut tp = pocket(&shape, &pocket_params()).unwrap();
+        let wall = offset_core::offset::offset_region(&region, -R, &Default::default()).unwrap();
+        let loop_pts: Vec<Point> = wall[0].outer.vertices.iter().map(|v| v.pos()).collect();
+        assert_eq!(
+            loop_pts.len(),
+            pts.len(),
+            "{name}: the wall path {loop_pts:?}"
+        );
+        let first = tp.moves.len();
+        tp.moves.push(rapid(loop_pts[0].x, loop_pts[0].y, 5.0));
+        tp.moves.push(line(loop_pts[0].x, loop_pts[0].y, -2.0));
+        for q in loop_pts.iter().skip(1).chain(std::iter::once(&loop_pts[0])) {
+            tp.moves.push(line(q.x, q.y, -2.0));
+        }
+        // the part stands round the region, as in a real block
+        let b = shape.bounds();
+        let block = Stock::block(b.min - p(1.0, 1.0), b.max + p(1.0, 1.0), 0.0);
+        for cell in [0.1, 0.05, 0.025] {
+            let o = SimOptions {
+                cell,
+                part: Some(Part {
+                    clear: vec![region.clone()],
+                    floor: -2.0,
+                }),
+                ..opts()
+            };
+            let rep = simulate(&tp, &block, &o).unwrap();
+            assert_eq!(
+                rep.left, 0,
+                "{name}: the pocket leaves material at {:?}",
+                rep.first_left
+            );
+            let n = loop_pts.len();
+            for k in 0..n {
+                // the move of the last loop that arrives at corner k + 1
+                let (a, c, b) = (loop_pts[k], loop_pts[(k + 1) % n], loop_pts[(k + 2) % n]);
+                let turn = (c - a)
+                    .unit()
+                    .dot((b - c).unit())
+                    .clamp(-1.0, 1.0)
+                    .acos()
+                    .to_degrees();
+                let m = rep
+                    .moves
+                    .iter()
+                    .find(|m| m.index == first + 2 + k)
+                    .expect("the move's report");
+                assert!(
+                    m.to.xy().dist(c) < 1e-9,
+                    "{name}: move {} ends at {:?}",
+                    m.index,
+                    m.to
+                );
+                assert!(
+                    m.removed < 1e-9,
+                    "{name}: the loop through air removes {} mm³ going into {c:?}",
+                    m.removed
+                );
+                let most = corner_reading(turn, R, cell);
+                assert!(
+                    m.engagement >= turn && m.engagement <= most,
+                    "{name}, {cell} mm cells: going into {c:?} (a turn of {turn:.1}°) reads {:.1}°, not from {turn:.1}° to {most:.1}°",
+                    m.engagement
+                );
+            }
+        }
+    }
 }
