@@ -113,6 +113,20 @@ fn main() {
         .filter(|m| m.kind == MoveKind::Cut && m.engagement > bound && m.from.z <= -1.0 + 1e-6)
         .collect();
     over.sort_by(|a, b| b.engagement.total_cmp(&a.engagement));
+    // going into a sharp corner of a wall: the corner's turn is the least any path reads
+    let corners = offset_core::cutsim::sharp_corners(&shape.regions(), 3.0);
+    let (into, away): (Vec<_>, Vec<_>) = over
+        .iter()
+        .partition(|m| offset_core::cutsim::going_into(&corners, m.to.xy()).is_some());
+    println!(
+        "{} of them going into the {} sharp corners (the most {:.1}°), {} elsewhere",
+        into.len(),
+        corners.len(),
+        into.first()
+            .map_or(0.0, |m: &&&offset_core::cutsim::MoveReport| m.engagement),
+        away.len()
+    );
+    let over = away;
     println!(
         "left {} cells, gouges {}, {} level moves over {bound}°",
         rep.left,

@@ -30,7 +30,11 @@
 //!   cells looked at half a millimetre ahead: where the straight way would pass the bound,
 //!   trochoidal loops (full circles inside the walls, up to 0.5 mm, each advanced along
 //!   the wall by the most of 0.25 … 0.02 mm that keeps the bound, tried and undone on the
-//!   raster) take the material. With `finish`, those passes leave [`finish_stock`] and one
+//!   raster) take the material. Loops of 0.25 mm or less (a neck less than a millimetre
+//!   wider than the tool), and loops where no trial keeps the bound, advance instead by
+//!   the closed form of a loop in a slot ([`loop_reading`]: the simulation's reading round
+//!   the loop on cells of D/60, aimed 4° under the planner's aim), which the raster is too
+//!   coarse to read. With `finish`, those passes leave [`finish_stock`] and one
 //!   last pass round each wall at the full depth takes it (in from the roughing wall, out
 //!   again).
 //! - What the bound does not cover (the tool path's warnings say where and how much): the
@@ -40,8 +44,7 @@
 //!   tool's way into a sharp corner of a wall, where no path can hold a bound under the
 //!   wall's turn there (a round tool going into a corner meets material or the part over
 //!   the corner's normal cone, 180° less its angle: [`crate::cutsim::corner_reading`]),
-//!   warned apart; and necks narrower than D + 2 × 0.5 mm, where the loops are small (a
-//!   6.4 mm neck with a 6 mm tool still reads up to about 165°).
+//!   warned apart.
 //! - The passes' runs of cuts go out fitted into lines and arcs within an eighth of a
 //!   cell; the walls and loops as exact lines and arcs.
 
@@ -749,6 +752,8 @@ impl Plan {
         let (r, h, bound) = (self.r, self.h, self.bound);
         let look = 0.5_f64.max(2.0 * h);
         let note = |e: f64, p: Point, worst: &mut Worst| worst.note(e, p);
+        // the closed-form advance of small loops, by their radius
+        let mut memo: Vec<(f64, f64)> = Vec::new();
         for seg in pl.segments() {
             let len = seg.length();
             if len < 1e-12 {
@@ -782,12 +787,10 @@ impl Plan {
                         seg: part(t_from, t),
                     });
                 }
-                let side = if self.climb { u.perp() } else { -u.perp() };
-                let room = if stuck < 2 {
-                    self.loop_radius(a, side)
-                } else {
-                    None
-                };
+                // towards the cleared side, square to the wall where the tool stands
+                let ut = seg.tangent_at(t);
+                let side = if self.climb { ut.perp() } else { -ut.perp() };
+                let room = self.loop_radius(a, side);
                 let Some(rho) = room else {
                     // no room for a loop: straight on
                     note(cut_chord(g, a, b, r, h), a, worst);
@@ -818,33 +821,40 @@ impl Plan {
                             e = e.max(cut_logged(g, w[0], w[1], r, h, log));
                         }
                     }
-                    Some((e, tn, an, circle))
+                    Some((e, tn, an, circle, rho))
                 };
                 let mut done = None;
-                let mut least: Option<(f64, f64, f64)> = None;
-                'trials: for f in [1.0, 0.5, 0.25] {
-                    for adv in [0.25, 0.15, 0.08, 0.04, 0.02, 0.0] {
-                        let mut log = Vec::new();
-                        let Some((e, tn, an, circle)) = trial(g, f * rho, adv, &mut log) else {
-                            continue;
-                        };
-                        if e <= bound {
-                            done = Some((tn, an, circle, e));
-                            break 'trials;
-                        }
-                        if adv > 0.0 && least.is_none_or(|l| e < l.0) {
-                            least = Some((e, f * rho, adv));
-                        }
-                        for &(k, old) in log.iter().rev() {
-                            g.top[k] = old;
+                if rho > SMALL_LOOP && stuck < 2 {
+                    'trials: for f in [1.0, 0.5, 0.25] {
+                        for adv in [0.25, 0.15, 0.08, 0.04, 0.02, 0.0] {
+                            let mut log = Vec::new();
+                            let Some((e, tn, an, circle, _)) = trial(g, f * rho, adv, &mut log)
+                            else {
+                                continue;
+                            };
+                            if e <= bound {
+                                done = Some((tn, an, circle, e));
+                                break 'trials;
+                            }
+                            for &(k, old) in log.iter().rev() {
+                                g.top[k] = old;
+                            }
                         }
                     }
                 }
                 if done.is_none() {
-                    if let Some((_, rho, adv)) = least {
-                        if let Some((e, tn, an, circle)) = trial(g, rho, adv, &mut Vec::new()) {
-                            done = Some((tn, an, circle, e));
+                    // loops finer than the raster resolves, or none of its trials keeps
+                    // the bound or advances: advanced by the closed form
+                    let adv = match memo.iter().find(|m| m.0 == rho) {
+                        Some(m) => m.1,
+                        None => {
+                            let adv = loop_advance(r, rho, bound - 4.0);
+                            memo.push((rho, adv));
+                            adv
                         }
+                    };
+                    if let Some((_, tn, an, circle, rho)) = trial(g, rho, adv, &mut Vec::new()) {
+                        done = Some((tn, an, circle, loop_reading(r, rho, tn.max(t) - t)));
                     }
                 }
                 let Some((tn, an, circle, e)) = done else {
@@ -888,7 +898,7 @@ impl Plan {
                 None => f64::INFINITY,
                 Some((d, _)) => d,
             };
-            if d >= self.kexact + rho - 1e-6 {
+            if d >= self.kexact + rho - 1e-3 {
                 return Some(rho);
             }
         }
@@ -984,6 +994,56 @@ impl Plan {
             self.at = q;
         }
     }
+}
+
+/// Trochoidal loops of this radius or less (mm) are finer than the planning raster
+/// resolves (a neck less than a millimetre wider than the tool): they advance by the
+/// closed form ([`loop_advance`]) instead of trials on the raster.
+const SMALL_LOOP: f64 = 0.25;
+
+/// The most engagement round a trochoidal loop of radius `rho` advanced `adv` along a slot
+/// (the loops before it cut a disc of R + ρ about a centre `adv` behind), as the cutting
+/// simulation reads it on cells of D/60 (its probes R + 0.72 cell out, on the half circle
+/// facing the way the tool moves; its default cell, D/120, reads less), degrees: every 5°
+/// round the loop, the probes of 1° outside the last loop's disc.
+fn loop_reading(r: f64, rho: f64, adv: f64) -> f64 {
+    let rp = r + 0.72 * (2.0 * r / 60.0);
+    let cut = r + rho;
+    let mut most = 0usize;
+    for i in 0..72 {
+        let psi = (i as f64 * 5.0).to_radians();
+        // the tool's centre from the last loop's centre (a loop turning left, advancing +x)
+        let t = Point::new(rho * psi.cos() + adv, rho * psi.sin());
+        let on = (0..=180)
+            .filter(|&k| {
+                let th = psi + (k as f64).to_radians();
+                (t + Point::new(rp * th.cos(), rp * th.sin())).len() > cut
+            })
+            .count();
+        most = most.max(on);
+    }
+    most as f64
+}
+
+/// The largest advance per trochoidal loop of radius `rho`, from 0.005 to 0.25 mm, whose
+/// [`loop_reading`] keeps `bound` (the least when none does).
+fn loop_advance(r: f64, rho: f64, bound: f64) -> f64 {
+    let (mut lo, mut hi) = (0.005, 0.25);
+    if loop_reading(r, rho, lo) > bound {
+        return lo;
+    }
+    if loop_reading(r, rho, hi) <= bound {
+        return hi;
+    }
+    for _ in 0..30 {
+        let mid = 0.5 * (lo + hi);
+        if loop_reading(r, rho, mid) <= bound {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
 }
 
 /// The engagement along the chord a→b at the level (bottom −1) before it cuts, then the
