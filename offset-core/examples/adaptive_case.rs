@@ -69,9 +69,10 @@ fn main() {
     let t0 = std::time::Instant::now();
     let tp = adaptive(&shape, &p).expect("a plan");
     println!(
-        "planned in {:.2} s, {} moves",
+        "planned in {:.2} s, {} moves, {} retracts to the safe height",
         t0.elapsed().as_secs_f64(),
-        tp.moves.len()
+        tp.moves.len(),
+        offset_core::cutsim::retracts(&tp)
     );
     if let Move::Comment { text } = &tp.moves[0] {
         println!("{text}");

@@ -21,10 +21,12 @@
 //!   where no direction engages material or nothing was removed for a tool diameter; the
 //!   next starts where the first rule says, until none is left. So fronts turn away before
 //!   they run into a wall or a corner, and passes reach the walls only as the bound allows.
-//! - Links: at depth where the tool's disc swept along the straight link (R + 1 cell)
-//!   touches no material at that moment; else lifted 0.5 mm over the last level's floor
-//!   where the level's final raster is clear there (the level above cut it); else at the
-//!   safe height. Every link ends over a spot already cleared at depth.
+//! - Links: at depth where the line cuts nothing on the raster (the tool's disc swept
+//!   along it, R less half a cell, meets no material but the part) and keeps R + allowance
+//!   from the part; else at depth round the material, by a way found on the raster (A*
+//!   over the cells R or more from material) and pulled straight; else lifted 0.5 mm over
+//!   the last level's floor where the level's final raster is clear there (the level above
+//!   cut it); else at the safe height. Every link ends over a spot already cleared at depth.
 //! - Then each wall (the region offset inward by R + allowance, by the offset kernel)
 //!   once round, entered from a spot 3 cells inside it whose disc is clear, in steps of two
 //!   cells looked at half a millimetre ahead: where the straight way would pass the bound,
@@ -32,7 +34,7 @@
 //!   the wall by the most of 0.25 … 0.02 mm that keeps the bound, tried and undone on the
 //!   raster) take the material. Loops of 0.25 mm or less (a neck less than a millimetre
 //!   wider than the tool), and loops where no trial keeps the bound, advance instead by
-//!   the closed form of a loop in a slot ([`loop_reading`]: the simulation's reading round
+//!   the closed form of a loop in a slot (`loop_reading`: the simulation's reading round
 //!   the loop on cells of D/60, aimed 4° under the planner's aim), which the raster is too
 //!   coarse to read. With `finish`, those passes leave [`finish_stock`] and one
 //!   last pass round each wall at the full depth takes it (in from the roughing wall, out
@@ -738,9 +740,127 @@ impl Plan {
         if at.dist(to) < 1e-9 {
             return;
         }
-        let depth = !capsule_has(g, *at, to, self.r + self.h, -1.0);
-        steps.push(Step::Go { to, depth });
+        if self.link_clear(g, *at, to) {
+            steps.push(Step::Go { to, depth: true });
+        } else if let Some(way) = self.way_at_depth(g, *at, to) {
+            steps.extend(way.into_iter().map(|q| Step::Go { to: q, depth: true }));
+        } else {
+            steps.push(Step::Go { to, depth: false });
+        }
         *at = to;
+    }
+
+    /// Whether the tool may go from `p` to `q` at depth: its disc swept along the line cuts
+    /// nothing on the raster (the raster's own cut, R less half a cell, meets no material
+    /// but the part), and its centre keeps R + allowance from the part by the exact
+    /// distance, every half cell.
+    fn link_clear(&self, g: &Grid, p: Point, q: Point) -> bool {
+        if capsule_cuts(g, &self.part, p, q, self.r - SHRINK * self.h) {
+            return false;
+        }
+        let n = ((p.dist(q) / (0.5 * self.h)).ceil() as usize).max(1);
+        (0..=n).all(|i| {
+            let x = p.lerp(q, i as f64 / n as f64);
+            let Some(k) = g.cell_of(x) else {
+                return false;
+            };
+            self.wall[k] >= self.kexact - self.h
+                && self.near.closest(x).is_none_or(|(d, _)| d >= self.kexact)
+        })
+    }
+
+    /// A way at depth from `a` to `b` round the material: the points after `a`, ending at
+    /// `b`, of lines each [`Plan::link_clear`]. Found on the raster's cells whose centre is
+    /// R or more from any material and R + allowance + a cell from the part (A* over eight
+    /// neighbours; cells within two of `a` or `b` let through), then pulled straight where
+    /// a line keeps clear (doubling, then halving, so a long way costs few checks). None
+    /// when there is no such way.
+    fn way_at_depth(&self, g: &Grid, a: Point, b: Point) -> Option<Vec<Point>> {
+        let (nx, ny) = (g.nx, g.ny);
+        let (ka, kb) = (g.cell_of(a)?, g.cell_of(b)?);
+        let material: Vec<bool> = g
+            .top
+            .iter()
+            .zip(&self.part)
+            .map(|(&t, &part)| !part && t > -1.0 + 1e-4)
+            .collect();
+        let dist = g.distance_to(&material);
+        let near = |k: usize, p: Point| g.centre(k % nx, k / nx).dist(p) <= 2.0 * g.h;
+        let free = |k: usize| {
+            (dist[k] >= self.r && self.wall[k] >= self.kexact + g.h) || near(k, a) || near(k, b)
+        };
+        let goal = g.centre(kb % nx, kb / nx);
+        let mut cost = vec![f64::INFINITY; nx * ny];
+        let mut from = vec![usize::MAX; nx * ny];
+        let mut heap = BinaryHeap::new();
+        cost[ka] = 0.0;
+        heap.push(Reverse((0u64, ka)));
+        while let Some(Reverse((_, k))) = heap.pop() {
+            if k == kb {
+                break;
+            }
+            let (i, j) = ((k % nx) as i64, (k / nx) as i64);
+            for (di, dj) in NEIGHBOURS.iter().take(8) {
+                let (ii, jj) = (i + di, j + dj);
+                if ii < 0 || jj < 0 || ii >= nx as i64 || jj >= ny as i64 {
+                    continue;
+                }
+                let n = jj as usize * nx + ii as usize;
+                if !free(n) {
+                    continue;
+                }
+                let c = cost[k] + ((di * di + dj * dj) as f64).sqrt();
+                if c < cost[n] {
+                    cost[n] = c;
+                    from[n] = k;
+                    let left = g.centre(ii as usize, jj as usize).dist(goal) / g.h;
+                    heap.push(Reverse(((c + left).to_bits(), n)));
+                }
+            }
+        }
+        if !cost[kb].is_finite() {
+            return None;
+        }
+        let mut cells = vec![kb];
+        while let Some(&k) = cells.last() {
+            if k == ka {
+                break;
+            }
+            cells.push(from[k]);
+        }
+        cells.reverse();
+        let mut pts: Vec<Point> = cells.iter().map(|&k| g.centre(k % nx, k / nx)).collect();
+        pts[0] = a;
+        *pts.last_mut()? = b;
+        let mut out = Vec::new();
+        let mut i = 0;
+        let last = pts.len() - 1;
+        while i < last {
+            if !self.link_clear(g, pts[i], pts[i + 1]) {
+                return None;
+            }
+            let (mut ok, mut step) = (i + 1, 1);
+            while ok < last {
+                let j = (i + 2 * step).min(last);
+                if !self.link_clear(g, pts[i], pts[j]) {
+                    break;
+                }
+                ok = j;
+                step *= 2;
+            }
+            let mut hi = (i + 2 * step).min(last);
+            while hi > ok + 1 {
+                let mid = (ok + hi) / 2;
+                if self.link_clear(g, pts[i], pts[mid]) {
+                    ok = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            out.push(pts[ok]);
+            i = ok;
+        }
+        Some(out)
     }
 
     /// One wall loop at depth from its first vertex (the tool there), cut on `g` into
@@ -1151,6 +1271,40 @@ fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
             };
             let w = v - d * t;
             if w.dot(w) <= r2 {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// Whether the disc of radius `rad` swept from `a` to `b` meets material at the level that
+/// is not the part (`part` per cell).
+fn capsule_cuts(g: &Grid, part: &[bool], a: Point, b: Point, rad: f64) -> bool {
+    let h = g.h;
+    let lo = Point::new(a.x.min(b.x) - rad, a.y.min(b.y) - rad);
+    let hi = Point::new(a.x.max(b.x) + rad, a.y.max(b.y) + rad);
+    let i0 = ((lo.x - g.origin.x) / h).floor().max(0.0) as usize;
+    let j0 = ((lo.y - g.origin.y) / h).floor().max(0.0) as usize;
+    let i1 = (((hi.x - g.origin.x) / h).ceil() as usize).min(g.nx.saturating_sub(1));
+    let j1 = (((hi.y - g.origin.y) / h).ceil() as usize).min(g.ny.saturating_sub(1));
+    let zf = -1.0f32 + 1e-4;
+    let d = b - a;
+    let l2 = d.dot(d);
+    for j in j0..=j1 {
+        for i in i0..=i1 {
+            let k = j * g.nx + i;
+            if g.top[k] <= zf || part[k] {
+                continue;
+            }
+            let v = g.centre(i, j) - a;
+            let t = if l2 > 0.0 {
+                (v.dot(d) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let w = v - d * t;
+            if w.dot(w) <= rad * rad {
                 return true;
             }
         }
