@@ -153,6 +153,60 @@ pub fn offset_regions(
     distance: f64,
     opts: &OffsetOptions,
 ) -> Result<Vec<Region>, OffsetError> {
+    offset_regions_valid(regions, distance, opts).map(ValidRegions::into_regions)
+}
+
+/// Regions the kernel made, which it knows to be valid input: an offset's result is
+/// repaired until it passes the input check as it stands (see `finish`), so offsetting it
+/// again (a pocket's passes, each from the one before) needs no crossing search of its
+/// input. Only the kernel makes one, and its regions can be read but not changed; given
+/// regions go through [`offset_regions`] (or [`offset_regions_valid`]), which checks them.
+#[derive(Clone, Debug)]
+pub struct ValidRegions {
+    regions: Vec<Region>,
+    /// the geometric epsilon at which they were made valid (NaN: not known to be, so the
+    /// next offset checks them)
+    eps: f64,
+}
+
+impl ValidRegions {
+    /// The regions.
+    pub fn regions(&self) -> &[Region] {
+        &self.regions
+    }
+
+    /// The regions, for the caller to keep (and change: they are then plain regions).
+    pub fn into_regions(self) -> Vec<Region> {
+        self.regions
+    }
+
+    /// Offsets these regions as [`offset_regions`] does. When the offset works at the
+    /// geometric epsilon they were made valid at (the same tolerance, and coordinates of
+    /// the same size), the input check's crossing search is skipped; otherwise they are
+    /// checked as any input is.
+    pub fn offset(&self, distance: f64, opts: &OffsetOptions) -> Result<ValidRegions, OffsetError> {
+        offset_loops(&self.regions, distance, opts, self.eps)
+    }
+}
+
+/// [`offset_regions`], with the result as [`ValidRegions`] (to offset it again without
+/// the input check's crossing search). The given regions are checked.
+pub fn offset_regions_valid(
+    regions: &[Region],
+    distance: f64,
+    opts: &OffsetOptions,
+) -> Result<ValidRegions, OffsetError> {
+    offset_loops(regions, distance, opts, f64::NAN)
+}
+
+/// The offset of `regions`; `valid_at`: the geometric epsilon at which they are known to
+/// be valid input (the kernel's own result), NaN when they are not known to be.
+fn offset_loops(
+    regions: &[Region],
+    distance: f64,
+    opts: &OffsetOptions,
+    valid_at: f64,
+) -> Result<ValidRegions, OffsetError> {
     check_args(distance, opts)?;
     let all: Vec<&Polyline> = regions.iter().flat_map(|r| r.boundaries()).collect();
     for (i, p) in all.iter().enumerate() {
@@ -185,7 +239,24 @@ pub fn offset_regions(
             loops.push((segs, true));
         }
     }
-    let convex = check_input(&mut loops, eps, opts.tolerance)?;
+    let convex = if eps == valid_at {
+        // the kernel's own result at this epsilon: valid as it stands (what the check
+        // would find, debug builds make sure of)
+        debug_assert_eq!(
+            check_crossings(
+                &loops
+                    .iter()
+                    .map(|(s, c)| (s.as_slice(), *c))
+                    .collect::<Vec<_>>(),
+                eps
+            ),
+            Ok(()),
+            "the kernel's result fails the input check"
+        );
+        matches!(loops.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs))
+    } else {
+        check_input(&mut loops, eps, opts.tolerance)?
+    };
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -200,17 +271,27 @@ pub fn offset_regions(
         .filter_map(|(l, k)| k.then_some(l))
         .collect();
     if loops.is_empty() {
-        return Ok(Vec::new());
+        return Ok(ValidRegions {
+            regions: Vec::new(),
+            eps,
+        });
     }
-    let polys: Vec<Loop> = if distance == 0.0 {
-        loops
+    if distance == 0.0 {
+        // the checked input rebuilt: not the kernel's repaired result, so not vouched for
+        let polys = loops
             .into_iter()
             .filter_map(|(s, c)| build(s, c, eps))
-            .collect()
-    } else {
-        run_closed(loops, convex, -distance, opts, eps)
-    };
-    Ok(assemble(polys))
+            .collect();
+        return Ok(ValidRegions {
+            regions: assemble(polys),
+            eps: f64::NAN,
+        });
+    }
+    let polys = run_closed(loops, convex, -distance, opts, eps);
+    Ok(ValidRegions {
+        regions: assemble(polys),
+        eps,
+    })
 }
 
 /// Sorts loops into regions: counter-clockwise loops are outers, clockwise ones islands of
