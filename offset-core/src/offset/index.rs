@@ -207,22 +207,44 @@ impl BoxIndex {
         }
         let r2 = r * r;
         let top = self.levels.len() - 1;
+        if box_dist2(&self.boxes[self.levels[top]], x, y) >= r2 {
+            return;
+        }
+        if top == 0 {
+            f(self.items[0] as usize);
+            return;
+        }
+        // nodes whose box comes nearer than r (children are tested before they go on the
+        // stack, leaves before `f` is called, so nothing is pushed that is then thrown away)
         let mut stack: Vec<(usize, usize)> = Vec::with_capacity(64);
         stack.push((top, self.levels[top]));
         while let Some((lvl, slot)) = stack.pop() {
-            if box_dist2(&self.boxes[slot], x, y) >= r2 {
-                continue;
-            }
-            if lvl == 0 {
-                if !f(self.items[slot] as usize) {
-                    return;
+            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
+            let last = (first + NODE).min(self.levels[lvl]);
+            if lvl == 1 {
+                for c in first..last {
+                    if box_dist2(&self.boxes[c], x, y) < r2 && !f(self.items[c] as usize) {
+                        return;
+                    }
                 }
                 continue;
             }
-            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
-            let last = (first + NODE).min(self.levels[lvl]);
+            // the nearest child goes on last, so it is looked into first
+            let base = stack.len();
+            let (mut near, mut near_d) = (usize::MAX, f64::INFINITY);
             for c in first..last {
-                stack.push((lvl - 1, c));
+                let d2 = box_dist2(&self.boxes[c], x, y);
+                if d2 < r2 {
+                    if d2 < near_d {
+                        near_d = d2;
+                        near = stack.len();
+                    }
+                    stack.push((lvl - 1, c));
+                }
+            }
+            if near != usize::MAX && stack.len() > base + 1 {
+                let end = stack.len() - 1;
+                stack.swap(near, end);
             }
         }
     }

@@ -188,6 +188,40 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> 
     }
 }
 
+/// The splits in the order of their segments, and along each segment by parameter: a
+/// counting sort by segment (most raw segments have none, a few have several), then a sort
+/// of each segment's few. Same order as a sort by (segment, parameter), in O(n + splits).
+fn by_segment_and_parameter<T: Copy>(
+    splits: Vec<(u32, f64, Point, T)>,
+    n: usize,
+) -> Vec<(u32, f64, Point, T)> {
+    if splits.len() < 2 {
+        return splits;
+    }
+    // first[g]: where segment g's splits start in the result
+    let mut first = vec![0u32; n + 1];
+    for s in &splits {
+        first[s.0 as usize + 1] += 1;
+    }
+    for g in 0..n {
+        first[g + 1] += first[g];
+    }
+    let mut at: Vec<u32> = first[..n].to_vec();
+    let mut out = vec![splits[0]; splits.len()];
+    for s in splits {
+        let k = &mut at[s.0 as usize];
+        out[*k as usize] = s;
+        *k += 1;
+    }
+    for g in 0..n {
+        let (a, b) = (first[g] as usize, first[g + 1] as usize);
+        if b - a > 1 {
+            out[a..b].sort_unstable_by(|x, y| x.1.total_cmp(&y.1));
+        }
+    }
+    out
+}
+
 /// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
 /// about an open path's ends). `o` is the signed offset (positive: to the left); `eps` the
 /// geometric tolerance. A run is dropped when its sample comes nearer the input than
@@ -302,7 +336,7 @@ pub fn prune(
             splits.push((j as u32, u, p, inside_of(&rs[j], u, &rs[i], t, left, eps)));
         }
     });
-    splits.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
+    let splits = by_segment_and_parameter(splits, n);
 
     // pieces per path, with a break flag where a run ends before them
     struct Piece {
