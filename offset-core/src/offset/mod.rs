@@ -336,7 +336,7 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
             continue;
         }
         let pts: Vec<Point> = inside.iter().map(|&i| probes[i]).collect();
-        for (&i, w) in inside.iter().zip(o.winding_numbers(&pts)) {
+        for (&i, w) in inside.iter().zip(winding_numbers(o, &pts)) {
             if w != 0 {
                 best[i] = Some((k, *a));
             }
@@ -349,6 +349,34 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
     }
     regions
 }
+/// `Polyline::winding_numbers` of a closed loop, the same numbers: a segment is asked
+/// about a point only when the point's height lies within the segment's reach (its chord's
+/// heights for a line, widened as `geom::winding_of` widens an arc's box), so each of the
+/// loop's segments costs a comparison or two per point rather than a winding test.
+fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
+    let mut w = vec![0; ps.len()];
+    if !pl.closed {
+        return w;
+    }
+    let next = pl.vertices.iter().skip(1).chain(pl.vertices.first());
+    for (v, u) in pl.vertices.iter().zip(next) {
+        let (a, b) = (v.pos(), u.pos());
+        let (lo, hi) = if v.bulge == 0.0 {
+            // the crossing rule counts a point only when lo <= p.y < hi
+            (a.y.min(b.y), a.y.max(b.y))
+        } else {
+            let m = (b - a).len() * (v.bulge.abs() + 1.0);
+            (a.y.min(b.y) - m, a.y.max(b.y) + m)
+        };
+        for (wk, &p) in w.iter_mut().zip(ps) {
+            if p.y >= lo && p.y <= hi {
+                *wk += crate::geom::winding_of(a, b, v.bulge, p);
+            }
+        }
+    }
+    w
+}
+
 /// Offsets a whole shape: its closed paths as nested regions, all at once (grown regions
 /// that meet merge), its open paths to one side.
 pub fn offset_shape(
@@ -1111,6 +1139,37 @@ mod tests {
                 q.y,
                 kept.dist(q)
             );
+        }
+    }
+
+    #[test]
+    fn the_filtered_winding_numbers_are_the_polylines() {
+        // random loops of lines and bulges (some crossing themselves), points scattered
+        // over and around them, some at vertex heights exactly (the crossing rule's edge)
+        let mut seed = 987654321u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for n in [1usize, 2, 3, 7, 40, 300] {
+            for _ in 0..20 {
+                let vs: Vec<Vertex> = (0..n)
+                    .map(|_| {
+                        let bulge = if rnd() < 0.5 { 0.0 } else { rnd() * 4.0 - 2.0 };
+                        Vertex::new(rnd() * 20.0 - 10.0, rnd() * 20.0 - 10.0, bulge)
+                    })
+                    .collect();
+                let mut ps: Vec<Point> = (0..200)
+                    .map(|_| Point::new(rnd() * 30.0 - 15.0, rnd() * 30.0 - 15.0))
+                    .collect();
+                ps.extend(vs.iter().map(|v| Point::new(rnd() * 30.0 - 15.0, v.y)));
+                for closed in [true, false] {
+                    let pl = Polyline::new(vs.clone(), closed);
+                    assert_eq!(winding_numbers(&pl, &ps), pl.winding_numbers(&ps), "{pl:?}");
+                }
+            }
         }
     }
 
