@@ -414,30 +414,69 @@ pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize
     };
     // (level, node a, node b) with a <= b and overlapping boxes
     let mut stack: Vec<(usize, usize, usize)> = vec![(levels.len(), 0, 0)];
+    // of two different nodes' children, the ones that reach into the common part of the
+    // nodes' boxes: a child outside it overlaps no child of the other node (each lies in
+    // its node's box), so only these are paired; two neighbours along a path share a
+    // corner's worth of their boxes, and a few children each
+    let (mut ia, mut jb) = ([0usize; FAN], [0usize; FAN]);
     while let Some((k, a, b)) = stack.pop() {
         let below = level(k - 1);
         let (a1, b1) = (
             ((a + 1) * FAN).min(below.len()),
             ((b + 1) * FAN).min(below.len()),
         );
-        if k == 1 {
-            // the boxes themselves: report the pairs here rather than through the stack
+        if a == b {
             for i in a * FAN..a1 {
                 let bi = below[i];
-                let first = if a == b { i + 1 } else { b * FAN };
-                for j in first..b1 {
-                    if overlap(&bi, &below[j]) {
-                        f(i, j);
+                if k == 1 {
+                    // the boxes themselves: report the pairs here rather than through the
+                    // stack
+                    for j in i + 1..b1 {
+                        if overlap(&bi, &below[j]) {
+                            f(i, j);
+                        }
+                    }
+                } else {
+                    for j in i..b1 {
+                        if overlap(&bi, &below[j]) {
+                            stack.push((k - 1, i, j));
+                        }
                     }
                 }
             }
             continue;
         }
+        let nodes = level(k);
+        let (na, nb) = (nodes[a], nodes[b]);
+        let common = [
+            na[0].max(nb[0]),
+            na[1].max(nb[1]),
+            na[2].min(nb[2]),
+            na[3].min(nb[3]),
+        ];
+        let mut n_a = 0;
         for i in a * FAN..a1 {
-            let first = if a == b { i } else { b * FAN };
-            for j in first..b1 {
-                if overlap(&below[i], &below[j]) {
-                    stack.push((k - 1, i, j));
+            if overlap(&below[i], &common) {
+                ia[n_a] = i;
+                n_a += 1;
+            }
+        }
+        let mut n_b = 0;
+        for j in b * FAN..b1 {
+            if overlap(&below[j], &common) {
+                jb[n_b] = j;
+                n_b += 1;
+            }
+        }
+        for &i in &ia[..n_a] {
+            let bi = below[i];
+            for &j in &jb[..n_b] {
+                if overlap(&bi, &below[j]) {
+                    if k == 1 {
+                        f(i, j);
+                    } else {
+                        stack.push((k - 1, i, j));
+                    }
                 }
             }
         }
