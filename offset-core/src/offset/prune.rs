@@ -6,6 +6,7 @@ use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
 use super::raw::{Origin, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
@@ -40,6 +41,10 @@ type Cells = HashMap<(i64, i64), Vec<usize>, BuildHasherDefault<CellHasher>>;
 pub struct InputSet<'a> {
     paths: Vec<&'a [Seg]>,
     index: Option<(BoxIndex, Vec<&'a Seg>)>,
+    /// the segment that last answered "nearer": asked first next time (the runs come in
+    /// order along their curves, and neighbouring invalid runs mostly come too near the
+    /// same stretch of the input)
+    hint: Cell<usize>,
 }
 
 /// Up to this many questions a scan is cheaper than building the tree.
@@ -47,7 +52,11 @@ const SCANS: usize = 4;
 
 impl<'a> InputSet<'a> {
     pub fn new(paths: Vec<&'a [Seg]>) -> InputSet<'a> {
-        InputSet { paths, index: None }
+        InputSet {
+            paths,
+            index: None,
+            hint: Cell::new(0),
+        }
     }
 
     /// Prepares for about `questions` distance questions.
@@ -78,10 +87,14 @@ impl<'a> InputSet<'a> {
                 })
             });
         };
+        if segs.get(self.hint.get()).is_some_and(|s| s.dist(p) < thr) {
+            return true;
+        }
         let mut found = false;
         index.query_disc(p.x, p.y, thr, |i| {
             if segs[i].dist(p) < thr {
                 found = true;
+                self.hint.set(i);
                 return false;
             }
             true
