@@ -30,10 +30,24 @@ impl Norm for Point {
 
 /// Wraps an angle into [-π, π).
 pub fn wrap(a: f64) -> f64 {
-    let mut x = (a + PI) % (2.0 * PI);
-    if x < 0.0 {
-        x += 2.0 * PI;
-    }
+    const TAU: f64 = 2.0 * PI;
+    let y = a + PI;
+    // within a turn of the range the remainder is y itself or y less one turn (exact, as
+    // the remainder is): the same numbers without the division's loop
+    let x = if (0.0..TAU).contains(&y) {
+        y
+    } else if y < 0.0 && y > -TAU {
+        y + TAU
+    } else if (TAU..2.0 * TAU).contains(&y) {
+        y - TAU
+    } else {
+        let x = y % TAU;
+        if x < 0.0 {
+            x + TAU
+        } else {
+            x
+        }
+    };
     x - PI
 }
 
@@ -560,6 +574,34 @@ mod tests {
             assert!(h.p[0].0.dist(end) < 1e-9, "{h:?}");
             let on_arc = if arc_first { h.p[0].1 } else { h.p[0].2 };
             assert!((on_arc - 1.0).abs() < 1e-9, "{h:?}");
+        }
+    }
+
+    #[test]
+    fn wrapping_is_the_remainders_wrap() {
+        // the wrap by the remainder, as it was written before its fast paths
+        let by_remainder = |a: f64| {
+            let mut x = (a + PI) % (2.0 * PI);
+            if x < 0.0 {
+                x += 2.0 * PI;
+            }
+            x - PI
+        };
+        let mut seed = 42u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut angles: Vec<f64> = (0..100_000).map(|_| (rnd() - 0.5) * 40.0).collect();
+        for k in -6..=6 {
+            let edge = k as f64 * PI;
+            angles.extend([edge, edge.next_up(), edge.next_down(), -edge]);
+        }
+        angles.extend([0.0, -0.0, 1e300, -1e300, 3.0 * PI, -3.0 * PI, -PI, PI]);
+        for a in angles {
+            assert_eq!(wrap(a).to_bits(), by_remainder(a).to_bits(), "wrap({a:e})");
         }
     }
 
