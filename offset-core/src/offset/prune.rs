@@ -158,7 +158,7 @@ enum Inside {
 /// segments), and the two cross at an angle whose sine is well above what rounding can
 /// make of it (the tangents' directions, and how far the crossing may slide along the
 /// curves: less than ε).
-fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> Inside {
+fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, p: Point, left: bool, eps: f64) -> Inside {
     if b.origin == Origin::Bridge {
         return Inside::Unknown;
     }
@@ -171,7 +171,7 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> 
     {
         return Inside::Unknown;
     }
-    let (da, db) = (a.seg.tangent_at(ta), b.seg.tangent_at(tb));
+    let (da, db) = (tangent_through(&a.seg, p), tangent_through(&b.seg, p));
     let c = db.cross(da);
     let scale = |s: &Seg| -> (f64, f64) {
         let m =
@@ -233,6 +233,21 @@ fn by_segment_and_parameter<T: Copy>(
         }
     }
     out
+}
+
+/// The unit tangent of `s` where it passes through `p` (a point on it): an arc's from the
+/// radius through `p`, without the angle of its parameter.
+fn tangent_through(s: &Seg, p: Point) -> Point {
+    if s.is_arc() {
+        let rad = (p - s.c).unit();
+        if s.sw > 0.0 {
+            rad.perp()
+        } else {
+            -rad.perp()
+        }
+    } else {
+        s.tangent_at(0.0)
+    }
 }
 
 /// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
@@ -345,8 +360,18 @@ pub fn prune(
             if gji.is_some_and(|g| p.dist(si.a) <= eps + g && p.dist(sj.b) <= eps + g) {
                 continue;
             }
-            splits.push((i as u32, t, p, inside_of(&rs[i], t, &rs[j], u, left, eps)));
-            splits.push((j as u32, u, p, inside_of(&rs[j], u, &rs[i], t, left, eps)));
+            splits.push((
+                i as u32,
+                t,
+                p,
+                inside_of(&rs[i], t, &rs[j], u, p, left, eps),
+            ));
+            splits.push((
+                j as u32,
+                u,
+                p,
+                inside_of(&rs[j], u, &rs[i], t, p, left, eps),
+            ));
         }
     });
     let splits = by_segment_and_parameter(splits, n);
