@@ -386,6 +386,9 @@ impl BoxIndex {
 /// boxes overlap. A path that does not come back near itself meets only its own node and
 /// its neighbours at each level, so the work is linear in n plus the pairs; unlike a sweep
 /// along one axis, a long stretch running along the other axis costs nothing extra.
+// (index loops: the indices are what is reported and stacked; the iterator forms counted
+// more instructions)
+#[allow(clippy::needless_range_loop)]
 pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
     const FAN: usize = 8;
     let overlap = |a: &BBox, b: &BBox| !(a[0] > b[2] || a[2] < b[0] || a[1] > b[3] || a[3] < b[1]);
