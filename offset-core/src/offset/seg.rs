@@ -503,9 +503,13 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
             [Some(base + u.perp() * k), Some(base - u.perp() * k)]
         }
     };
+    // (the second arc is asked only when the point lies on the first)
+    let on_both = |p: Point| -> Option<(f64, f64)> {
+        let t = accept_on_arc(s1, p, e1, eps)?;
+        Some((t, accept_on_arc(s2, p, e2, eps)?))
+    };
     for p in pts.into_iter().flatten() {
-        let (Some(t), Some(w)) = (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
-        else {
+        let Some((t, w)) = on_both(p) else {
             continue;
         };
         h.push(p, t, w);
@@ -516,9 +520,7 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
         // collapsed offset arc enters its circle beside the arc and leaves through it)
         let k = hh.sqrt();
         for p in [base + u.perp() * k, base - u.perp() * k] {
-            if let (Some(t), Some(w)) =
-                (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
-            {
+            if let Some((t, w)) = on_both(p) {
                 h.push(p, t, w);
                 break;
             }
