@@ -132,6 +132,17 @@ impl BoxIndex {
         BoxIndex::pack(boxes, (0..n as u32).collect())
     }
 
+    /// [`BoxIndex::in_order`] over boxes handed over (the leaves stay where they are, the
+    /// levels above go after them: no copy of the leaves).
+    pub fn in_order_owned(mut boxes: Vec<BBox>) -> BoxIndex {
+        let n = boxes.len();
+        if n == 0 {
+            return BoxIndex::default();
+        }
+        boxes.reserve(n / (NODE - 1) + 2);
+        BoxIndex::pack(boxes, (0..n as u32).collect())
+    }
+
     /// Adds the levels above the leaves (`boxes` holds the leaves in order).
     fn pack(mut boxes: Vec<BBox>, items: Vec<u32>) -> BoxIndex {
         let mut levels = vec![0usize];

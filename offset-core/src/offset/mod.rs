@@ -594,8 +594,9 @@ fn each_crossing(
     mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
     mut found: impl FnMut(Crossing),
 ) {
-    let mut all: Vec<Seg> = Vec::new();
-    let mut owner: Vec<(usize, usize)> = Vec::new();
+    let total: usize = paths.iter().map(|(segs, _)| segs.len()).sum();
+    let mut all: Vec<Seg> = Vec::with_capacity(total);
+    let mut owner: Vec<(usize, usize)> = Vec::with_capacity(total);
     for (pi, (segs, _)) in paths.iter().enumerate() {
         for (k, s) in segs.iter().enumerate() {
             all.push(*s);

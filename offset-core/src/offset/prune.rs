@@ -64,7 +64,7 @@ impl<'a> InputSet<'a> {
         if questions > SCANS && self.index.is_none() {
             let segs: Vec<&Seg> = self.paths.iter().flat_map(|p| p.iter()).collect();
             let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
-            self.index = Some((BoxIndex::in_order(&boxes), segs));
+            self.index = Some((BoxIndex::in_order_owned(boxes), segs));
         }
     }
 
@@ -472,7 +472,7 @@ pub fn prune(
         count: usize,
         whole: bool,
     }
-    let mut runs: Vec<Run> = Vec::new();
+    let mut runs: Vec<Run> = Vec::with_capacity(splits.len() + closed.len());
     for (pi, &p_closed) in closed.iter().enumerate() {
         let (a, b) = (pstart[pi], pstart[pi + 1]);
         let m = b - a;
