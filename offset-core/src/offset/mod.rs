@@ -846,7 +846,7 @@ fn run(
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = slack(opts.tolerance, eps);
-    let chains = prune(raws, splitters, &mut input, o, eps, valid_eps);
+    let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());
     for Chain {
         segs,
@@ -861,13 +861,34 @@ fn run(
         }
         pieces.push((joins::apply(segs, &whole_join, opts), closed));
     }
-    finish(pieces, opts, eps)
+    // whole raw curves that cross nothing, round joins as they are: nothing for the
+    // zig-zag repair to find, unless the sliver repair changes them (see `finish`)
+    let uncrossed = uncrossed && opts.join == Join::Round;
+    finish_known(pieces, opts, eps, uncrossed)
 }
 
 /// The offset's pieces as the result: slivers replaced (see `despike`), zig-zags cut off,
 /// then polylines.
 fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<Loop> {
+    finish_known(pieces, opts, eps, false)
+}
+
+/// `finish`; `uncrossed`: the pieces are whole raw curves among which the prune's crossing
+/// search found nothing (see `prune::Pruned`). Then, when the sliver repair leaves them as
+/// they are (no segment shorter than the slack), the zig-zag repair's crossing search would
+/// find nothing either (it asks about a subset of the same pairs of the same segments, by
+/// a rule that lets through every meeting the prune let through), and is skipped.
+fn finish_known(
+    pieces: Vec<(Vec<Seg>, bool)>,
+    opts: &OffsetOptions,
+    eps: f64,
+    uncrossed: bool,
+) -> Vec<Loop> {
     let valid_eps = slack(opts.tolerance, eps);
+    let as_raw = uncrossed
+        && pieces
+            .iter()
+            .all(|(segs, _)| segs.iter().all(|s| s.length() >= valid_eps));
     let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
         .into_iter()
         .map(|(segs, closed)| (despike(segs, closed, valid_eps), closed))
@@ -877,7 +898,13 @@ fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<
     // is valid input as it stands (the same repair the input check makes); one convex
     // loop has none (despiking a convex loop keeps a subset of its vertices: still convex)
     let convex = matches!(pieces.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs));
-    if !convex {
+    if as_raw {
+        // (debug builds make sure the repair would have found nothing)
+        debug_assert!(
+            !zigzag::remove(&mut pieces.clone(), eps, zigzag_bound(opts.tolerance, eps)),
+            "the zig-zag repair found a crossing among raw curves the prune found uncrossed"
+        );
+    } else if !convex {
         zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
     }
     let mut out = Vec::with_capacity(pieces.len());

@@ -250,6 +250,16 @@ fn tangent_through(s: &Seg, p: Point) -> Point {
     }
 }
 
+/// What the prune leaves.
+pub struct Pruned {
+    pub chains: Vec<Chain>,
+    /// nothing crossed: every path was closed and no pair of raw segments met anywhere but
+    /// at the shared end of neighbours (by the rule of the input check, or stricter), so
+    /// every chain is a whole raw curve, and a crossing search of the chains by the input
+    /// check's rule finds nothing
+    pub uncrossed: bool,
+}
+
 /// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
 /// about an open path's ends). `o` is the signed offset (positive: to the left); `eps` the
 /// geometric tolerance. A run is dropped when its sample comes nearer the input than
@@ -262,7 +272,7 @@ pub fn prune(
     o: f64,
     eps: f64,
     valid_eps: f64,
-) -> Vec<Chain> {
+) -> Pruned {
     let dist = o.abs();
     let left = o > 0.0;
     // global numbering of raw segments: the paths one after another (the first one's
@@ -375,6 +385,7 @@ pub fn prune(
         }
     });
     let splits = by_segment_and_parameter(splits, n);
+    let uncrossed = splits.is_empty() && closed.iter().all(|&c| c);
 
     // pieces per path, with a break flag where a run ends before them
     struct Piece {
@@ -750,5 +761,5 @@ pub fn prune(
             closed: is_loop,
         });
     }
-    chains
+    Pruned { chains, uncrossed }
 }
