@@ -28,7 +28,7 @@ use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Po
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
 use offset_core::check::Checker;
 use offset_core::geom::{Point, Polyline, Region, Vertex};
-use offset_core::offset::{offset_regions, OffsetOptions};
+use offset_core::offset::{offset_regions_valid, OffsetOptions, ValidRegions};
 use std::time::Instant;
 
 #[derive(Debug, Default, Copy, Clone, PartialEq, Hash)]
@@ -111,16 +111,39 @@ trait Kernel {
 }
 
 struct Machlink;
+
+/// machlink's set: the given regions (checked when offset), or the kernel's result (a pass
+/// from the previous one offsets it without the input check's crossing search).
+#[derive(Clone)]
+enum MlSet {
+    Given(Vec<Region>),
+    Made(ValidRegions),
+}
+
 impl Kernel for Machlink {
-    type Set = Vec<Region>;
-    fn load(&self, b: &[Polyline]) -> Vec<Region> {
-        vec![Region::new(b[0].clone(), b[1..].to_vec())]
+    type Set = MlSet;
+    fn load(&self, b: &[Polyline]) -> MlSet {
+        MlSet::Given(vec![Region::new(b[0].clone(), b[1..].to_vec())])
     }
-    fn offset(&self, s: &Vec<Region>, d: f64) -> Vec<Region> {
-        offset_regions(s, d, &OffsetOptions::default()).expect("valid input")
+    fn offset(&self, s: &MlSet, d: f64) -> MlSet {
+        let opts = OffsetOptions::default();
+        MlSet::Made(
+            match s {
+                MlSet::Given(r) => offset_regions_valid(r, d, &opts),
+                MlSet::Made(v) => v.offset(d, &opts),
+            }
+            .expect("valid input"),
+        )
     }
-    fn unload(&self, s: &Vec<Region>) -> Vec<Polyline> {
-        s.iter().flat_map(|r| r.boundaries().cloned()).collect()
+    fn unload(&self, s: &MlSet) -> Vec<Polyline> {
+        let regions = match s {
+            MlSet::Given(r) => r.as_slice(),
+            MlSet::Made(v) => v.regions(),
+        };
+        regions
+            .iter()
+            .flat_map(|r| r.boundaries().cloned())
+            .collect()
     }
 }
 

@@ -12,7 +12,7 @@
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
 use offset_core::geom::{Polyline, Region};
-use offset_core::offset::{offset_regions, OffsetOptions};
+use offset_core::offset::{offset_regions_valid, OffsetOptions};
 use std::time::Instant;
 
 #[path = "../benches/support/inputs.rs"]
@@ -101,14 +101,17 @@ fn main() {
     let mut out = Vec::new();
     for _ in 0..reps {
         let t = Instant::now();
-        let mut cur: Vec<Region> = Vec::new();
-        for k in 0..passes {
-            let from = if k == 0 {
-                std::slice::from_ref(&region)
-            } else {
-                cur.as_slice()
-            };
-            cur = match offset_regions(from, d, &opts) {
+        // the first pass from the given region (checked), each later one from the pass
+        // before (the kernel's result: no crossing search of its input)
+        let mut cur = match offset_regions_valid(std::slice::from_ref(&region), d, &opts) {
+            Ok(o) => o,
+            Err(e) => {
+                eprintln!("offset failed: {e}");
+                std::process::exit(1);
+            }
+        };
+        for _ in 1..passes {
+            cur = match cur.offset(d, &opts) {
                 Ok(o) => o,
                 Err(e) => {
                     eprintln!("offset failed: {e}");
@@ -117,7 +120,7 @@ fn main() {
             };
         }
         best = best.min(t.elapsed().as_secs_f64());
-        out = cur;
+        out = cur.into_regions();
     }
     let verts: usize = out
         .iter()

@@ -132,6 +132,17 @@ impl BoxIndex {
         BoxIndex::pack(boxes, (0..n as u32).collect())
     }
 
+    /// [`BoxIndex::in_order`] over boxes handed over (the leaves stay where they are, the
+    /// levels above go after them: no copy of the leaves).
+    pub fn in_order_owned(mut boxes: Vec<BBox>) -> BoxIndex {
+        let n = boxes.len();
+        if n == 0 {
+            return BoxIndex::default();
+        }
+        boxes.reserve(n / (NODE - 1) + 2);
+        BoxIndex::pack(boxes, (0..n as u32).collect())
+    }
+
     /// Adds the levels above the leaves (`boxes` holds the leaves in order).
     fn pack(mut boxes: Vec<BBox>, items: Vec<u32>) -> BoxIndex {
         let mut levels = vec![0usize];
@@ -207,22 +218,44 @@ impl BoxIndex {
         }
         let r2 = r * r;
         let top = self.levels.len() - 1;
+        if box_dist2(&self.boxes[self.levels[top]], x, y) >= r2 {
+            return;
+        }
+        if top == 0 {
+            f(self.items[0] as usize);
+            return;
+        }
+        // nodes whose box comes nearer than r (children are tested before they go on the
+        // stack, leaves before `f` is called, so nothing is pushed that is then thrown away)
         let mut stack: Vec<(usize, usize)> = Vec::with_capacity(64);
         stack.push((top, self.levels[top]));
         while let Some((lvl, slot)) = stack.pop() {
-            if box_dist2(&self.boxes[slot], x, y) >= r2 {
-                continue;
-            }
-            if lvl == 0 {
-                if !f(self.items[slot] as usize) {
-                    return;
+            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
+            let last = (first + NODE).min(self.levels[lvl]);
+            if lvl == 1 {
+                for c in first..last {
+                    if box_dist2(&self.boxes[c], x, y) < r2 && !f(self.items[c] as usize) {
+                        return;
+                    }
                 }
                 continue;
             }
-            let first = self.levels[lvl - 1] + (slot - self.levels[lvl]) * NODE;
-            let last = (first + NODE).min(self.levels[lvl]);
+            // the nearest child goes on last, so it is looked into first
+            let base = stack.len();
+            let (mut near, mut near_d) = (usize::MAX, f64::INFINITY);
             for c in first..last {
-                stack.push((lvl - 1, c));
+                let d2 = box_dist2(&self.boxes[c], x, y);
+                if d2 < r2 {
+                    if d2 < near_d {
+                        near_d = d2;
+                        near = stack.len();
+                    }
+                    stack.push((lvl - 1, c));
+                }
+            }
+            if near != usize::MAX && stack.len() > base + 1 {
+                let end = stack.len() - 1;
+                stack.swap(near, end);
             }
         }
     }
@@ -364,6 +397,9 @@ impl BoxIndex {
 /// boxes overlap. A path that does not come back near itself meets only its own node and
 /// its neighbours at each level, so the work is linear in n plus the pairs; unlike a sweep
 /// along one axis, a long stretch running along the other axis costs nothing extra.
+// (index loops: the indices are what is reported and stacked; the iterator forms counted
+// more instructions)
+#[allow(clippy::needless_range_loop)]
 pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
     const FAN: usize = 8;
     let overlap = |a: &BBox, b: &BBox| !(a[0] > b[2] || a[2] < b[0] || a[1] > b[3] || a[3] < b[1]);
@@ -392,30 +428,69 @@ pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize
     };
     // (level, node a, node b) with a <= b and overlapping boxes
     let mut stack: Vec<(usize, usize, usize)> = vec![(levels.len(), 0, 0)];
+    // of two different nodes' children, the ones that reach into the common part of the
+    // nodes' boxes: a child outside it overlaps no child of the other node (each lies in
+    // its node's box), so only these are paired; two neighbours along a path share a
+    // corner's worth of their boxes, and a few children each
+    let (mut ia, mut jb) = ([0usize; FAN], [0usize; FAN]);
     while let Some((k, a, b)) = stack.pop() {
         let below = level(k - 1);
         let (a1, b1) = (
             ((a + 1) * FAN).min(below.len()),
             ((b + 1) * FAN).min(below.len()),
         );
-        if k == 1 {
-            // the boxes themselves: report the pairs here rather than through the stack
+        if a == b {
             for i in a * FAN..a1 {
                 let bi = below[i];
-                let first = if a == b { i + 1 } else { b * FAN };
-                for j in first..b1 {
-                    if overlap(&bi, &below[j]) {
-                        f(i, j);
+                if k == 1 {
+                    // the boxes themselves: report the pairs here rather than through the
+                    // stack
+                    for j in i + 1..b1 {
+                        if overlap(&bi, &below[j]) {
+                            f(i, j);
+                        }
+                    }
+                } else {
+                    for j in i..b1 {
+                        if overlap(&bi, &below[j]) {
+                            stack.push((k - 1, i, j));
+                        }
                     }
                 }
             }
             continue;
         }
+        let nodes = level(k);
+        let (na, nb) = (nodes[a], nodes[b]);
+        let common = [
+            na[0].max(nb[0]),
+            na[1].max(nb[1]),
+            na[2].min(nb[2]),
+            na[3].min(nb[3]),
+        ];
+        let mut n_a = 0;
         for i in a * FAN..a1 {
-            let first = if a == b { i } else { b * FAN };
-            for j in first..b1 {
-                if overlap(&below[i], &below[j]) {
-                    stack.push((k - 1, i, j));
+            if overlap(&below[i], &common) {
+                ia[n_a] = i;
+                n_a += 1;
+            }
+        }
+        let mut n_b = 0;
+        for j in b * FAN..b1 {
+            if overlap(&below[j], &common) {
+                jb[n_b] = j;
+                n_b += 1;
+            }
+        }
+        for &i in &ia[..n_a] {
+            let bi = below[i];
+            for &j in &jb[..n_b] {
+                if overlap(&bi, &below[j]) {
+                    if k == 1 {
+                        f(i, j);
+                    } else {
+                        stack.push((k - 1, i, j));
+                    }
                 }
             }
         }

@@ -153,6 +153,60 @@ pub fn offset_regions(
     distance: f64,
     opts: &OffsetOptions,
 ) -> Result<Vec<Region>, OffsetError> {
+    offset_regions_valid(regions, distance, opts).map(ValidRegions::into_regions)
+}
+
+/// Regions the kernel made, which it knows to be valid input: an offset's result is
+/// repaired until it passes the input check as it stands (see `finish`), so offsetting it
+/// again (a pocket's passes, each from the one before) needs no crossing search of its
+/// input. Only the kernel makes one, and its regions can be read but not changed; given
+/// regions go through [`offset_regions`] (or [`offset_regions_valid`]), which checks them.
+#[derive(Clone, Debug)]
+pub struct ValidRegions {
+    regions: Vec<Region>,
+    /// the geometric epsilon at which they were made valid (NaN: not known to be, so the
+    /// next offset checks them)
+    eps: f64,
+}
+
+impl ValidRegions {
+    /// The regions.
+    pub fn regions(&self) -> &[Region] {
+        &self.regions
+    }
+
+    /// The regions, for the caller to keep (and change: they are then plain regions).
+    pub fn into_regions(self) -> Vec<Region> {
+        self.regions
+    }
+
+    /// Offsets these regions as [`offset_regions`] does. When the offset works at the
+    /// geometric epsilon they were made valid at (the same tolerance, and coordinates of
+    /// the same size), the input check's crossing search is skipped; otherwise they are
+    /// checked as any input is.
+    pub fn offset(&self, distance: f64, opts: &OffsetOptions) -> Result<ValidRegions, OffsetError> {
+        offset_loops(&self.regions, distance, opts, self.eps)
+    }
+}
+
+/// [`offset_regions`], with the result as [`ValidRegions`] (to offset it again without
+/// the input check's crossing search). The given regions are checked.
+pub fn offset_regions_valid(
+    regions: &[Region],
+    distance: f64,
+    opts: &OffsetOptions,
+) -> Result<ValidRegions, OffsetError> {
+    offset_loops(regions, distance, opts, f64::NAN)
+}
+
+/// The offset of `regions`; `valid_at`: the geometric epsilon at which they are known to
+/// be valid input (the kernel's own result), NaN when they are not known to be.
+fn offset_loops(
+    regions: &[Region],
+    distance: f64,
+    opts: &OffsetOptions,
+    valid_at: f64,
+) -> Result<ValidRegions, OffsetError> {
     check_args(distance, opts)?;
     let all: Vec<&Polyline> = regions.iter().flat_map(|r| r.boundaries()).collect();
     for (i, p) in all.iter().enumerate() {
@@ -185,7 +239,24 @@ pub fn offset_regions(
             loops.push((segs, true));
         }
     }
-    let convex = check_input(&mut loops, eps, opts.tolerance)?;
+    let convex = if eps == valid_at {
+        // the kernel's own result at this epsilon: valid as it stands (what the check
+        // would find, debug builds make sure of)
+        debug_assert_eq!(
+            check_crossings(
+                &loops
+                    .iter()
+                    .map(|(s, c)| (s.as_slice(), *c))
+                    .collect::<Vec<_>>(),
+                eps
+            ),
+            Ok(()),
+            "the kernel's result fails the input check"
+        );
+        matches!(loops.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs))
+    } else {
+        check_input(&mut loops, eps, opts.tolerance)?
+    };
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -200,17 +271,27 @@ pub fn offset_regions(
         .filter_map(|(l, k)| k.then_some(l))
         .collect();
     if loops.is_empty() {
-        return Ok(Vec::new());
+        return Ok(ValidRegions {
+            regions: Vec::new(),
+            eps,
+        });
     }
-    let polys: Vec<Loop> = if distance == 0.0 {
-        loops
+    if distance == 0.0 {
+        // the checked input rebuilt: not the kernel's repaired result, so not vouched for
+        let polys = loops
             .into_iter()
             .filter_map(|(s, c)| build(s, c, eps))
-            .collect()
-    } else {
-        run_closed(loops, convex, -distance, opts, eps)
-    };
-    Ok(assemble(polys))
+            .collect();
+        return Ok(ValidRegions {
+            regions: assemble(polys),
+            eps: f64::NAN,
+        });
+    }
+    let polys = run_closed(loops, convex, -distance, opts, eps);
+    Ok(ValidRegions {
+        regions: assemble(polys),
+        eps,
+    })
 }
 
 /// Sorts loops into regions: counter-clockwise loops are outers, clockwise ones islands of
@@ -255,7 +336,7 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
             continue;
         }
         let pts: Vec<Point> = inside.iter().map(|&i| probes[i]).collect();
-        for (&i, w) in inside.iter().zip(o.winding_numbers(&pts)) {
+        for (&i, w) in inside.iter().zip(winding_numbers(o, &pts)) {
             if w != 0 {
                 best[i] = Some((k, *a));
             }
@@ -268,6 +349,34 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
     }
     regions
 }
+/// `Polyline::winding_numbers` of a closed loop, the same numbers: a segment is asked
+/// about a point only when the point's height lies within the segment's reach (its chord's
+/// heights for a line, widened as `geom::winding_of` widens an arc's box), so each of the
+/// loop's segments costs a comparison or two per point rather than a winding test.
+fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
+    let mut w = vec![0; ps.len()];
+    if !pl.closed {
+        return w;
+    }
+    let next = pl.vertices.iter().skip(1).chain(pl.vertices.first());
+    for (v, u) in pl.vertices.iter().zip(next) {
+        let (a, b) = (v.pos(), u.pos());
+        let (lo, hi) = if v.bulge == 0.0 {
+            // the crossing rule counts a point only when lo <= p.y < hi
+            (a.y.min(b.y), a.y.max(b.y))
+        } else {
+            let m = (b - a).len() * (v.bulge.abs() + 1.0);
+            (a.y.min(b.y) - m, a.y.max(b.y) + m)
+        };
+        for (wk, &p) in w.iter_mut().zip(ps) {
+            if p.y >= lo && p.y <= hi {
+                *wk += crate::geom::winding_of(a, b, v.bulge, p);
+            }
+        }
+    }
+    w
+}
+
 /// Offsets a whole shape: its closed paths as nested regions, all at once (grown regions
 /// that meet merge), its open paths to one side.
 pub fn offset_shape(
@@ -485,8 +594,9 @@ fn each_crossing(
     mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
     mut found: impl FnMut(Crossing),
 ) {
-    let mut all: Vec<Seg> = Vec::new();
-    let mut owner: Vec<(usize, usize)> = Vec::new();
+    let total: usize = paths.iter().map(|(segs, _)| segs.len()).sum();
+    let mut all: Vec<Seg> = Vec::with_capacity(total);
+    let mut owner: Vec<(usize, usize)> = Vec::with_capacity(total);
     for (pi, (segs, _)) in paths.iter().enumerate() {
         for (k, s) in segs.iter().enumerate() {
             all.push(*s);
@@ -736,7 +846,7 @@ fn run(
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = slack(opts.tolerance, eps);
-    let chains = prune(raws, splitters, &mut input, o, eps, valid_eps);
+    let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());
     for Chain {
         segs,
@@ -751,13 +861,34 @@ fn run(
         }
         pieces.push((joins::apply(segs, &whole_join, opts), closed));
     }
-    finish(pieces, opts, eps)
+    // whole raw curves that cross nothing, round joins as they are: nothing for the
+    // zig-zag repair to find, unless the sliver repair changes them (see `finish`)
+    let uncrossed = uncrossed && opts.join == Join::Round;
+    finish_known(pieces, opts, eps, uncrossed)
 }
 
 /// The offset's pieces as the result: slivers replaced (see `despike`), zig-zags cut off,
 /// then polylines.
 fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<Loop> {
+    finish_known(pieces, opts, eps, false)
+}
+
+/// `finish`; `uncrossed`: the pieces are whole raw curves among which the prune's crossing
+/// search found nothing (see `prune::Pruned`). Then, when the sliver repair leaves them as
+/// they are (no segment shorter than the slack), the zig-zag repair's crossing search would
+/// find nothing either (it asks about a subset of the same pairs of the same segments, by
+/// a rule that lets through every meeting the prune let through), and is skipped.
+fn finish_known(
+    pieces: Vec<(Vec<Seg>, bool)>,
+    opts: &OffsetOptions,
+    eps: f64,
+    uncrossed: bool,
+) -> Vec<Loop> {
     let valid_eps = slack(opts.tolerance, eps);
+    let as_raw = uncrossed
+        && pieces
+            .iter()
+            .all(|(segs, _)| segs.iter().all(|s| s.length() >= valid_eps));
     let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
         .into_iter()
         .map(|(segs, closed)| (despike(segs, closed, valid_eps), closed))
@@ -767,7 +898,13 @@ fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<
     // is valid input as it stands (the same repair the input check makes); one convex
     // loop has none (despiking a convex loop keeps a subset of its vertices: still convex)
     let convex = matches!(pieces.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs));
-    if !convex {
+    if as_raw {
+        // (debug builds make sure the repair would have found nothing)
+        debug_assert!(
+            !zigzag::remove(&mut pieces.clone(), eps, zigzag_bound(opts.tolerance, eps)),
+            "the zig-zag repair found a crossing among raw curves the prune found uncrossed"
+        );
+    } else if !convex {
         zigzag::remove(&mut pieces, eps, zigzag_bound(opts.tolerance, eps));
     }
     let mut out = Vec::with_capacity(pieces.len());
@@ -1030,6 +1167,37 @@ mod tests {
                 q.y,
                 kept.dist(q)
             );
+        }
+    }
+
+    #[test]
+    fn the_filtered_winding_numbers_are_the_polylines() {
+        // random loops of lines and bulges (some crossing themselves), points scattered
+        // over and around them, some at vertex heights exactly (the crossing rule's edge)
+        let mut seed = 987654321u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for n in [1usize, 2, 3, 7, 40, 300] {
+            for _ in 0..20 {
+                let vs: Vec<Vertex> = (0..n)
+                    .map(|_| {
+                        let bulge = if rnd() < 0.5 { 0.0 } else { rnd() * 4.0 - 2.0 };
+                        Vertex::new(rnd() * 20.0 - 10.0, rnd() * 20.0 - 10.0, bulge)
+                    })
+                    .collect();
+                let mut ps: Vec<Point> = (0..200)
+                    .map(|_| Point::new(rnd() * 30.0 - 15.0, rnd() * 30.0 - 15.0))
+                    .collect();
+                ps.extend(vs.iter().map(|v| Point::new(rnd() * 30.0 - 15.0, v.y)));
+                for closed in [true, false] {
+                    let pl = Polyline::new(vs.clone(), closed);
+                    assert_eq!(winding_numbers(&pl, &ps), pl.winding_numbers(&ps), "{pl:?}");
+                }
+            }
         }
     }
 

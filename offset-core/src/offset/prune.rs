@@ -6,6 +6,7 @@ use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
 use super::raw::{Origin, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
@@ -40,6 +41,10 @@ type Cells = HashMap<(i64, i64), Vec<usize>, BuildHasherDefault<CellHasher>>;
 pub struct InputSet<'a> {
     paths: Vec<&'a [Seg]>,
     index: Option<(BoxIndex, Vec<&'a Seg>)>,
+    /// the segment that last answered "nearer": asked first next time (the runs come in
+    /// order along their curves, and neighbouring invalid runs mostly come too near the
+    /// same stretch of the input)
+    hint: Cell<usize>,
 }
 
 /// Up to this many questions a scan is cheaper than building the tree.
@@ -47,7 +52,11 @@ const SCANS: usize = 4;
 
 impl<'a> InputSet<'a> {
     pub fn new(paths: Vec<&'a [Seg]>) -> InputSet<'a> {
-        InputSet { paths, index: None }
+        InputSet {
+            paths,
+            index: None,
+            hint: Cell::new(0),
+        }
     }
 
     /// Prepares for about `questions` distance questions.
@@ -55,7 +64,7 @@ impl<'a> InputSet<'a> {
         if questions > SCANS && self.index.is_none() {
             let segs: Vec<&Seg> = self.paths.iter().flat_map(|p| p.iter()).collect();
             let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
-            self.index = Some((BoxIndex::in_order(&boxes), segs));
+            self.index = Some((BoxIndex::in_order_owned(boxes), segs));
         }
     }
 
@@ -78,10 +87,14 @@ impl<'a> InputSet<'a> {
                 })
             });
         };
+        if segs.get(self.hint.get()).is_some_and(|s| s.dist(p) < thr) {
+            return true;
+        }
         let mut found = false;
         index.query_disc(p.x, p.y, thr, |i| {
             if segs[i].dist(p) < thr {
                 found = true;
+                self.hint.set(i);
                 return false;
             }
             true
@@ -145,7 +158,7 @@ enum Inside {
 /// segments), and the two cross at an angle whose sine is well above what rounding can
 /// make of it (the tangents' directions, and how far the crossing may slide along the
 /// curves: less than ε).
-fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> Inside {
+fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, p: Point, left: bool, eps: f64) -> Inside {
     if b.origin == Origin::Bridge {
         return Inside::Unknown;
     }
@@ -158,7 +171,7 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> 
     {
         return Inside::Unknown;
     }
-    let (da, db) = (a.seg.tangent_at(ta), b.seg.tangent_at(tb));
+    let (da, db) = (tangent_through(&a.seg, p), tangent_through(&b.seg, p));
     let c = db.cross(da);
     let scale = |s: &Seg| -> (f64, f64) {
         let m =
@@ -188,6 +201,65 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, left: bool, eps: f64) -> 
     }
 }
 
+/// The splits in the order of their segments, and along each segment by parameter: a
+/// counting sort by segment (most raw segments have none, a few have several), then a sort
+/// of each segment's few. Same order as a sort by (segment, parameter), in O(n + splits).
+fn by_segment_and_parameter<T: Copy>(
+    splits: Vec<(u32, f64, Point, T)>,
+    n: usize,
+) -> Vec<(u32, f64, Point, T)> {
+    if splits.len() < 2 {
+        return splits;
+    }
+    // first[g]: where segment g's splits start in the result
+    let mut first = vec![0u32; n + 1];
+    for s in &splits {
+        first[s.0 as usize + 1] += 1;
+    }
+    for g in 0..n {
+        first[g + 1] += first[g];
+    }
+    let mut at: Vec<u32> = first[..n].to_vec();
+    let mut out = vec![splits[0]; splits.len()];
+    for s in splits {
+        let k = &mut at[s.0 as usize];
+        out[*k as usize] = s;
+        *k += 1;
+    }
+    for g in 0..n {
+        let (a, b) = (first[g] as usize, first[g + 1] as usize);
+        if b - a > 1 {
+            out[a..b].sort_unstable_by(|x, y| x.1.total_cmp(&y.1));
+        }
+    }
+    out
+}
+
+/// The unit tangent of `s` where it passes through `p` (a point on it): an arc's from the
+/// radius through `p`, without the angle of its parameter.
+fn tangent_through(s: &Seg, p: Point) -> Point {
+    if s.is_arc() {
+        let rad = (p - s.c).unit();
+        if s.sw > 0.0 {
+            rad.perp()
+        } else {
+            -rad.perp()
+        }
+    } else {
+        s.tangent_at(0.0)
+    }
+}
+
+/// What the prune leaves.
+pub struct Pruned {
+    pub chains: Vec<Chain>,
+    /// nothing crossed: every path was closed and no pair of raw segments met anywhere but
+    /// at the shared end of neighbours (by the rule of the input check, or stricter), so
+    /// every chain is a whole raw curve, and a crossing search of the chains by the input
+    /// check's rule finds nothing
+    pub uncrossed: bool,
+}
+
 /// Splits, prunes and stitches. `splitters` only cut raw curves (the circles of radius |o|
 /// about an open path's ends). `o` is the signed offset (positive: to the left); `eps` the
 /// geometric tolerance. A run is dropped when its sample comes nearer the input than
@@ -200,7 +272,7 @@ pub fn prune(
     o: f64,
     eps: f64,
     valid_eps: f64,
-) -> Vec<Chain> {
+) -> Pruned {
     let dist = o.abs();
     let left = o > 0.0;
     // global numbering of raw segments: the paths one after another (the first one's
@@ -298,11 +370,22 @@ pub fn prune(
             if gji.is_some_and(|g| p.dist(si.a) <= eps + g && p.dist(sj.b) <= eps + g) {
                 continue;
             }
-            splits.push((i as u32, t, p, inside_of(&rs[i], t, &rs[j], u, left, eps)));
-            splits.push((j as u32, u, p, inside_of(&rs[j], u, &rs[i], t, left, eps)));
+            splits.push((
+                i as u32,
+                t,
+                p,
+                inside_of(&rs[i], t, &rs[j], u, p, left, eps),
+            ));
+            splits.push((
+                j as u32,
+                u,
+                p,
+                inside_of(&rs[j], u, &rs[i], t, p, left, eps),
+            ));
         }
     });
-    splits.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(x.1.total_cmp(&y.1)));
+    let splits = by_segment_and_parameter(splits, n);
+    let uncrossed = splits.is_empty() && closed.iter().all(|&c| c);
 
     // pieces per path, with a break flag where a run ends before them
     struct Piece {
@@ -400,7 +483,7 @@ pub fn prune(
         count: usize,
         whole: bool,
     }
-    let mut runs: Vec<Run> = Vec::new();
+    let mut runs: Vec<Run> = Vec::with_capacity(splits.len() + closed.len());
     for (pi, &p_closed) in closed.iter().enumerate() {
         let (a, b) = (pstart[pi], pstart[pi + 1]);
         let m = b - a;
@@ -678,5 +761,5 @@ pub fn prune(
             closed: is_loop,
         });
     }
-    chains
+    Pruned { chains, uncrossed }
 }

@@ -30,10 +30,9 @@ pub struct RawSeg {
     pub origin: Origin,
 }
 
-/// The signed turn (radians, in (-π, π]) from tangent `t1` to tangent `t2`.
-fn turn(t1: Point, t2: Point) -> f64 {
-    t1.cross(t2).atan2(t1.dot(t2))
-}
+/// A turn smaller than this (radians) is taken as none, one within this of a half turn as
+/// a reversal.
+const TURN_EPS: f64 = 1e-12;
 
 /// Offsets one cleaned path's segments by `o` to the left of travel (negative: right).
 /// `closed` joins the last segment to the first. `eps` is the geometric tolerance.
@@ -257,10 +256,15 @@ fn pair_corner(
     eps: f64,
 ) -> Option<RawSeg> {
     let v = s1.b;
-    let th = turn(tangents.0, tangents.1);
+    // the turn from the unit tangents' sine and cosine, no angle: straight on (within
+    // TURN_EPS; the sine is the angle to double precision there), under a right angle, a
+    // reversal
+    let (sin, cos) = (tangents.0.cross(tangents.1), tangents.0.dot(tangents.1));
+    let straight_on = cos > 0.0 && sin.abs() <= TURN_EPS * cos;
+    let reversal = cos < 0.0 && sin.abs() <= TURN_EPS * -cos;
     let p1 = prev.b;
     let p2 = next.a;
-    let collinear = th.abs() <= 1e-12 || (p1.dist(p2) <= eps && th.abs() < PI * 0.5);
+    let collinear = straight_on || (p1.dist(p2) <= eps && cos > 0.0);
     if collinear {
         if p1.dist(p2) > 0.0 {
             return Some(RawSeg {
@@ -270,7 +274,7 @@ fn pair_corner(
         }
         return None;
     }
-    let concave = th * o > 0.0 && th.abs() < PI - 1e-12;
+    let concave = sin * o > 0.0 && !reversal;
     if concave {
         // pair-wise interference: trim both to their meeting point nearest the corner
         let h = if !prev.is_arc() && !next.is_arc() && !s1.is_arc() && !s2.is_arc() {

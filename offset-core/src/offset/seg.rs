@@ -30,10 +30,24 @@ impl Norm for Point {
 
 /// Wraps an angle into [-π, π).
 pub fn wrap(a: f64) -> f64 {
-    let mut x = (a + PI) % (2.0 * PI);
-    if x < 0.0 {
-        x += 2.0 * PI;
-    }
+    const TAU: f64 = 2.0 * PI;
+    let y = a + PI;
+    // within a turn of the range the remainder is y itself or y less one turn (exact, as
+    // the remainder is): the same numbers without the division's loop
+    let x = if (0.0..TAU).contains(&y) {
+        y
+    } else if y < 0.0 && y > -TAU {
+        y + TAU
+    } else if (TAU..2.0 * TAU).contains(&y) {
+        y - TAU
+    } else {
+        let x = y % TAU;
+        if x < 0.0 {
+            x + TAU
+        } else {
+            x
+        }
+    };
     x - PI
 }
 
@@ -237,24 +251,31 @@ impl Seg {
             self.a.y.max(self.b.y),
         ];
         if self.is_arc() {
-            for (k, d) in [
-                Point::new(1.0, 0.0),
-                Point::new(0.0, 1.0),
-                Point::new(-1.0, 0.0),
-                Point::new(0.0, -1.0),
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                if self.within_sweep(self.c + d) {
-                    let q = self.c + d * self.r;
-                    match k {
-                        0 => bb[2] = bb[2].max(q.x),
-                        1 => bb[3] = bb[3].max(q.y),
-                        2 => bb[0] = bb[0].min(q.x),
-                        _ => bb[1] = bb[1].min(q.y),
-                    }
+            // `within_sweep` of the four axis directions, its cross products written out (a
+            // unit axis has one zero coordinate, so each is a signed coordinate of the
+            // ends' radii: the same signs)
+            let (ua, ub) = (self.a - self.c, self.b - self.c);
+            let s = self.sw.signum();
+            let wide = self.sw.abs() > PI;
+            let within = |after_start: bool, before_end: bool| {
+                if wide {
+                    after_start || before_end
+                } else {
+                    after_start && before_end
                 }
+            };
+            let r = self.r;
+            if within(s * -ua.y >= 0.0, s * ub.y >= 0.0) {
+                bb[2] = bb[2].max(self.c.x + r);
+            }
+            if within(s * ua.x >= 0.0, s * -ub.x >= 0.0) {
+                bb[3] = bb[3].max(self.c.y + r);
+            }
+            if within(s * ua.y >= 0.0, s * -ub.y >= 0.0) {
+                bb[0] = bb[0].min(self.c.x - r);
+            }
+            if within(s * -ua.x >= 0.0, s * ub.x >= 0.0) {
+                bb[1] = bb[1].min(self.c.y - r);
             }
         }
         bb
@@ -489,9 +510,13 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
             [Some(base + u.perp() * k), Some(base - u.perp() * k)]
         }
     };
+    // (the second arc is asked only when the point lies on the first)
+    let on_both = |p: Point| -> Option<(f64, f64)> {
+        let t = accept_on_arc(s1, p, e1, eps)?;
+        Some((t, accept_on_arc(s2, p, e2, eps)?))
+    };
     for p in pts.into_iter().flatten() {
-        let (Some(t), Some(w)) = (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
-        else {
+        let Some((t, w)) = on_both(p) else {
             continue;
         };
         h.push(p, t, w);
@@ -502,9 +527,7 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
         // collapsed offset arc enters its circle beside the arc and leaves through it)
         let k = hh.sqrt();
         for p in [base + u.perp() * k, base - u.perp() * k] {
-            if let (Some(t), Some(w)) =
-                (accept_on_arc(s1, p, e1, eps), accept_on_arc(s2, p, e2, eps))
-            {
+            if let Some((t, w)) = on_both(p) {
                 h.push(p, t, w);
                 break;
             }
@@ -560,6 +583,96 @@ mod tests {
             assert!(h.p[0].0.dist(end) < 1e-9, "{h:?}");
             let on_arc = if arc_first { h.p[0].1 } else { h.p[0].2 };
             assert!((on_arc - 1.0).abs() < 1e-9, "{h:?}");
+        }
+    }
+
+    #[test]
+    fn arc_boxes_are_the_sweep_tests_boxes() {
+        // the box as it was written before its cross products were written out: each axis
+        // direction's extreme when `within_sweep` holds of it
+        let by_sweep = |s: &Seg| {
+            let mut bb = [
+                s.a.x.min(s.b.x),
+                s.a.y.min(s.b.y),
+                s.a.x.max(s.b.x),
+                s.a.y.max(s.b.y),
+            ];
+            for (k, d) in [
+                Point::new(1.0, 0.0),
+                Point::new(0.0, 1.0),
+                Point::new(-1.0, 0.0),
+                Point::new(0.0, -1.0),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                if s.within_sweep(s.c + d) {
+                    let q = s.c + d * s.r;
+                    match k {
+                        0 => bb[2] = bb[2].max(q.x),
+                        1 => bb[3] = bb[3].max(q.y),
+                        2 => bb[0] = bb[0].min(q.x),
+                        _ => bb[1] = bb[1].min(q.y),
+                    }
+                }
+            }
+            bb
+        };
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for i in 0..100_000 {
+            let c = Point::new(rnd() * 2000.0 - 1000.0, rnd() * 2000.0 - 1000.0);
+            let r = 10f64.powf(rnd() * 8.0 - 4.0);
+            // starts anywhere, and on the axes (quarter turns) a fifth of the time
+            let sa = if i % 5 == 0 {
+                (rnd() * 8.0).floor() * PI / 2.0
+            } else {
+                rnd() * 4.0 * PI - 2.0 * PI
+            };
+            let sw = if i % 7 == 0 {
+                ((rnd() * 8.0).floor() - 4.0) * PI / 2.0
+            } else {
+                rnd() * 4.0 * PI - 2.0 * PI
+            };
+            if sw == 0.0 {
+                continue;
+            }
+            let at = |t: f64| c + Point::new(t.cos(), t.sin()) * r;
+            let s = Seg::arc(c, r, at(sa), at(sa + sw), sw);
+            assert_eq!(s.bbox(), by_sweep(&s), "{s:?}");
+        }
+    }
+
+    #[test]
+    fn wrapping_is_the_remainders_wrap() {
+        // the wrap by the remainder, as it was written before its fast paths
+        let by_remainder = |a: f64| {
+            let mut x = (a + PI) % (2.0 * PI);
+            if x < 0.0 {
+                x += 2.0 * PI;
+            }
+            x - PI
+        };
+        let mut seed = 42u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut angles: Vec<f64> = (0..100_000).map(|_| (rnd() - 0.5) * 40.0).collect();
+        for k in -6..=6 {
+            let edge = k as f64 * PI;
+            angles.extend([edge, edge.next_up(), edge.next_down(), -edge]);
+        }
+        angles.extend([0.0, -0.0, 1e300, -1e300, 3.0 * PI, -3.0 * PI, -PI, PI]);
+        for a in angles {
+            assert_eq!(wrap(a).to_bits(), by_remainder(a).to_bits(), "wrap({a:e})");
         }
     }
 

@@ -145,3 +145,78 @@ fn offsets_over_three_decades_are_valid_and_nested() {
         Err(TestError::Abort(why)) => panic!("aborted: {why}"),
     }
 }
+
+/// Pocket passes each from the one before, made from the kernel's own result
+/// (`ValidRegions::offset`, which skips the input check's crossing search), are the passes
+/// `offset_regions` makes from the same regions (which checks them): the same regions, to
+/// the bit, pass after pass, and each valid input again. Wavy outlines with or without an
+/// island, shrunk until nothing is left or grown, at 1e-3 (debug builds also assert, in
+/// the kernel, that each skipped check would have passed).
+#[test]
+fn passes_from_the_kernels_result_are_the_checked_passes() {
+    use offset_core::offset::{offset_regions, offset_regions_valid};
+    use proptest::test_runner::{contextualize_config, TestError, TestRunner};
+    let mut config = contextualize_config(ProptestConfig {
+        cases: offset_core::check::proptest_cases(128),
+        source_file: Some(file!()),
+        ..ProptestConfig::default()
+    });
+    config.cases = (config.cases / 16).max(4);
+    config.test_name =
+        Some("offset_distances::passes_from_the_kernels_result_are_the_checked_passes");
+    let strategy = (
+        200usize..800,
+        30.0f64..60.0,
+        proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
+        proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
+        0.5f64..8.0,
+        any::<bool>(),
+    );
+    let mut runner = TestRunner::new(config);
+    let result = runner.run(&strategy, |(n, r0, waves, island, step, grow)| {
+        let amp: f64 = waves.iter().map(|w| w.0).sum();
+        prop_assume!(amp < r0 * 0.3);
+        let g = gear(
+            n,
+            r0,
+            &waves
+                .iter()
+                .map(|&(a, f, p)| (a, f.round(), p))
+                .collect::<Vec<_>>(),
+        );
+        let islands = island
+            .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
+            .into_iter()
+            .collect();
+        let d = if grow { step } else { -step };
+        let opts = OffsetOptions::default();
+        let given = vec![Region::new(g, islands)];
+        let mut made = offset_regions_valid(&given, d, &opts)
+            .map_err(|e| TestCaseError::fail(format!("pass 1: {e}")))?;
+        let mut checked = offset_regions(&given, d, &opts)
+            .map_err(|e| TestCaseError::fail(format!("pass 1, checked: {e}")))?;
+        for pass in 1..=12 {
+            prop_assert_eq!(made.regions(), checked.as_slice(), "pass {}", pass);
+            let paths = region_paths(&checked);
+            if let Some((path, at)) = first_crossing(&paths, opts.tolerance) {
+                return Err(TestCaseError::fail(format!(
+                    "pass {pass}: path {path} crosses itself at {at:?}"
+                )));
+            }
+            if checked.is_empty() {
+                break;
+            }
+            made = made
+                .offset(d, &opts)
+                .map_err(|e| TestCaseError::fail(format!("pass {}: {e}", pass + 1)))?;
+            checked = offset_regions(&checked, d, &opts)
+                .map_err(|e| TestCaseError::fail(format!("pass {}, checked: {e}", pass + 1)))?;
+        }
+        Ok(())
+    });
+    match result {
+        Ok(()) => {}
+        Err(TestError::Fail(why, draw)) => panic!("{why}\nminimal failing input: {draw:?}"),
+        Err(TestError::Abort(why)) => panic!("aborted: {why}"),
+    }
+}
