@@ -8,7 +8,9 @@
 //!   only where the simulation's finer cells surely are.
 //! - Each connected part of the area where the raster puts the tool centre R + allowance
 //!   (+ the finishing stock) + 1.5 cells or more from the part gets a core: a helix at its
-//!   deepest point (a circle of at most the tool radius).
+//!   deepest point (a circle of at most the tool radius). The first level's helix bores the
+//!   core to the last level's depth and comes back up; the levels after go straight down
+//!   the bored core, through air.
 //! - Engagement-controlled advancement (after FreeCAD's Adaptive2d): a pass starts at the
 //!   cleared spot nearest the tool whose disc is clear (2 cells to spare) and that has
 //!   material it may remove within 4 cells, setting off with that material on the right
@@ -297,9 +299,10 @@ pub fn adaptive(shape: &Shape, p: &AdaptiveParams) -> Result<Toolpath, OpError> 
             slope,
             g: &plan.g,
         };
+        let bottom = depths.last().copied().unwrap_or(0.0);
         for (k, &z) in depths.iter().enumerate() {
             let z_top = if k == 0 { 0.0 } else { depths[k - 1] };
-            em.level(&plan.steps, z, z_top);
+            em.level(&plan.steps, z, z_top, (k == 0).then_some(bottom));
         }
         if let (true, Some(&z)) = (p.finish, depths.last()) {
             let z_top = if depths.len() > 1 {
@@ -1453,7 +1456,10 @@ impl Emit<'_> {
         }
     }
 
-    fn level(&mut self, steps: &[Step], z: f64, z_top: f64) {
+    /// One level at `z` (the last at `z_top`). The first level's helices bore each core
+    /// down to `bore`, the last level's depth, and come back up it; the levels after go
+    /// straight down the bored cores, through air.
+    fn level(&mut self, steps: &[Step], z: f64, z_top: f64, bore: Option<f64>) {
         let feed = self.c.feed;
         let ccw = self.c.climb;
         let mut run: Vec<Point> = Vec::new();
@@ -1470,9 +1476,22 @@ impl Emit<'_> {
                 Step::Helix { c, rho } => {
                     let q = *c + Point::new(*rho, 0.0);
                     self.over(q, z, z_top);
-                    self.down(z_top);
-                    for m in entry::helix(q, *c, ccw, z_top, z, self.slope, feed) {
-                        self.push(m);
+                    match bore {
+                        Some(bottom) => {
+                            self.down(z_top);
+                            let to = bottom.min(z);
+                            for m in entry::helix(q, *c, ccw, z_top, to, self.slope, feed) {
+                                self.push(m);
+                            }
+                            if to < z - 1e-9 {
+                                // back up the bored core to this level
+                                self.push(Move::Linear {
+                                    to: P3::at_z(q, z),
+                                    feed: self.c.plunge_feed,
+                                });
+                            }
+                        }
+                        None => self.down(z),
                     }
                 }
                 Step::Go { to, depth } => {

@@ -292,6 +292,11 @@ fn over_bound(
 #[test]
 fn the_plate_keeps_the_engagement_bound() {
     let a = check("plate", &plate(), 2.0, 70.0);
+    // one helix into the one core, boring it for both levels: the second goes down the
+    // bored core through air (`check` asserts every plunge removes nothing)
+    let helix = helix_moves(&a.tp);
+    let helices = helix.windows(2).filter(|w| !w[0] && w[1]).count();
+    assert_eq!(helices, 1, "{helices} helices for one core and two levels");
     let corners = sharp_corners(&plate(), 3.0);
     assert_eq!(corners.len(), 4, "{corners:?}");
     let (over, at_corners) = over_bound(&a, 70.0, &corners, 0.5);
