@@ -355,7 +355,8 @@ fn written_arc_bound(
     }
     // (within 0.1 rad the tangent is the angle to within 0.4 %: ample against 1 rad)
     let (beta0, beta1) = (cross0 / dot0, cross1 / dot1);
-    if !((sw - (planned_sweep.abs() - beta0 + beta1)).abs() < 1.0) {
+    let turn_off = (sw - (planned_sweep.abs() - beta0 + beta1)).abs();
+    if turn_off.is_nan() || turn_off >= 1.0 {
         return None;
     }
     let big_r = planned.r;
