@@ -73,7 +73,8 @@ impl<'de> Deserialize<'de> for VertexJson {
 /// The common file read without serde: an object of `units` (a plain string) and `paths`,
 /// each an object of `closed` (true or false) and `vertices` (arrays of numbers), each key
 /// at most once, whitespace as JSON has it. Anything else — another key, an escape or a
-/// byte past ASCII in a string, a number of more than 19 digits or with an exponent of
+/// byte past ASCII in a string, a number of more than 19 digits (leading zeros of a
+/// fraction included) or with an exponent of
 /// more than three digits, any mistake — gives None, and the file is read by serde_json, which reads
 /// the same files to the same values and names the mistakes. Numbers are made as
 /// serde_json 1 makes them (without its `float_roundtrip` feature): the digits as an
@@ -112,7 +113,7 @@ const POW10: [f64; 309] = [
 ];
 
 impl<'a> FastReader<'a> {
-    fn read(bytes: &'a [u8]) -> Option<FileJson> {
+    fn read(bytes: &'a [u8]) -> Option<Shape> {
         let mut r = FastReader { bytes, at: 0 };
         let doc = r.file()?;
         r.space();
@@ -191,9 +192,19 @@ impl<'a> FastReader<'a> {
         }
     }
 
-    /// Appends a digit to the integer, None where serde_json would leave its fast path.
-    fn push_digit(significand: u64, digit: u64) -> Option<u64> {
-        significand.checked_mul(10)?.checked_add(digit)
+    /// Takes a run of digits into the integer (wrapping: [`Self::number`] refuses more than
+    /// 19 digits in all, which cannot overflow); returns how many there were.
+    fn digits(&mut self, significand: &mut u64) -> usize {
+        let start = self.at;
+        while let Some(&c) = self.bytes.get(self.at) {
+            let d = c.wrapping_sub(b'0');
+            if d > 9 {
+                break;
+            }
+            *significand = significand.wrapping_mul(10).wrapping_add(u64::from(d));
+            self.at += 1;
+        }
+        self.at - start
     }
 
     fn number(&mut self) -> Option<f64> {
@@ -204,27 +215,28 @@ impl<'a> FastReader<'a> {
         }
         let mut significand = self.digit()?;
         self.at += 1;
+        let mut count = 1;
         if significand == 0 {
             if self.digit().is_some() {
                 return None; // a leading zero
             }
         } else {
-            while let Some(d) = self.digit() {
-                significand = Self::push_digit(significand, d)?;
-                self.at += 1;
-            }
+            count += self.digits(&mut significand);
         }
         let mut exponent: i32 = 0;
         if self.bytes.get(self.at) == Some(&b'.') {
             self.at += 1;
-            while let Some(d) = self.digit() {
-                significand = Self::push_digit(significand, d)?;
-                exponent -= 1;
-                self.at += 1;
-            }
-            if exponent == 0 {
+            let fraction = self.digits(&mut significand);
+            if fraction == 0 {
                 return None; // no digit after the point
             }
+            count += fraction;
+            exponent = -(fraction as i32);
+        }
+        // below 10^19 the integer is what serde_json's checked one is (past it, it may
+        // leave its fast path: so does this reader, for all of the file)
+        if count > 19 {
+            return None;
         }
         if let Some(b'e' | b'E') = self.bytes.get(self.at) {
             self.at += 1;
@@ -277,7 +289,11 @@ impl<'a> FastReader<'a> {
         Some(if negative { -f } else { f })
     }
 
-    fn file(&mut self) -> Option<FileJson> {
+    /// The whole file as a shape: units known ("mm" or "in"), every vertex of two or three
+    /// numbers, every path of two vertices or more (else None: serde_json's reading then
+    /// names the mistake). Vertices go straight into the shape's vectors (no vector of
+    /// numbers per file first), scaled once the units are known (they may come last).
+    fn file(&mut self) -> Option<Shape> {
         self.take(b'{')?;
         let (mut units, mut paths) = (None, None);
         if !self.empty(b'}')? {
@@ -285,7 +301,7 @@ impl<'a> FastReader<'a> {
                 let key = self.string()?;
                 self.take(b':')?;
                 match key {
-                    "units" if units.is_none() => units = Some(self.string()?.to_string()),
+                    "units" if units.is_none() => units = Some(self.string()?),
                     "paths" if paths.is_none() => paths = Some(self.paths()?),
                     _ => return None,
                 }
@@ -294,13 +310,27 @@ impl<'a> FastReader<'a> {
                 }
             }
         }
-        Some(FileJson {
-            units: units.unwrap_or_else(mm),
-            paths: paths?,
-        })
+        let scale = match units.unwrap_or("mm") {
+            "mm" => 1.0,
+            "in" | "inch" => 25.4,
+            _ => return None,
+        };
+        let mut paths = paths?;
+        for (_, vs) in &mut paths {
+            for v in vs.iter_mut() {
+                // as the reading below scales them (by one for millimetres)
+                *v = Vertex::new(v.x * scale, v.y * scale, v.bulge);
+            }
+        }
+        Some(Shape::new(
+            paths
+                .into_iter()
+                .map(|(closed, vs)| Polyline::new(vs, closed))
+                .collect(),
+        ))
     }
 
-    fn paths(&mut self) -> Option<Vec<PathJson>> {
+    fn paths(&mut self) -> Option<Vec<(bool, Vec<Vertex>)>> {
         self.take(b'[')?;
         let mut paths = Vec::new();
         if self.empty(b']')? {
@@ -314,7 +344,7 @@ impl<'a> FastReader<'a> {
         }
     }
 
-    fn path(&mut self) -> Option<PathJson> {
+    fn path(&mut self) -> Option<(bool, Vec<Vertex>)> {
         self.take(b'{')?;
         let (mut closed, mut vertices) = (None, None);
         if !self.empty(b'}')? {
@@ -331,13 +361,11 @@ impl<'a> FastReader<'a> {
                 }
             }
         }
-        Some(PathJson {
-            closed: closed.unwrap_or(false),
-            vertices: vertices?,
-        })
+        let vertices = vertices?;
+        (vertices.len() >= 2).then_some((closed.unwrap_or(false), vertices))
     }
 
-    fn vertices(&mut self) -> Option<Vec<VertexJson>> {
+    fn vertices(&mut self) -> Option<Vec<Vertex>> {
         self.take(b'[')?;
         let mut vertices = Vec::new();
         if self.empty(b']')? {
@@ -345,23 +373,21 @@ impl<'a> FastReader<'a> {
         }
         loop {
             self.take(b'[')?;
-            let mut v = VertexJson {
-                len: 0,
-                xyb: [0.0; 3],
-            };
+            let mut xyb = [0.0; 3];
+            let mut len = 0;
             if !self.empty(b']')? {
                 loop {
-                    let x = self.number()?;
-                    if let Some(slot) = v.xyb.get_mut(v.len) {
-                        *slot = x;
-                    }
-                    v.len += 1;
+                    *xyb.get_mut(len)? = self.number()?;
+                    len += 1;
                     if !self.more(b']')? {
                         break;
                     }
                 }
             }
-            vertices.push(v);
+            if len < 2 {
+                return None;
+            }
+            vertices.push(Vertex::new(xyb[0], xyb[1], xyb[2]));
             if !self.more(b']')? {
                 return Some(vertices);
             }
@@ -372,9 +398,14 @@ impl<'a> FastReader<'a> {
 /// Reads the geometry JSON; `file` names the source in errors. Units "mm" and "in" are
 /// accepted (inches are scaled to mm).
 pub fn read(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
-    if let Some(doc) = FastReader::read(bytes) {
-        return shape_of(doc, file);
+    if let Some(shape) = FastReader::read(bytes) {
+        return Ok(shape);
     }
+    read_by_serde(bytes, file)
+}
+
+/// [`read`] by serde_json alone: the files the fast reader leaves, and their mistakes.
+fn read_by_serde(bytes: &[u8], file: &str) -> Result<Shape, ImportError> {
     let doc: FileJson = serde_json::from_slice(bytes).map_err(|e| {
         ImportError::invalid(
             file,
@@ -463,15 +494,16 @@ pub fn write(shape: &Shape) -> String {
 mod tests {
     use super::*;
 
-    /// What serde_json reads, as (units, [(closed, [(count, x, y, bulge bits)])]).
-    type Read = (String, Vec<(bool, Vec<(usize, [u64; 3])>)>);
-
-    fn as_read(doc: &FileJson) -> Read {
-        let paths = doc.paths.iter().map(|p| {
-            let vs = p.vertices.iter().map(|v| (v.len, v.xyb.map(f64::to_bits)));
+    /// A shape's every number, bit for bit, and each path's closure.
+    fn bits(shape: &Shape) -> Vec<(bool, Vec<[u64; 3]>)> {
+        let path = |p: &Polyline| {
+            let vs = p
+                .vertices
+                .iter()
+                .map(|v| [v.x, v.y, v.bulge].map(f64::to_bits));
             (p.closed, vs.collect())
-        });
-        (doc.units.clone(), paths.collect())
+        };
+        shape.paths.iter().map(path).collect()
     }
 
     #[test]
@@ -559,12 +591,19 @@ mod tests {
         for chunk in numbers.chunks(6) {
             let n = |k: usize| chunk[k % chunk.len()].as_str();
             docs.push(format!(
-                r#"{{"units": "mm", "paths": [{{"closed": true, "vertices": [[{}, {}], [{}, {}, {}]]}}, {{"vertices": [[{},{}]]}}]}}"#,
-                n(0), n(1), n(2), n(3), n(4), n(5), n(0)
+                r#"{{"units": "mm", "paths": [{{"closed": true, "vertices": [[{}, {}], [{}, {}, {}]]}}, {{"vertices": [[{},{}],[{},{}]]}}]}}"#,
+                n(0), n(1), n(2), n(3), n(4), n(5), n(0), n(2), n(4)
             ));
         }
         for doc in [
             r#"{"paths": []}"#,
+            r#"{"paths": [{"vertices": [[1,2],[3,4,0.5]]}], "units": "in"}"#,
+            r#"{"units": "inch", "paths": [{"vertices": [[1.5,2],[3,4,0.5]], "closed": true}]}"#,
+            r#"{"units": "m", "paths": [{"vertices": [[1,2],[3,4]]}]}"#,
+            r#"{"units": 1, "paths": [{"vertices": [[1,2],[3,4]]}]}"#,
+            r#"{"paths": [{"vertices": [[1,2],[3]]}]}"#,
+            r#"{"paths": [{"vertices": [[1,2],[3,4,5,6]]}]}"#,
+            r#"{"paths": [{"vertices": [[1,2],[]]}]}"#,
             r#"{"paths": [], "units": "in"}"#,
             r#" { "paths" : [ { "vertices" : [ ] , "closed" : false } ] } "#,
             "{\"paths\":[{\"vertices\":[[1,2]]}]}\n\t\r",
@@ -597,11 +636,11 @@ mod tests {
         let mut answered = 0;
         for doc in &docs {
             let fast = FastReader::read(doc.as_bytes());
-            let serde = serde_json::from_slice::<FileJson>(doc.as_bytes());
+            let serde = read_by_serde(doc.as_bytes(), "f.json");
             match (&fast, &serde) {
                 (Some(f), Ok(s)) => {
                     answered += 1;
-                    assert_eq!(as_read(f), as_read(s), "{doc}");
+                    assert_eq!(bits(f), bits(s), "{doc}");
                 }
                 (Some(_), Err(e)) => {
                     panic!("serde_json refuses {doc} ({e}), the fast reader read it")
