@@ -8,15 +8,45 @@ mod cmd;
 use clap::{CommandFactory, Parser, Subcommand};
 use std::io::Write;
 
+/// The program's one-line description, in `machlink --help`.
+const ABOUT: &str = "Offset tool paths and stitch paths, streamed to shop-floor machines";
+
 #[derive(Parser)]
-#[command(
-    name = "machlink",
-    version,
-    about = "Offset tool paths and stitch paths, streamed to shop-floor machines"
-)]
+#[command(name = "machlink", version, about = ABOUT)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
+}
+
+/// `machlink plan` alone: clap builds every subcommand's arguments to parse any one of them
+/// (about a million instructions, a third of a millisecond of `plan`'s start-up, issue 25),
+/// so `plan`, the command run in loops, is parsed by a tree of its own. The same name,
+/// version, description and doc line as in [`Cli`]: the same help and the same errors
+/// (test `plan_alone_parses_and_refuses_as_the_whole_tree`).
+#[derive(Parser)]
+#[command(name = "machlink", version, about = ABOUT)]
+struct PlanCli {
+    #[command(subcommand)]
+    command: PlanOnly,
+}
+
+#[derive(Subcommand)]
+enum PlanOnly {
+    /// Plan offline and write the program (G-code, DST, …).
+    Plan(cmd::plan::PlanCmdArgs),
+}
+
+/// The command line, parsed: by [`PlanCli`] when the subcommand is `plan`.
+fn parse() -> Cli {
+    if std::env::args_os().nth(1).is_some_and(|a| a == "plan") {
+        let PlanCli {
+            command: PlanOnly::Plan(a),
+        } = PlanCli::parse();
+        return Cli {
+            command: Command::Plan(a),
+        };
+    }
+    Cli::parse()
 }
 
 #[derive(Subcommand)]
@@ -94,7 +124,7 @@ fn main() {
             default_hook(info);
         }
     }));
-    let cli = Cli::parse();
+    let cli = parse();
     let outcome = std::panic::catch_unwind(move || run(cli));
     let result = match outcome {
         Ok(r) => r,
@@ -177,5 +207,56 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Locks(a) => cmd::access::locks(a),
         Command::Whoami(a) => cmd::access::whoami(a),
         Command::Reload(a) => cmd::access::reload(a),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_alone_parses_and_refuses_as_the_whole_tree() {
+        let help = |mut c: clap::Command| {
+            c.build();
+            c.find_subcommand_mut("plan")
+                .expect("a plan subcommand")
+                .render_long_help()
+                .to_string()
+        };
+        assert_eq!(help(PlanCli::command()), help(Cli::command()));
+        for argv in [
+            "machlink plan gear.json --op pocket --tool-diameter 3 -o out.nc --timings",
+            "machlink plan gear.json -o out.nc --post linuxcnc --stepover 40% --depth 1",
+            "machlink plan",
+            "machlink plan gear.json",
+            "machlink plan gear.json -o out.nc --no-such-option",
+            "machlink plan gear.json -o out.nc --tool-diameter",
+            "machlink plan gear.json -o out.nc --timing",
+            "machlink plan --help",
+            "machlink plan -h",
+            "machlink plan --version",
+            "machlink plan a.json b.json -o out.nc",
+        ] {
+            let words = argv.split(' ');
+            let whole = Cli::try_parse_from(words.clone());
+            let alone = PlanCli::try_parse_from(words);
+            match (whole, alone) {
+                (Ok(w), Ok(a)) => {
+                    let (Command::Plan(w), PlanOnly::Plan(a)) = (w.command, a.command) else {
+                        panic!("{argv}: not parsed as plan");
+                    };
+                    assert_eq!(
+                        (w.file, w.output, w.post, w.timings),
+                        (a.file, a.output, a.post, a.timings),
+                        "{argv}"
+                    );
+                }
+                (Err(w), Err(a)) => {
+                    assert_eq!(w.kind(), a.kind(), "{argv}");
+                    assert_eq!(w.render().to_string(), a.render().to_string(), "{argv}");
+                }
+                (w, a) => panic!("{argv}: whole tree {:?}, plan alone {:?}", w.err(), a.err()),
+            }
+        }
     }
 }

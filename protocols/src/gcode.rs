@@ -214,20 +214,9 @@ impl PlannedArc {
     }
 }
 
-/// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc: 25
-/// points along it, stepped by one rotation (one `atan2` and one `sin_cos` per arc, not a
-/// `sin_cos` and four `atan2` per point). The walk stops at the first point `cutoff` or
-/// more away (the candidate has lost then; the value returned is that point's).
-fn written_arc_deviation(
-    a: Point,
-    b: Point,
-    c: Point,
-    ccw: bool,
-    planned: &PlannedArc,
-    cutoff: f64,
-) -> f64 {
-    let (va, vb) = (a - c, b - c);
-    let r = va.len();
+/// The written arc's sweep about `c` from `a` to `b` as GRBL runs it (and
+/// [`written_arc_deviation`] walks it): signed, nonzero, at most a full turn.
+fn written_sweep(va: Point, vb: Point, ccw: bool) -> f64 {
     let tau = std::f64::consts::TAU;
     let mut s = va.cross(vb).atan2(va.dot(vb));
     if ccw {
@@ -239,21 +228,163 @@ fn written_arc_deviation(
             s -= tau;
         }
     }
+    s
+}
+
+/// The order in which [`written_arc_deviation`] asks the distance of its 25 points: the
+/// end first (the written end moved onto the candidate's circle, off by the error GRBL's
+/// check measures), then the middle and the quarters, where a centre that loses strays
+/// most, then the rest. The order changes neither the maximum nor whether a walk reaches
+/// its cutoff.
+const WALK_ORDER: [usize; 25] = [
+    24, 12, 6, 18, 3, 9, 15, 21, 0, 1, 2, 4, 5, 7, 8, 10, 11, 13, 14, 16, 17, 19, 20, 22, 23,
+];
+
+/// How far the arc GRBL runs from `a` about `c` to `b` strays from the planned arc: 25
+/// points along it, stepped by one rotation (one `atan2` and one `sin_cos` per arc, not a
+/// `sin_cos` and four `atan2` per point), their distances asked in [`WALK_ORDER`]. The walk
+/// stops at the first point `cutoff` or more away (the candidate has lost then; the value
+/// returned is at least `cutoff`); otherwise it returns the largest of the 25 distances.
+fn written_arc_deviation(
+    a: Point,
+    b: Point,
+    c: Point,
+    ccw: bool,
+    planned: &PlannedArc,
+    cutoff: f64,
+) -> f64 {
+    let (va, vb) = (a - c, b - c);
+    let r = va.len();
+    let s = written_sweep(va, vb, ccw);
     let (sin, cos) = (s / 24.0).sin_cos();
     let mut u = if r > 0.0 {
         va * (1.0 / r)
     } else {
         Point::new(1.0, 0.0)
     };
+    let mut points = [c; 25];
+    for p in &mut points {
+        *p = c + u * r;
+        u = Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos);
+    }
     let mut worst: f64 = 0.0;
-    for _ in 0..=24 {
-        worst = worst.max(planned.distance_to(c + u * r));
+    for k in WALK_ORDER {
+        worst = worst.max(planned.distance_to(points[k]));
         if worst >= cutoff {
             break;
         }
-        u = Point::new(u.x * cos - u.y * sin, u.x * sin + u.y * cos);
     }
     worst
+}
+
+/// A lower bound on what [`written_arc_deviation`] returns for the arc from `a` about `c`
+/// to `b`: the distances of two of its points found without the walk, its end (b moved
+/// onto the circle) and, when the sweep is clearly short or long and not near a half turn,
+/// its middle (on the bisector of the ends' directions), less a margin for the walk's
+/// rounding (the distance is 1-Lipschitz, so a point off by ε changes it by at most ε).
+/// A candidate whose floor is already past the best so far is not walked: the walk would
+/// stop at its cutoff there and the candidate lose.
+fn written_arc_floor(a: Point, b: Point, c: Point, ccw: bool, planned: &PlannedArc) -> f64 {
+    let (va, vb) = (a - c, b - c);
+    let (r, lb) = (va.len(), vb.len());
+    if !(r > 0.0 && lb > 0.0) {
+        return 0.0;
+    }
+    let (ua, ub) = (va * (1.0 / r), vb * (1.0 / lb));
+    let mut floor = planned.distance_to(c + ub * r);
+    let turn = if ccw { 1.0 } else { -1.0 } * ua.cross(ub);
+    let sum = ua + ub;
+    let sum_len = sum.len();
+    if turn.abs() > 1e-9 && sum_len >= 0.5 {
+        // short (the turn's sine positive in the arc's direction): the middle is on the
+        // sum's side; long: opposite it
+        let mid = sum * (if turn > 0.0 { 1.0 } else { -1.0 } / sum_len);
+        floor = floor.max(planned.distance_to(c + mid * r));
+    }
+    floor - 1e-12 * (1.0 + c.len() + r)
+}
+
+/// An upper bound, in closed form, on what [`written_arc_deviation`] returns for the arc
+/// from `a` about `c` to `b` (without a cutoff), or None where the argument below does not
+/// apply. A few square roots and cross products instead of 25 points.
+///
+/// Let C, R, A, B be the planned centre, radius, start and end, δ = c − C, d = |δ| and
+/// r = |a − c|. When d ≤ r / 10, C lies inside the written circle, so the direction from C
+/// turns one way along the written arc; seen from C the arc then runs from a's direction
+/// (β₀ past A's, positive inside the plan's sweep S) to b*'s (β₁ past B's, positive
+/// beyond it), b* being b moved onto the written circle, where the walk ends. With both β
+/// under 0.1 rad and the written sweep within 1 rad of S − β₀ + β₁ (no turn more or less),
+/// every walked point lies at an angle in [β₀, S + β₁] from A's. Those within [0, S] are
+/// within the sweep: their distance is the radial one, | |p − C| − R |, and |p − C| =
+/// |δ + r u| runs between its values at the written arc's ends and at u = ±δ/d when that
+/// direction lies within the written sweep (there it is r ± d): so the largest radial
+/// distance is the largest of those. Points before A are within max(|a − A|, the radial
+/// bound) of A (the distance to A along a short piece of a circle is largest at an end of
+/// the piece, and where the piece crosses the ray through A it is the radial distance);
+/// points beyond B likewise of B, whose own radius may differ from R. A margin covers the
+/// rounding of the walk's rotations.
+fn written_arc_bound(
+    a: Point,
+    b: Point,
+    c: Point,
+    ccw: bool,
+    planned: &PlannedArc,
+    planned_sweep: f64,
+) -> Option<f64> {
+    let (va, vb) = (a - c, b - c);
+    let r = va.len();
+    let delta = c - planned.c;
+    let d = delta.len();
+    let lb = vb.len();
+    // (a planned sweep that `distance_to` does not see as the same long or short arc —
+    // a full turn between two ends in one direction — is left to the walk)
+    let consistent = planned.long == (planned_sweep.abs() > std::f64::consts::PI);
+    if !(r > 0.0 && lb > 0.0 && d <= 0.1 * r) || planned.a == planned.b || !consistent {
+        return None;
+    }
+    let sw = written_sweep(va, vb, ccw).abs();
+    let b_star = c + vb * (r / lb);
+    let s = planned.s;
+    // the written ends seen from the planned centre, against the planned ends
+    let qa = a - planned.c;
+    let (cross0, dot0) = (s * planned.va.cross(qa), planned.va.dot(qa));
+    let qb = b_star - planned.c;
+    let (cross1, dot1) = (s * planned.vb.cross(qb), planned.vb.dot(qb));
+    if !(dot0 > 0.0 && cross0.abs() <= 0.1 * dot0 && dot1 > 0.0 && cross1.abs() <= 0.1 * dot1) {
+        return None;
+    }
+    // (within 0.1 rad the tangent is the angle to within 0.4 %: ample against 1 rad)
+    let (beta0, beta1) = (cross0 / dot0, cross1 / dot1);
+    let turn_off = (sw - (planned_sweep.abs() - beta0 + beta1)).abs();
+    if turn_off.is_nan() || turn_off >= 1.0 {
+        return None;
+    }
+    let big_r = planned.r;
+    let mut radial = (qa.len() - big_r).abs().max((qb.len() - big_r).abs());
+    if d > 0.0 {
+        let w = delta * (1.0 / d);
+        // whether a direction lies within the written sweep (on its edge counts as in:
+        // a bound may take a value the arc does not reach)
+        let within = |w: Point| {
+            let after_start = s * va.cross(w) >= -1e-9 * r;
+            let before_end = s * w.cross(vb) >= -1e-9 * lb;
+            if sw <= std::f64::consts::PI {
+                after_start && before_end
+            } else {
+                after_start || before_end
+            }
+        };
+        if within(w) {
+            radial = radial.max((r + d - big_r).abs());
+        }
+        if within(-w) {
+            radial = radial.max((r - d - big_r).abs());
+        }
+    }
+    let b_radius = (planned.vb.len() - big_r).abs();
+    let ends = a.dist(planned.a).max(b_star.dist(planned.b));
+    let margin = 1e-12 * (1.0 + c.len() + planned.c.len() + r);
+    Some((radial + b_radius).max(ends) + margin)
 }
 
 /// `v` in thousandths, rounded as `format!("{v:.3}")` rounds it: to nearest from the exact
@@ -574,8 +705,13 @@ impl Writer {
         let planned_ij = Point::new(q(center.x - a.x), q(center.y - a.y));
         let mut best: Option<(f64, Point)> = None;
         if grbl_arc_ok(a, b, planned_ij) && planned_ij.len() >= MIN_ARC_RADIUS {
-            // (past 1e-3 it is not taken, wherever the walk stops)
-            let dev = written_arc_deviation(a, b, a + planned_ij, ccw, &planned, 2e-3);
+            // (past 1e-3 it is not taken, wherever the walk stops; nor is the value used
+            // once it is taken, so a bound within 1e-3 takes it without the walk)
+            let centre = a + planned_ij;
+            let dev = match written_arc_bound(a, b, centre, ccw, &planned, sweep) {
+                Some(bound) if bound <= 1e-3 => bound,
+                _ => written_arc_deviation(a, b, centre, ccw, &planned, 2e-3),
+            };
             if dev <= 1e-3 {
                 best = Some((dev, planned_ij));
                 nbases = 0;
@@ -591,6 +727,9 @@ impl Writer {
                     }
                     // a candidate as far as the best so far cannot replace it
                     let cutoff = best.map_or(f64::INFINITY, |(d, _)| d);
+                    if written_arc_floor(a, b, a + ij, ccw, &planned) >= cutoff {
+                        continue;
+                    }
                     let dev = written_arc_deviation(a, b, a + ij, ccw, &planned, cutoff);
                     if best.is_none_or(|(d, _)| dev < d) {
                         best = Some((dev, ij));
@@ -1128,6 +1267,89 @@ pub fn post(tp: &Toolpath, opts: &GcodeOptions) -> Result<Vec<String>, GcodeErro
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// splitmix64: a reproducible stream of uniform numbers in [0, 1)
+    fn uniform(state: &mut u64) -> f64 {
+        *state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = *state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[test]
+    fn the_closed_form_bounds_hold_the_walked_deviation_between_them() {
+        // planned arcs of every size and sweep (short, half and long turns, both ways), the
+        // end's radius a little off at times; written ends on the 0.001 mm grid; written
+        // centres the planned one rounded, its grid neighbours and centres further off
+        let mut state = 25u64;
+        let (mut walked_within, mut bound_within) = (0, 0);
+        for case in 0..6000 {
+            let mut u = || uniform(&mut state);
+            let centre = Point::new(400.0 * u() - 200.0, 400.0 * u() - 200.0);
+            let radius = 0.02 + 150.0 * u() * u();
+            let start = std::f64::consts::TAU * u();
+            let sweep = match case % 4 {
+                0 => 0.01 + 0.5 * u(),
+                1 => std::f64::consts::PI * (0.98 + 0.04 * u()),
+                2 => 0.01 + (std::f64::consts::TAU - 0.02) * u(),
+                _ => std::f64::consts::TAU - 0.3 * u(),
+            };
+            let ccw = u() < 0.5;
+            let end_angle = if ccw { start + sweep } else { start - sweep };
+            let end_radius = if case % 3 == 0 {
+                radius + 4e-4 * (u() - 0.5)
+            } else {
+                radius
+            };
+            let from = centre + Point::new(start.cos(), start.sin()) * radius;
+            let to = centre + Point::new(end_angle.cos(), end_angle.sin()) * end_radius;
+            let seg = arc_segment(from, to, centre, ccw);
+            let planned = PlannedArc::new(&seg).unwrap();
+            let (a, b) = (
+                Point::new(q(from.x), q(from.y)),
+                Point::new(q(to.x), q(to.y)),
+            );
+            let ij0 = Point::new(q(centre.x - a.x), q(centre.y - a.y));
+            let mut centres = vec![a + ij0];
+            for (dx, dy) in [(-1, 0), (1, 0), (0, 1), (0, -1), (2, -3), (-3, 3)] {
+                centres.push(a + Point::new(ij0.x + dx as f64 * 1e-3, ij0.y + dy as f64 * 1e-3));
+            }
+            let far = 0.2 * radius * u();
+            centres.push(a + ij0 + Point::new(far * (u() - 0.5), far * (u() - 0.5)));
+            for (k, &c) in centres.iter().enumerate() {
+                if a.dist(c) < MIN_ARC_RADIUS {
+                    continue;
+                }
+                let walked = written_arc_deviation(a, b, c, ccw, &planned, f64::INFINITY);
+                let bound = written_arc_bound(a, b, c, ccw, &planned, seg.sweep());
+                if let Some(bound) = bound {
+                    assert!(
+                        walked <= bound,
+                        "case {case}, centre {k}: walked {walked:e} > bound {bound:e} \
+                         (planned {centre:?} r {radius} from {from:?} to {to:?} ccw {ccw})"
+                    );
+                }
+                let floor = written_arc_floor(a, b, c, ccw, &planned);
+                assert!(
+                    floor <= walked,
+                    "case {case}, centre {k}: floor {floor:e} > walked {walked:e}"
+                );
+                if k == 0 && walked <= 1e-3 {
+                    walked_within += 1;
+                    if bound.is_some_and(|b| b <= 1e-3) {
+                        bound_within += 1;
+                    }
+                }
+            }
+        }
+        // and the bound is worth having: it takes most of the rounded planned centres the
+        // walk takes, without the walk
+        assert!(
+            bound_within * 10 >= walked_within * 7,
+            "the bound took {bound_within} of the {walked_within} centres the walk took"
+        );
+    }
 
     #[test]
     fn grbl_takes_its_own_g_codes_and_words_and_names_the_rest() {
