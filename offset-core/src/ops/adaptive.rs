@@ -1249,6 +1249,17 @@ fn disc_has(g: &Grid, p: Point, rad: f64, z: f64) -> bool {
 
 /// Whether material stands above `z` within `rad` of the segment a→b.
 fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
+    capsule_meets(g, a, b, rad, z, &[])
+}
+
+/// Whether the disc of radius `rad` swept from `a` to `b` meets material at the level that
+/// is not the part (`part` per cell).
+fn capsule_cuts(g: &Grid, part: &[bool], a: Point, b: Point, rad: f64) -> bool {
+    capsule_meets(g, a, b, rad, -1.0, part)
+}
+
+/// [`capsule_has`], the cells where `skip` is true left out (none when it is empty).
+fn capsule_meets(g: &Grid, a: Point, b: Point, rad: f64, z: f64, skip: &[bool]) -> bool {
     let h = g.h;
     let lo = Point::new(a.x.min(b.x) - rad, a.y.min(b.y) - rad);
     let hi = Point::new(a.x.max(b.x) + rad, a.y.max(b.y) + rad);
@@ -1263,7 +1274,7 @@ fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
     for j in j0..=j1 {
         let row = &g.top[j * g.nx..(j + 1) * g.nx];
         for (i, &t) in row.iter().enumerate().take(i1 + 1).skip(i0) {
-            if t <= zf {
+            if t <= zf || skip.get(j * g.nx + i) == Some(&true) {
                 continue;
             }
             let v = g.centre(i, j) - a;
@@ -1274,40 +1285,6 @@ fn capsule_has(g: &Grid, a: Point, b: Point, rad: f64, z: f64) -> bool {
             };
             let w = v - d * t;
             if w.dot(w) <= r2 {
-                return true;
-            }
-        }
-    }
-    false
-}
-
-/// Whether the disc of radius `rad` swept from `a` to `b` meets material at the level that
-/// is not the part (`part` per cell).
-fn capsule_cuts(g: &Grid, part: &[bool], a: Point, b: Point, rad: f64) -> bool {
-    let h = g.h;
-    let lo = Point::new(a.x.min(b.x) - rad, a.y.min(b.y) - rad);
-    let hi = Point::new(a.x.max(b.x) + rad, a.y.max(b.y) + rad);
-    let i0 = ((lo.x - g.origin.x) / h).floor().max(0.0) as usize;
-    let j0 = ((lo.y - g.origin.y) / h).floor().max(0.0) as usize;
-    let i1 = (((hi.x - g.origin.x) / h).ceil() as usize).min(g.nx.saturating_sub(1));
-    let j1 = (((hi.y - g.origin.y) / h).ceil() as usize).min(g.ny.saturating_sub(1));
-    let zf = -1.0f32 + 1e-4;
-    let d = b - a;
-    let l2 = d.dot(d);
-    for j in j0..=j1 {
-        for i in i0..=i1 {
-            let k = j * g.nx + i;
-            if g.top[k] <= zf || part[k] {
-                continue;
-            }
-            let v = g.centre(i, j) - a;
-            let t = if l2 > 0.0 {
-                (v.dot(d) / l2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let w = v - d * t;
-            if w.dot(w) <= rad * rad {
                 return true;
             }
         }
