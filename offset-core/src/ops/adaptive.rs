@@ -968,7 +968,7 @@ impl Plan {
                 if done.is_none() {
                     // loops finer than the raster resolves, or none of its trials keeps
                     // the bound or advances: advanced by the closed form
-                    let adv = match memo.iter().find(|m| m.0 == rho) {
+                    let mut advance = |rho: f64| match memo.iter().find(|m| m.0 == rho) {
                         Some(m) => m.1,
                         None => {
                             let adv = loop_advance(r, rho, bound - 4.0);
@@ -976,8 +976,19 @@ impl Plan {
                             adv
                         }
                     };
-                    if let Some((_, tn, an, circle, rho)) = trial(g, rho, adv, &mut Vec::new()) {
-                        done = Some((tn, an, circle, loop_reading(r, rho, tn.max(t) - t)));
+                    let mut log = Vec::new();
+                    let mut got = trial(g, rho, advance(rho), &mut log);
+                    // the loop's room where it lands is less: tried again at its advance
+                    if let Some((_, _, _, _, less)) = got {
+                        if less < rho - 1e-9 {
+                            for &(k, old) in log.iter().rev() {
+                                g.top[k] = old;
+                            }
+                            got = trial(g, less, advance(less), &mut Vec::new());
+                        }
+                    }
+                    if let Some((_, tn, an, circle, rho)) = got {
+                        done = Some((tn, an, circle, loop_reading(r, rho, (tn.max(t) - t) * len)));
                     }
                 }
                 let Some((tn, an, circle, e)) = done else {
