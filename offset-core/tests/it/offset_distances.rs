@@ -92,6 +92,68 @@ fn a_gear_with_islands_shrunk_from_a_hundredth_to_ten_mm_nests() {
     assert_eq!(made, ds.len(), "every shrink up to 40 mm leaves something");
 }
 
+/// The draw of a wavy outline: its vertex count, radius, waves (amplitude, count, phase)
+/// and maybe a round island (its angle from the centre and radius).
+type Wavy = (usize, f64, Vec<(f64, f64, f64)>, Option<(f64, f64)>);
+
+/// The draws of [`wavy_region`].
+fn wavy() -> impl Strategy<Value = Wavy> {
+    (
+        200usize..800,
+        30.0f64..60.0,
+        proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
+        proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
+    )
+}
+
+/// The region of a draw: the wavy outline (its waves a whole number round), the island at
+/// 0.4 of the radius; none when the waves add up to 0.3 of the radius or more.
+fn wavy_region((n, r0, waves, island): &Wavy) -> Option<Region> {
+    let amp: f64 = waves.iter().map(|w| w.0).sum();
+    if amp >= r0 * 0.3 {
+        return None;
+    }
+    let g = gear(
+        *n,
+        *r0,
+        &waves
+            .iter()
+            .map(|&(a, f, p)| (a, f.round(), p))
+            .collect::<Vec<_>>(),
+    );
+    let islands = island
+        .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
+        .into_iter()
+        .collect();
+    Some(Region::new(g, islands))
+}
+
+/// Runs the property `test` (named for its regression records) on `strategy` at the case
+/// count every other property runs divided by `share` (4 at least), and fails the test
+/// with proptest's report.
+fn run_share<S: Strategy>(
+    test: &'static str,
+    share: u32,
+    strategy: S,
+    property: impl Fn(S::Value) -> Result<(), TestCaseError>,
+) where
+    S::Value: std::fmt::Debug,
+{
+    use proptest::test_runner::{contextualize_config, TestError, TestRunner};
+    let mut config = contextualize_config(ProptestConfig {
+        cases: offset_core::check::proptest_cases(128),
+        source_file: Some(file!()),
+        ..ProptestConfig::default()
+    });
+    config.cases = (config.cases / share).max(4);
+    config.test_name = Some(test);
+    match TestRunner::new(config).run(&strategy, property) {
+        Ok(()) => {}
+        Err(TestError::Fail(why, draw)) => panic!("{why}\nminimal failing input: {draw:?}"),
+        Err(TestError::Abort(why)) => panic!("aborted: {why}"),
+    }
+}
+
 /// Dense wavy outlines, with or without an island, shrunk or grown at five distances over
 /// three decades.
 ///
@@ -102,48 +164,19 @@ fn a_gear_with_islands_shrunk_from_a_hundredth_to_ten_mm_nests() {
 /// `proptest!` tests (its runner is built from the same environment).
 #[test]
 fn offsets_over_three_decades_are_valid_and_nested() {
-    use proptest::test_runner::{contextualize_config, TestError, TestRunner};
-    let mut config = contextualize_config(ProptestConfig {
-        cases: offset_core::check::proptest_cases(128),
-        source_file: Some(file!()),
-        ..ProptestConfig::default()
-    });
-    config.cases = (config.cases / 32).max(4);
-    config.test_name = Some("offset_distances::offsets_over_three_decades_are_valid_and_nested");
-    let strategy = (
-        200usize..800,
-        30.0f64..60.0,
-        proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
-        proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
-        0.005f64..0.03,
-        any::<bool>(),
+    run_share(
+        "offset_distances::offsets_over_three_decades_are_valid_and_nested",
+        32,
+        (wavy(), 0.005f64..0.03, any::<bool>()),
+        |(draw, d0, grow)| {
+            let region = wavy_region(&draw);
+            prop_assume!(region.is_some());
+            let sign = if grow { 1.0 } else { -1.0 };
+            let ds: Vec<f64> = three_decades(d0, 5).iter().map(|d| sign * d).collect();
+            offsets_nest(&region.unwrap(), &ds, 1e-3).map_err(TestCaseError::fail)?;
+            Ok(())
+        },
     );
-    let mut runner = TestRunner::new(config);
-    let result = runner.run(&strategy, |(n, r0, waves, island, d0, grow)| {
-        let amp: f64 = waves.iter().map(|w| w.0).sum();
-        prop_assume!(amp < r0 * 0.3);
-        let g = gear(
-            n,
-            r0,
-            &waves
-                .iter()
-                .map(|&(a, f, p)| (a, f.round(), p))
-                .collect::<Vec<_>>(),
-        );
-        let islands = island
-            .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
-            .into_iter()
-            .collect();
-        let sign = if grow { 1.0 } else { -1.0 };
-        let ds: Vec<f64> = three_decades(d0, 5).iter().map(|d| sign * d).collect();
-        offsets_nest(&Region::new(g, islands), &ds, 1e-3).map_err(TestCaseError::fail)?;
-        Ok(())
-    });
-    match result {
-        Ok(()) => {}
-        Err(TestError::Fail(why, draw)) => panic!("{why}\nminimal failing input: {draw:?}"),
-        Err(TestError::Abort(why)) => panic!("aborted: {why}"),
-    }
 }
 
 /// Pocket passes each from the one before, made from the kernel's own result
@@ -155,68 +188,38 @@ fn offsets_over_three_decades_are_valid_and_nested() {
 #[test]
 fn passes_from_the_kernels_result_are_the_checked_passes() {
     use offset_core::offset::{offset_regions, offset_regions_valid};
-    use proptest::test_runner::{contextualize_config, TestError, TestRunner};
-    let mut config = contextualize_config(ProptestConfig {
-        cases: offset_core::check::proptest_cases(128),
-        source_file: Some(file!()),
-        ..ProptestConfig::default()
-    });
-    config.cases = (config.cases / 16).max(4);
-    config.test_name =
-        Some("offset_distances::passes_from_the_kernels_result_are_the_checked_passes");
-    let strategy = (
-        200usize..800,
-        30.0f64..60.0,
-        proptest::collection::vec((0.3f64..3.0, 5.0f64..40.0, 0.0f64..TAU), 1..3),
-        proptest::option::of((0.0f64..TAU, 2.0f64..5.0)),
-        0.5f64..8.0,
-        any::<bool>(),
+    run_share(
+        "offset_distances::passes_from_the_kernels_result_are_the_checked_passes",
+        16,
+        (wavy(), 0.5f64..8.0, any::<bool>()),
+        |(draw, step, grow)| {
+            let region = wavy_region(&draw);
+            prop_assume!(region.is_some());
+            let d = if grow { step } else { -step };
+            let opts = OffsetOptions::default();
+            let given = vec![region.unwrap()];
+            let mut made = offset_regions_valid(&given, d, &opts)
+                .map_err(|e| TestCaseError::fail(format!("pass 1: {e}")))?;
+            let mut checked = offset_regions(&given, d, &opts)
+                .map_err(|e| TestCaseError::fail(format!("pass 1, checked: {e}")))?;
+            for pass in 1..=12 {
+                prop_assert_eq!(made.regions(), checked.as_slice(), "pass {}", pass);
+                let paths = region_paths(&checked);
+                if let Some((path, at)) = first_crossing(&paths, opts.tolerance) {
+                    return Err(TestCaseError::fail(format!(
+                        "pass {pass}: path {path} crosses itself at {at:?}"
+                    )));
+                }
+                if checked.is_empty() {
+                    break;
+                }
+                made = made
+                    .offset(d, &opts)
+                    .map_err(|e| TestCaseError::fail(format!("pass {}: {e}", pass + 1)))?;
+                checked = offset_regions(&checked, d, &opts)
+                    .map_err(|e| TestCaseError::fail(format!("pass {}, checked: {e}", pass + 1)))?;
+            }
+            Ok(())
+        },
     );
-    let mut runner = TestRunner::new(config);
-    let result = runner.run(&strategy, |(n, r0, waves, island, step, grow)| {
-        let amp: f64 = waves.iter().map(|w| w.0).sum();
-        prop_assume!(amp < r0 * 0.3);
-        let g = gear(
-            n,
-            r0,
-            &waves
-                .iter()
-                .map(|&(a, f, p)| (a, f.round(), p))
-                .collect::<Vec<_>>(),
-        );
-        let islands = island
-            .map(|(a, r)| Polyline::circle(Point::new(a.cos(), a.sin()) * (r0 * 0.4), r).reversed())
-            .into_iter()
-            .collect();
-        let d = if grow { step } else { -step };
-        let opts = OffsetOptions::default();
-        let given = vec![Region::new(g, islands)];
-        let mut made = offset_regions_valid(&given, d, &opts)
-            .map_err(|e| TestCaseError::fail(format!("pass 1: {e}")))?;
-        let mut checked = offset_regions(&given, d, &opts)
-            .map_err(|e| TestCaseError::fail(format!("pass 1, checked: {e}")))?;
-        for pass in 1..=12 {
-            prop_assert_eq!(made.regions(), checked.as_slice(), "pass {}", pass);
-            let paths = region_paths(&checked);
-            if let Some((path, at)) = first_crossing(&paths, opts.tolerance) {
-                return Err(TestCaseError::fail(format!(
-                    "pass {pass}: path {path} crosses itself at {at:?}"
-                )));
-            }
-            if checked.is_empty() {
-                break;
-            }
-            made = made
-                .offset(d, &opts)
-                .map_err(|e| TestCaseError::fail(format!("pass {}: {e}", pass + 1)))?;
-            checked = offset_regions(&checked, d, &opts)
-                .map_err(|e| TestCaseError::fail(format!("pass {}, checked: {e}", pass + 1)))?;
-        }
-        Ok(())
-    });
-    match result {
-        Ok(()) => {}
-        Err(TestError::Fail(why, draw)) => panic!("{why}\nminimal failing input: {draw:?}"),
-        Err(TestError::Abort(why)) => panic!("aborted: {why}"),
-    }
 }
