@@ -913,21 +913,9 @@ impl Plan {
                 // towards the cleared side, square to the wall where the tool stands
                 let ut = seg.tangent_at(t);
                 let side = if self.climb { ut.perp() } else { -ut.perp() };
-                let room = self.loop_radius(a, side);
-                let Some(rho) = room else {
-                    // no room for a loop: straight on
-                    note(cut_chord(g, a, b, r, h), a, worst);
-                    steps.push(Step::Seg { seg: part(t, t1) });
-                    t = t1;
-                    t_from = t;
-                    i += 1;
-                    stuck = 0;
-                    continue;
-                };
-                // advance along the wall by the largest of a few distances that keeps the
-                // bound (the smallest if none does)
-                // each loop tried on the raster and undone; the first that keeps the bound
-                // stays, else the one that advances with the least engagement
+                // each loop tried on the raster (and undone unless it stays): the first of
+                // a few radii and advances along the wall that keeps the bound, else the
+                // closed form's advance
                 let trial = |g: &mut Grid, rho: f64, adv: f64, log: &mut Vec<(usize, f32)>| {
                     let tn = (t + adv / len).min(t1);
                     let an = along.at(tn);
@@ -947,7 +935,8 @@ impl Plan {
                     Some((e, tn, an, circle, rho))
                 };
                 let mut done = None;
-                if rho > SMALL_LOOP && stuck < 2 {
+                let room = self.loop_radius(a, side);
+                if let Some(rho) = room.filter(|&rho| rho > SMALL_LOOP && stuck < 2) {
                     'trials: for f in [1.0, 0.5, 0.25] {
                         for adv in [0.25, 0.15, 0.08, 0.04, 0.02, 0.0] {
                             let mut log = Vec::new();
@@ -959,13 +948,11 @@ impl Plan {
                                 done = Some((tn, an, circle, e));
                                 break 'trials;
                             }
-                            for &(k, old) in log.iter().rev() {
-                                g.top[k] = old;
-                            }
+                            undo(g, &log);
                         }
                     }
                 }
-                if done.is_none() {
+                if let (None, Some(rho)) = (&done, room) {
                     // loops finer than the raster resolves, or none of its trials keeps
                     // the bound or advances: advanced by the closed form
                     let mut advance = |rho: f64| match memo.iter().find(|m| m.0 == rho) {
@@ -981,9 +968,7 @@ impl Plan {
                     // the loop's room where it lands is less: tried again at its advance
                     if let Some((_, _, _, _, less)) = got {
                         if less < rho - 1e-9 {
-                            for &(k, old) in log.iter().rev() {
-                                g.top[k] = old;
-                            }
+                            undo(g, &log);
                             got = trial(g, less, advance(less), &mut Vec::new());
                         }
                     }
@@ -992,7 +977,7 @@ impl Plan {
                     }
                 }
                 let Some((tn, an, circle, e)) = done else {
-                    // no loop fits here: straight on
+                    // no room for a loop here: straight on
                     note(cut_chord(g, a, b, r, h), a, worst);
                     steps.push(Step::Seg { seg: part(t, t1) });
                     t = t1;
@@ -1209,6 +1194,13 @@ fn chord_engagement(g: &Grid, a: Point, b: Point, r: f64, h: f64) -> f64 {
     (1..=n)
         .map(|s| side_engagement(g, P3::at_z(a + d * (s as f64 / n as f64), -1.0), u, r))
         .fold(0.0, f64::max)
+}
+
+/// Puts back the cells a trial cut changed (its log, last first).
+fn undo(g: &mut Grid, log: &[(usize, f32)]) {
+    for &(k, old) in log.iter().rev() {
+        g.top[k] = old;
+    }
 }
 
 /// [`cut_chord`], the cells it lowers and their old heights added to `log`.
