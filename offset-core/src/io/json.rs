@@ -294,22 +294,15 @@ impl<'a> FastReader<'a> {
     /// names the mistake). Vertices go straight into the shape's vectors (no vector of
     /// numbers per file first), scaled once the units are known (they may come last).
     fn file(&mut self) -> Option<Shape> {
-        self.take(b'{')?;
         let (mut units, mut paths) = (None, None);
-        if !self.empty(b'}')? {
-            loop {
-                let key = self.string()?;
-                self.take(b':')?;
-                match key {
-                    "units" if units.is_none() => units = Some(self.string()?),
-                    "paths" if paths.is_none() => paths = Some(self.paths()?),
-                    _ => return None,
-                }
-                if !self.more(b'}')? {
-                    break;
-                }
+        self.object(|me, key| {
+            match key {
+                "units" if units.is_none() => units = Some(me.string()?),
+                "paths" if paths.is_none() => paths = Some(me.paths()?),
+                _ => return None,
             }
-        }
+            Some(())
+        })?;
         let scale = match units.unwrap_or("mm") {
             "mm" => 1.0,
             "in" | "inch" => 25.4,
@@ -330,6 +323,22 @@ impl<'a> FastReader<'a> {
         ))
     }
 
+    /// An object: `field` reads each member's value after its key (None refuses the file).
+    fn object(&mut self, mut field: impl FnMut(&mut Self, &'a str) -> Option<()>) -> Option<()> {
+        self.take(b'{')?;
+        if self.empty(b'}')? {
+            return Some(());
+        }
+        loop {
+            let key = self.string()?;
+            self.take(b':')?;
+            field(self, key)?;
+            if !self.more(b'}')? {
+                return Some(());
+            }
+        }
+    }
+
     fn paths(&mut self) -> Option<Vec<(bool, Vec<Vertex>)>> {
         self.take(b'[')?;
         let mut paths = Vec::new();
@@ -345,22 +354,15 @@ impl<'a> FastReader<'a> {
     }
 
     fn path(&mut self) -> Option<(bool, Vec<Vertex>)> {
-        self.take(b'{')?;
         let (mut closed, mut vertices) = (None, None);
-        if !self.empty(b'}')? {
-            loop {
-                let key = self.string()?;
-                self.take(b':')?;
-                match key {
-                    "closed" if closed.is_none() => closed = Some(self.boolean()?),
-                    "vertices" if vertices.is_none() => vertices = Some(self.vertices()?),
-                    _ => return None,
-                }
-                if !self.more(b'}')? {
-                    break;
-                }
+        self.object(|me, key| {
+            match key {
+                "closed" if closed.is_none() => closed = Some(me.boolean()?),
+                "vertices" if vertices.is_none() => vertices = Some(me.vertices()?),
+                _ => return None,
             }
-        }
+            Some(())
+        })?;
         let vertices = vertices?;
         (vertices.len() >= 2).then_some((closed.unwrap_or(false), vertices))
     }
