@@ -3,9 +3,9 @@
 //! counts printed), and the simulation shows every link moving through air only: no
 //! material removed by a link, no gouge, no rapid through material, nothing left.
 
+use crate::common::{level_at_any, lift_heights};
 use offset_core::cutsim::{simulate, MoveKind, Part, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Shape};
-use offset_core::ops::pocket::LINK_LIFT;
 use offset_core::ops::{pocket, pocket_safe_links, Cutting, PocketParams, Stepover};
 use offset_core::toolpath::Tool;
 
@@ -59,14 +59,10 @@ fn check(name: &str, shape: &Shape, depth: f64) {
     assert_eq!(rep.rapid_cuts, 0, "{name}: a rapid through material");
     // a link: a level feed move at a lift height (a level's top plus the lift); it may
     // brush a finished wall (the probes read just outside the tool) but removes nothing
-    let levels: Vec<f64> = (0..=(depth as usize))
-        .map(|k| -(k as f64) + LINK_LIFT)
-        .collect();
+    let levels = lift_heights(depth);
     let mut links = 0;
     for m in &rep.moves {
-        let at_lift = levels
-            .iter()
-            .any(|z| (m.from.z - z).abs() < 1e-9 && (m.to.z - z).abs() < 1e-9);
+        let at_lift = level_at_any(m, &levels);
         if m.kind == MoveKind::Cut && at_lift {
             links += 1;
             assert!(

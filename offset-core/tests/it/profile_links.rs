@@ -4,9 +4,9 @@
 //! moving through air only (no material removed), no gouge in the part, no rapid through
 //! material.
 
+use crate::common::{assert_same_removal, level_at_any, lift_heights};
 use offset_core::cutsim::{simulate, MoveKind, Part, SimOptions, Stock};
 use offset_core::geom::{Point, Polyline, Region, Shape};
-use offset_core::ops::pocket::LINK_LIFT;
 use offset_core::ops::{profile, profile_safe_links, Cutting, Entry, ProfileParams, Side};
 use offset_core::toolpath::Tool;
 
@@ -55,23 +55,13 @@ fn check(name: &str, side: Side, entry: Entry, lead_in: f64, lead_out: f64) {
     let rep_high = simulate(&high, &stock, &o).unwrap();
     assert_eq!(rep.gouges, 0, "{name}: gouge at {:?}", rep.first_gouge);
     assert_eq!(rep.rapid_cuts, 0, "{name}: a rapid through material");
-    let diff = (rep.removed - rep_high.removed).abs();
-    assert!(
-        diff <= 1e-3 * rep_high.removed,
-        "{name}: {:.1} mm³ removed with links at depth, {:.1} without",
-        rep.removed,
-        rep_high.removed
-    );
+    assert_same_removal(name, rep.removed, rep_high.removed);
     // a link: a feed move that rises while moving across, or runs level at a lift height
     // (a pass's depth, or the stock top, plus the lift)
-    let lifts: Vec<f64> = (0..=(depth as usize))
-        .map(|k| -(k as f64) + LINK_LIFT)
-        .collect();
+    let lifts = lift_heights(depth);
     let mut links = 0;
     for mv in &rep.moves {
-        let level_lift = lifts
-            .iter()
-            .any(|z| (mv.from.z - z).abs() < 1e-9 && (mv.to.z - z).abs() < 1e-9);
+        let level_lift = level_at_any(mv, &lifts);
         let rising = mv.to.z > mv.from.z + 1e-9;
         if mv.kind == MoveKind::Cut
             && mv.from.xy().dist(mv.to.xy()) > 1e-9

@@ -6,6 +6,7 @@
 //! material. That no position comes nearer the part than the allowance is checked by an
 //! independent drop-cutter (`rough3d::keeps_allowance`) on the program with links.
 
+use crate::common::{assert_same_removal, level_at_any};
 use offset_core::cutsim::{retracts, simulate, MoveKind, SimOptions, Stock};
 use offset_core::geom::Point;
 use offset_core::mesh::shapes::{cube_with_boss, height_field_solid, sphere};
@@ -91,13 +92,7 @@ fn check(name: &str, m: &Mesh, p: &Rough3dParams) {
         "{name}: a rapid through material (safe links)"
     );
     // the same material goes (to a cell's column of a pass's rim: 0.1 % of the volume)
-    let diff = (r_low.removed - r_high.removed).abs();
-    assert!(
-        diff <= 1e-3 * r_high.removed,
-        "{name}: {:.1} mm³ removed with links at depth, {:.1} without",
-        r_low.removed,
-        r_high.removed
-    );
+    assert_same_removal(name, r_low.removed, r_high.removed);
     // the entries go down from the floor above: straight plunges remove no more than before
     assert!(
         plunged(&r_low) <= plunged(&r_high) + 1e-6,
@@ -116,9 +111,7 @@ fn check(name: &str, m: &Mesh, p: &Rough3dParams) {
         .collect();
     let mut links = 0;
     for mv in &r_low.moves {
-        let at_lift = lifts
-            .iter()
-            .any(|z| (mv.from.z - z).abs() < 1e-9 && (mv.to.z - z).abs() < 1e-9);
+        let at_lift = level_at_any(mv, &lifts);
         if mv.kind == MoveKind::Cut && at_lift && mv.length > 1e-9 {
             links += 1;
             assert!(

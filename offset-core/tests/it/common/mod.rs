@@ -234,3 +234,27 @@ pub fn assert_fewer_retracts(
         "{name}: {n_low} retracts with links at depth, {n_high} without"
     );
 }
+
+/// Whether the move runs level at one of `heights` (a link at a lift height).
+pub fn level_at_any(m: &offset_core::cutsim::MoveReport, heights: &[f64]) -> bool {
+    heights
+        .iter()
+        .any(|z| (m.from.z - z).abs() < 1e-9 && (m.to.z - z).abs() < 1e-9)
+}
+
+/// The lift heights of links in a program of 1 mm levels down to `depth`: each level's Z,
+/// and the stock top, plus the link lift.
+pub fn lift_heights(depth: f64) -> Vec<f64> {
+    (0..=(depth as usize))
+        .map(|k| -(k as f64) + offset_core::ops::pocket::LINK_LIFT)
+        .collect()
+}
+
+/// Links at depth remove the same material as links at the safe height, to 0.1 % of the
+/// volume (a cell's column of a pass's rim), mm³.
+pub fn assert_same_removal(name: &str, at_depth: f64, safe: f64) {
+    assert!(
+        (at_depth - safe).abs() <= 1e-3 * safe,
+        "{name}: {at_depth:.1} mm³ removed with links at depth, {safe:.1} without"
+    );
+}
