@@ -618,15 +618,19 @@ pub fn path_corners(pl: &crate::geom::Polyline) -> Vec<(Point, f64)> {
 /// before a sharper one (over the sine of half the corner's angle, times √½).
 pub const CORNER_NEAR: f64 = 0.75;
 
-/// The turn of the sharp corner among `corners` that `p` is going into ([`CORNER_NEAR`]),
+/// Whether a tool centre at `p` is going into the sharp corner at `c` where the path turns
+/// by `turn` degrees ([`CORNER_NEAR`]).
+pub fn near_corner(c: Point, turn: f64, p: Point) -> bool {
+    let half = (180.0 - turn).to_radians() / 2.0;
+    c.dist(p) <= CORNER_NEAR * std::f64::consts::FRAC_1_SQRT_2 / half.sin().max(0.05)
+}
+
+/// The turn of the sharp corner among `corners` that `p` is going into ([`near_corner`]),
 /// the sharpest if several.
 pub fn going_into(corners: &[(Point, f64)], p: Point) -> Option<f64> {
     corners
         .iter()
-        .filter(|&&(c, turn)| {
-            let half = (180.0 - turn).to_radians() / 2.0;
-            c.dist(p) <= CORNER_NEAR * std::f64::consts::FRAC_1_SQRT_2 / half.sin().max(0.05)
-        })
+        .filter(|&&(c, turn)| near_corner(c, turn, p))
         .map(|c| c.1)
         .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.max(t))))
 }

@@ -175,7 +175,7 @@ struct Found {
 struct Worst {
     away: (f64, Point),
     /// The wall loop's sharp corners (where it turns on the spot) and their turns, with
-    /// the most read going into each ([`crate::cutsim::going_into`]).
+    /// the most read going into each ([`crate::cutsim::near_corner`]).
     sharp: Vec<(Point, f64, f64)>,
 }
 
@@ -196,7 +196,7 @@ impl Worst {
         if let Some(c) = self
             .sharp
             .iter_mut()
-            .find(|c| crate::cutsim::going_into(&[(c.0, c.1)], p).is_some())
+            .find(|c| crate::cutsim::near_corner(c.0, c.1, p))
         {
             c.2 = c.2.max(e);
         } else if e > self.away.0 {
