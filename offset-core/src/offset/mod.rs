@@ -810,12 +810,16 @@ fn run_closed(
             Join::Round => stages::first_stage(&loops, rest),
             Join::Miter | Join::Chamfer => None,
         };
+        let timer = stages::Timer::start(&loops);
         let Some(step) = step else {
-            return run(&loops, &[], rest, opts, eps);
+            let result = run(&loops, &[], rest, opts, eps);
+            timer.report("last stage", rest);
+            return result;
         };
         // the stage's loops as regions, so an island left without its outer goes, then
         // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
         let regions = assemble(run(&loops, &[], step, opts, eps));
+        timer.report("stage", step);
         rest -= step;
         loops = regions
             .iter()

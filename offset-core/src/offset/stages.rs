@@ -15,6 +15,32 @@
 //! the boundary: the cost no longer grows with the distance.
 
 use super::seg::Seg;
+use std::sync::OnceLock;
+use std::time::Instant;
+
+/// A stage's timer, for profiling the stage schedule: with `MACHLINK_OFFSET_STAGES` set in
+/// the environment each stage prints its distance, its input's size and its time on
+/// stderr (`kernel_case` and the bench inputs show which stage takes the time).
+pub(super) struct Timer {
+    started: Option<(Instant, usize)>,
+}
+
+impl Timer {
+    pub(super) fn start(loops: &[(Vec<Seg>, bool)]) -> Timer {
+        static ON: OnceLock<bool> = OnceLock::new();
+        let on = *ON.get_or_init(|| std::env::var_os("MACHLINK_OFFSET_STAGES").is_some());
+        Timer {
+            started: on.then(|| (Instant::now(), loops.iter().map(|(s, _)| s.len()).sum())),
+        }
+    }
+
+    pub(super) fn report(self, what: &str, distance: f64) {
+        if let Some((at, segments)) = self.started {
+            let ms = at.elapsed().as_secs_f64() * 1e3;
+            eprintln!("{what} {distance:.3} mm on {segments} segments: {ms:.3} ms");
+        }
+    }
+}
 
 /// A stage's fans may add this many times the boundary's length to the raw offset.
 const FAN_PER_LENGTH: f64 = 0.5;
