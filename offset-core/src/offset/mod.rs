@@ -805,11 +805,13 @@ fn run_closed(
         }
     }
     let mut rest = o;
+    let mut on_input = true;
     loop {
         let step = match opts.join {
-            Join::Round => stages::first_stage(&loops, rest),
+            Join::Round => stages::first_stage(&loops, rest, on_input),
             Join::Miter | Join::Chamfer => None,
         };
+        on_input = false;
         let timer = stages::Timer::start(&loops);
         let Some(step) = step else {
             let result = run(&loops, &[], rest, opts, eps);

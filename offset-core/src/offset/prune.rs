@@ -355,7 +355,9 @@ pub fn prune(
         // segments a few sub-ε pieces apart along the curve (a dense loop shrunk almost to a
         // point leaves pieces shorter than ε): where they meet near the stretch between them
         // they only touch through it, no loop of any size lies between them
-        let (gij, gji) = (gap(i, j), gap(j, i));
+        // (asked only of a hit that close to both ends: the stretch is at most NEAR_LEN ε)
+        let reach = eps * (1.0 + NEAR_LEN);
+        let (mut gij, mut gji) = (None, None);
         for (p, t, u) in h.iter() {
             // the shared end of neighbours is no crossing
             if ni == Some(j) && p.dist(si.b) <= eps && u <= 0.5 {
@@ -364,11 +366,19 @@ pub fn prune(
             if nj == Some(i) && p.dist(si.a) <= eps && t <= 0.5 {
                 continue;
             }
-            if gij.is_some_and(|g| p.dist(si.b) <= eps + g && p.dist(sj.a) <= eps + g) {
-                continue;
+            let (to_ib, to_ja) = (p.dist(si.b), p.dist(sj.a));
+            if to_ib <= reach && to_ja <= reach {
+                let g = *gij.get_or_insert_with(|| gap(i, j));
+                if g.is_some_and(|g| to_ib <= eps + g && to_ja <= eps + g) {
+                    continue;
+                }
             }
-            if gji.is_some_and(|g| p.dist(si.a) <= eps + g && p.dist(sj.b) <= eps + g) {
-                continue;
+            let (to_ia, to_jb) = (p.dist(si.a), p.dist(sj.b));
+            if to_ia <= reach && to_jb <= reach {
+                let g = *gji.get_or_insert_with(|| gap(j, i));
+                if g.is_some_and(|g| to_ia <= eps + g && to_jb <= eps + g) {
+                    continue;
+                }
             }
             splits.push((
                 i as u32,

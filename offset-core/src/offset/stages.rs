@@ -45,15 +45,28 @@ impl Timer {
 /// A stage's fans may add this many times the boundary's length to the raw offset.
 const FAN_PER_LENGTH: f64 = 0.5;
 
+/// The stage on the input itself goes this share of the step the fans allow. Its fans
+/// come from the polyline's corners, and the raw offset's stack resolves the turns toward
+/// the offset side locally only while the distance is small against the features: the
+/// 10,000-vertex bench gear shrunk by 4 mm prunes without one crossing, by the full step
+/// (7.3 mm) the stack gives up on every tooth and the pair-wise prune makes 2,500 bridge
+/// arcs and 5,000 runs. After the first stage the convex corners are arcs, which later
+/// stages offset concentrically, so they take the whole step. Measured on that gear with
+/// ten islands at 20 to 420 mm: 0.45 to 0.6 cost 13 % fewer instructions than the whole
+/// step and 15 to 40 % less time, 0.6 the least time (docs/BENCHMARKS.md).
+const FIRST_STAGE_SHARE: f64 = 0.6;
+
 /// The distance of a first stage, when offsetting the oriented closed `loops` by `o` (to
 /// the left) in one go would make a raw offset more than twice `FAN_PER_LENGTH` times the
 /// boundary's length in fans that must cross something; None when one stage is as good.
+/// `on_input`: the loops are the offset's input, not an earlier stage's result (see
+/// `FIRST_STAGE_SHARE`).
 ///
 /// Per loop, the turns away from the offset side make the fans (F) and the turns towards
 /// it fold the offset back (C); only min(F, C) of the fans meets a fold (a convex loop
 /// grown, or an island grown, has F − C = 2π of fans that cross nothing). Turns at corners
 /// are taken as the sine of the turn (π less it past a right angle), so no trigonometry.
-pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64) -> Option<f64> {
+pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64, on_input: bool) -> Option<f64> {
     let side = o.signum();
     let mut length = 0.0;
     let mut crossing_fans = 0.0;
@@ -94,5 +107,9 @@ pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64) -> Option<f64> {
         return None;
     }
     let step = FAN_PER_LENGTH * length / crossing_fans;
-    (o.abs() > 2.0 * step).then_some(step * side)
+    if o.abs() <= 2.0 * step {
+        return None;
+    }
+    let share = if on_input { FIRST_STAGE_SHARE } else { 1.0 };
+    Some(share * step * side)
 }
