@@ -616,6 +616,8 @@ fn cases() -> Vec<Case> {
 }
 
 fn main() {
+    // as the planner's process does (offset_core::heap); the anchors run under it alike
+    offset_core::heap::hold_freed_memory();
     let args: Vec<String> = std::env::args().collect();
     if let Some(i) = args.iter().position(|a| a == "clipper-round") {
         let index: usize = args

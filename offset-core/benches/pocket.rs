@@ -74,6 +74,7 @@ fn ms(t: Instant) -> f64 {
 }
 
 fn main() {
+    offset_core::heap::hold_freed_memory();
     kernel_against_clipper();
     gears();
     moves_before_and_after_fitting();

@@ -18,6 +18,7 @@ pub mod check;
 pub mod cutsim;
 pub mod flatten;
 pub mod geom;
+pub mod heap;
 pub mod io;
 pub mod mesh;
 pub mod offset;

@@ -41,6 +41,7 @@ pub struct OffsetArgs {
 }
 
 pub fn run(a: OffsetArgs) -> anyhow::Result<()> {
+    offset_core::heap::hold_freed_memory();
     let bytes =
         std::fs::read(&a.file).with_context(|| format!("cannot read {}", a.file.display()))?;
     if has_extension(&a.file, "stl") {

@@ -31,6 +31,7 @@ pub struct PlanCmdArgs {
 
 pub fn run(a: PlanCmdArgs) -> anyhow::Result<()> {
     let entered = Instant::now();
+    offset_core::heap::hold_freed_memory();
     let mut stages = Stages::default();
     if let Some(started) = super::STARTED.get() {
         stages.add("start-up", entered - *started);

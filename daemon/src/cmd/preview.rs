@@ -46,6 +46,7 @@ pub struct PreviewArgs {
 }
 
 pub fn run(a: PreviewArgs) -> anyhow::Result<()> {
+    offset_core::heap::hold_freed_memory();
     let input = Input::from_path(&a.file)?;
     let opts = preview::PreviewOptions {
         width_px: a.width as f64,

@@ -155,6 +155,8 @@ fn fork_and_plan(
 fn child(spec: &JobSpec, machine: &MachineConfig, plan: PlanFn, out: OwnedFd) -> ! {
     // a panic is reported through the pipe, not on the daemon's stderr
     IN_PLANNER_CHILD.store(true, Ordering::Relaxed);
+    // the child ends after planning: glibc may keep what the geometry frees (offset_core::heap)
+    offset_core::heap::hold_freed_memory();
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         plan(spec, Target::Machine(machine))
     }));
