@@ -474,11 +474,22 @@ fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
 /// segment leaving it; the kept one's was the short segment's), so an arc that starts a
 /// nanometre after a vertex stays an arc rather than becoming its chord.
 fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
-    let n = pl.vertices.len();
-    let mut pts: Vec<Vertex> = Vec::with_capacity(n);
-    for v in &pl.vertices {
+    // (squared distances, no root per vertex)
+    let eps2 = eps * eps;
+    let near = |a: &Vertex, b: &Vertex| {
+        let d = a.pos() - b.pos();
+        d.dot(d) <= eps2
+    };
+    let vs = &pl.vertices;
+    // most drawings have no such segment: their segments straight from the vertices
+    let closing_near = pl.closed && vs.len() > 1 && near(&vs[vs.len() - 1], &vs[0]);
+    if !closing_near && !vs.windows(2).any(|w| near(&w[0], &w[1])) {
+        return segments_of(vs, pl.closed);
+    }
+    let mut pts: Vec<Vertex> = Vec::with_capacity(vs.len());
+    for v in vs {
         if let Some(last) = pts.last_mut() {
-            if last.pos().dist(v.pos()) <= eps {
+            if near(last, v) {
                 last.bulge = v.bulge;
                 continue;
             }
@@ -486,13 +497,19 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
         pts.push(*v);
     }
     if pl.closed {
-        while pts.len() > 1 && pts[pts.len() - 1].pos().dist(pts[0].pos()) <= eps {
+        while pts.len() > 1 && near(&pts[pts.len() - 1], &pts[0]) {
             pts.pop();
         }
     }
+    segments_of(&pts, pl.closed)
+}
+
+/// The segments between the vertices `pts`, each with its bulge (and from the last to the
+/// first when `closed`).
+fn segments_of(pts: &[Vertex], closed: bool) -> Vec<Seg> {
     let segs_n = match pts.len() {
         0 | 1 => 0,
-        k if pl.closed => k,
+        k if closed => k,
         k => k - 1,
     };
     // each vertex with the next (the first after the last when closed), no division
@@ -928,20 +945,20 @@ fn finish_known(
 /// neighbouring line (that line's end moves onto the run's far end), a longer one becomes
 /// lines about `delta` long. No point moves by more than `delta`.
 fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
-    if segs.iter().all(|s| s.length() >= delta) {
+    // (a line's squared length against delta², no root)
+    let long = |s: &Seg| {
+        if s.is_arc() {
+            s.length() >= delta
+        } else {
+            let d = s.b - s.a;
+            d.dot(d) >= delta * delta
+        }
+    };
+    if segs.iter().all(long) {
         return segs;
     }
     if closed {
         // start at a long segment, so no run wraps round the seam
-        // (a line's squared length against delta², no root)
-        let long = |s: &Seg| {
-            if s.is_arc() {
-                s.length() >= delta
-            } else {
-                let d = s.b - s.a;
-                d.dot(d) >= delta * delta
-            }
-        };
         match segs.iter().position(long) {
             Some(k) => segs.rotate_left(k),
             None => return resample_loop(segs, delta),
