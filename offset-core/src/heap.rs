@@ -10,9 +10,9 @@
 //! and gives memory back after each job (`machlink::services::memory`).
 
 /// Blocks below this come from the heap, not a fresh mapping of their own.
-const MAPPED_FROM: usize = 64 << 20;
+const MAPPED_FROM: usize = 1 << 30;
 /// Free memory at the top of the heap is given back only past this.
-const TRIMMED_PAST: usize = 256 << 20;
+const TRIMMED_PAST: usize = 1 << 30;
 
 /// Has glibc keep freed memory for the next buffer (see the module's paragraph); false
 /// where the C library is not glibc or refused a threshold.
