@@ -339,7 +339,6 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
         b: p2,
         c: v,
         r,
-        sa: v1.y.atan2(v1.x),
         sw,
     }
 }
@@ -373,7 +372,6 @@ pub fn offset_seg(s: &Seg, o: f64) -> Seg {
                 b,
                 c: s.c,
                 r: r2,
-                sa: s.sa,
                 sw: s.sw,
             }
         } else {

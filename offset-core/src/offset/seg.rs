@@ -1,20 +1,24 @@
-//! The kernel's working segment (a line or an arc with its start angle and signed sweep) and
-//! the exact intersections of two of them.
+//! The kernel's working segment (a line or an arc with its centre, radius and signed sweep)
+//! and the exact intersections of two of them.
 
 use crate::geom::{Point, Segment};
 use std::f64::consts::PI;
 
-/// A line (`sw == 0`) or a circular arc about `c` of radius `r`, starting at angle `sa` and
-/// sweeping `sw` radians (positive counter-clockwise). `a` and `b` are the end points.
+/// A line (`sw == 0`) or a circular arc about `c` of radius `r` from `a`, sweeping `sw`
+/// radians (positive counter-clockwise) to `b`. The start angle is not kept (`start_angle`
+/// derives it for the few places that want an angle): a segment is then eight words, and the
+/// raw offsets, the index and the prune copy and read hundreds of thousands of them.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Seg {
     pub a: Point,
     pub b: Point,
     pub c: Point,
     pub r: f64,
-    pub sa: f64,
     pub sw: f64,
 }
+
+// eight words: a field added here costs every copy of every segment a ninth
+const _: () = assert!(std::mem::size_of::<Seg>() == 64);
 
 /// Fast Euclidean norm (no overflow guard: coordinates are finite and far below 1e150).
 pub trait Norm {
@@ -58,7 +62,6 @@ impl Seg {
             b,
             c: Point::default(),
             r: 0.0,
-            sa: 0.0,
             sw: 0.0,
         }
     }
@@ -68,15 +71,7 @@ impl Seg {
         if sw == 0.0 || r <= 0.0 || !r.is_finite() {
             return Seg::line(a, b);
         }
-        let v = a - c;
-        Seg {
-            a,
-            b,
-            c,
-            r,
-            sa: v.y.atan2(v.x),
-            sw,
-        }
+        Seg { a, b, c, r, sw }
     }
 
     /// The segment from `a` to `b` with a DXF bulge.
@@ -95,6 +90,13 @@ impl Seg {
                 ..
             } => Seg::arc(center, radius, a, b, 4.0 * bulge.atan()),
         }
+    }
+
+    /// The angle of the arc's start `a` about its centre (the few callers that need an
+    /// angle derive it: most of the kernel asks cross products instead).
+    pub fn start_angle(&self) -> f64 {
+        let v = self.a - self.c;
+        v.y.atan2(v.x)
     }
 
     pub fn is_arc(&self) -> bool {
@@ -121,8 +123,10 @@ impl Seg {
     /// nearest `p`; outside [0, 1] when `p` lies beyond an end.
     pub fn param(&self, p: Point) -> f64 {
         if self.is_arc() {
-            let v = p - self.c;
-            let d = wrap(v.y.atan2(v.x) - self.sa - self.sw * 0.5);
+            // the angle from the start to `p` about the centre: one atan2, as with a stored
+            // start angle
+            let (u, v) = (self.a - self.c, p - self.c);
+            let d = wrap(u.cross(v).atan2(u.dot(v)) - self.sw * 0.5);
             (d + self.sw * 0.5) / self.sw
         } else {
             let ab = self.b - self.a;
@@ -143,7 +147,7 @@ impl Seg {
             return self.b;
         }
         if self.is_arc() {
-            let ang = self.sa + self.sw * t;
+            let ang = self.start_angle() + self.sw * t;
             self.c + Point::new(ang.cos(), ang.sin()) * self.r
         } else {
             self.a.lerp(self.b, t)
@@ -158,7 +162,7 @@ impl Seg {
             } else if t >= 1.0 {
                 (self.b - self.c) * (1.0 / self.r)
             } else {
-                let ang = self.sa + self.sw * t;
+                let ang = self.start_angle() + self.sw * t;
                 Point::new(ang.cos(), ang.sin())
             };
             if self.sw > 0.0 {
@@ -179,7 +183,6 @@ impl Seg {
                 b: p1,
                 c: self.c,
                 r: self.r,
-                sa: self.sa + self.sw * t0,
                 sw: self.sw * (t1 - t0),
             }
         } else {
@@ -195,7 +198,6 @@ impl Seg {
                 b: self.a,
                 c: self.c,
                 r: self.r,
-                sa: self.sa + self.sw,
                 sw: -self.sw,
             }
         } else {
