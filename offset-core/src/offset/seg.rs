@@ -347,9 +347,12 @@ pub fn intersect(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
 /// `accept(arc.param(p), e)` for a point `p` on the arc's circle, where `e` stands for a
 /// length `eps` along the arc: a point outside the sweep (decided by cross products) and
 /// more than 2 `eps` from both ends lies more than `eps` of arc beyond an end, so it is
-/// refused without the `atan2` of `param`.
+/// refused without the `atan2` of `param` (the distances compared squared, without their
+/// roots: the prune asks this of every crossing of an arc).
 fn accept_on_arc(arc: &Seg, p: Point, e: f64, eps: f64) -> Option<f64> {
-    if !arc.within_sweep(p) && p.dist(arc.a) > 2.0 * eps && p.dist(arc.b) > 2.0 * eps {
+    let (to_a, to_b) = (p - arc.a, p - arc.b);
+    let near = 4.0 * eps * eps;
+    if !arc.within_sweep(p) && to_a.dot(to_a) > near && to_b.dot(to_b) > near {
         return None;
     }
     accept(arc.param(p), e)
