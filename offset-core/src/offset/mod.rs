@@ -1141,7 +1141,6 @@ fn merge(s1: &Seg, s2: &Seg, eps: f64) -> Option<Seg> {
             b: s2.b,
             c: s1.c,
             r: s1.r,
-            sa: s1.sa,
             sw: s1.sw + s2.sw,
         });
     }

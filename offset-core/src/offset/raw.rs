@@ -52,16 +52,27 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         return Vec::new();
     }
     let corners = if closed { m } else { m - 1 };
-    // per corner: the unit tangents in and out
-    let tangents: Vec<(Point, Point)> = (0..corners)
-        .map(|k| (segs[k].tangent_at(1.0), segs[(k + 1) % m].tangent_at(0.0)))
+    let ring = Ring { m };
+    // per segment: the unit tangents at its start and end, once (a line's two are one, and
+    // its offset moves along the normal of the same one)
+    let ends: Vec<(Point, Point)> = segs
+        .iter()
+        .map(|s| {
+            if s.is_arc() {
+                (s.tangent_at(0.0), s.tangent_at(1.0))
+            } else {
+                let t = s.tangent_at(0.0);
+                (t, t)
+            }
+        })
         .collect();
+    let tangents = Tangents { ends: &ends, ring };
     let stackable = |k: usize| -> bool {
-        let (t1, t2) = tangents[k];
+        let (t1, t2) = tangents.corner(k);
         let (cr, dt) = (t1.cross(t2), t1.dot(t2));
         // two lines turning towards the offset side, neither straight on nor reversing
         !segs[k].is_arc()
-            && !segs[(k + 1) % m].is_arc()
+            && !segs[ring.next(k)].is_arc()
             && cr * o > 0.0
             && (cr.abs() > 1e-9 || dt < 0.0)
             && !(dt < 0.0 && cr.abs() < 1e-9)
@@ -69,31 +80,33 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
     // whether the line after corner k has turned less than MAX_RUN_TURN from `first`, the
     // run's first line (the run turns one way, checked at every corner, so it cannot wrap)
     let within_cap = |first: Point, k: usize| -> bool {
-        let t = tangents[k].1;
+        let t = tangents.corner(k).1;
         first.cross(t) * o >= 0.0 && first.dot(t) > MAX_RUN_TURN.cos()
     };
     // a closed path starts after a corner the stack does not handle, so no run wraps
     let s0 = if closed {
-        (0..m).find(|&k| !stackable(k)).map_or(0, |k| (k + 1) % m)
+        (0..m).find(|&k| !stackable(k)).map_or(0, |k| ring.next(k))
     } else {
         0
     };
     let mut out: Vec<RawSeg> = Vec::with_capacity(2 * m);
-    out.push(offset_raw(&segs[s0], o));
+    out.push(offset_raw(&segs[s0], ends[s0].0, o));
+    // the stack's scratch, one for every run of this path
+    let mut stack: Vec<(Seg, Seg)> = Vec::new();
     let mut step = 0;
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
     while step < corners {
-        let k = (s0 + step) % m;
+        let k = ring.at(s0, step);
         let closing = closed && step == m - 1;
         if !closing && step >= pairwise_until && stackable(k) {
             // the longest run of stackable corners from here, turning less than the cap
-            let first = tangents[k].0;
+            let first = tangents.corner(k).0;
             let mut end = step;
             while end < corners
                 && !(closed && end == m - 1)
-                && stackable((s0 + end) % m)
-                && within_cap(first, (s0 + end) % m)
+                && stackable(ring.at(s0, end))
+                && within_cap(first, ring.at(s0, end))
             {
                 end += 1;
             }
@@ -101,9 +114,9 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
                 let floor = out
                     .pop()
                     .map(|r| r.seg)
-                    .unwrap_or_else(|| offset_seg(&segs[k], o));
-                if let Some(run) = stack_run(segs, &tangents, s0, step, end, floor, o, eps) {
-                    out.extend(run.into_iter().map(|seg| RawSeg {
+                    .unwrap_or_else(|| offset_seg(&segs[k], ends[k].0, o));
+                if stack_run(segs, tangents, s0, step, end, floor, o, eps, &mut stack) {
+                    out.extend(stack.drain(..).map(|(seg, _)| RawSeg {
                         seg,
                         origin: Origin::Offset,
                     }));
@@ -118,11 +131,11 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
             }
         }
         // the old pair-wise way for this one corner
-        let k2 = (k + 1) % m;
+        let k2 = ring.next(k);
         let next_raw = if closing {
             out[0]
         } else {
-            offset_raw(&segs[k2], o)
+            offset_raw(&segs[k2], ends[k2].0, o)
         };
         let mut next = next_raw.seg;
         let last = out.len() - 1;
@@ -130,7 +143,7 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         let join = pair_corner(
             &segs[k],
             &segs[k2],
-            tangents[k],
+            tangents.corner(k),
             &mut prev,
             &mut next,
             o,
@@ -154,37 +167,85 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
     out
 }
 
+/// Segment indices round a path of `m` segments (a closed path's last is followed by its
+/// first), by a comparison: no division in the loops over the corners.
+#[derive(Clone, Copy)]
+struct Ring {
+    m: usize,
+}
+
+impl Ring {
+    /// The segment after `k`.
+    fn next(self, k: usize) -> usize {
+        if k + 1 == self.m {
+            0
+        } else {
+            k + 1
+        }
+    }
+
+    /// The segment `step` after `s0` (both below `m`).
+    fn at(self, s0: usize, step: usize) -> usize {
+        let k = s0 + step;
+        if k >= self.m {
+            k - self.m
+        } else {
+            k
+        }
+    }
+}
+
+/// The unit tangents of a path's segments at their ends, each computed once.
+#[derive(Clone, Copy)]
+struct Tangents<'a> {
+    ends: &'a [(Point, Point)],
+    ring: Ring,
+}
+
+impl Tangents<'_> {
+    /// The unit tangents into and out of corner `k`, the end of segment `k`.
+    fn corner(self, k: usize) -> (Point, Point) {
+        (self.ends[k].1, self.ends[self.ring.next(k)].0)
+    }
+}
+
 /// The stack over the corners `from..to` (counted from segment `s0`), starting with `floor`,
-/// the offset of the segment before corner `from` as it stands. Returns the kept lines, the
-/// first being `floor` trimmed; None when the run does not resolve into lines each kept
-/// within its own offset segment (then the corners are joined the pair-wise way).
+/// the offset of the segment before corner `from` as it stands. Leaves in `stack` (the
+/// caller's scratch, kept from run to run: cleared here) the kept lines, each beside the
+/// whole offset segment it is part of, the first being `floor` trimmed; false when the run
+/// does not resolve into lines each kept within its own offset segment (then the corners
+/// are joined the pair-wise way).
 #[allow(clippy::too_many_arguments)]
 fn stack_run(
     segs: &[Seg],
-    tangents: &[(Point, Point)],
+    tangents: Tangents,
     s0: usize,
     from: usize,
     to: usize,
     floor: Seg,
     o: f64,
     eps: f64,
-) -> Option<Vec<Seg>> {
-    let m = segs.len();
-    // (kept part, the whole offset segment it is part of)
-    let mut stack: Vec<(Seg, Seg)> = Vec::with_capacity(to - from + 1);
-    stack.push((floor, offset_seg(&segs[(s0 + from) % m], o)));
+    stack: &mut Vec<(Seg, Seg)>,
+) -> bool {
+    let ring = tangents.ring;
+    stack.clear();
+    let k0 = ring.at(s0, from);
+    stack.push((floor, offset_seg(&segs[k0], tangents.ends[k0].0, o)));
     for step in from..to {
-        let k = (s0 + step) % m;
-        let k2 = (k + 1) % m;
-        let whole = offset_seg(&segs[k2], o);
+        let k = ring.at(s0, step);
+        let k2 = ring.next(k);
+        let whole = offset_seg(&segs[k2], tangents.ends[k2].0, o);
         let mut next = whole;
         let mut adjacent = true;
         loop {
             let (top, top_whole) = stack[stack.len() - 1];
             let x = if adjacent {
-                miter_point(segs[k].b, tangents[k], o)
+                miter_point(segs[k].b, tangents.corner(k), o)
             } else {
-                line_meet(&top_whole, &whole)?
+                match line_meet(&top_whole, &whole) {
+                    Some(x) => x,
+                    None => return false,
+                }
             };
             // how far past the kept line's start, along its own direction
             let ahead = (x - top.a).dot(top_whole.b - top_whole.a) / top_whole.length();
@@ -195,7 +256,7 @@ fn stack_run(
                 break;
             }
             if stack.len() == 1 {
-                return None;
+                return false;
             }
             // dominated by its neighbours: every point of it lies too near the input
             stack.pop();
@@ -205,16 +266,13 @@ fn stack_run(
     }
     // every kept line must lie, in its own direction, within its own offset segment
     let n = stack.len();
-    for (i, (kept, whole)) in stack.iter().enumerate() {
+    stack.iter().enumerate().all(|(i, (kept, whole))| {
         let e = eps / whole.length().max(eps);
         let (ta, tb) = (whole.param(kept.a), whole.param(kept.b));
         let start_ok = i == 0 || ta >= -e;
         let end_ok = i == n - 1 || tb <= 1.0 + e;
-        if !(start_ok && end_ok && tb > ta) {
-            return None;
-        }
-    }
-    Some(stack.into_iter().map(|(kept, _)| kept).collect())
+        start_ok && end_ok && tb > ta
+    })
 }
 
 /// How far one stack run may turn: the stack is exact for a stretch turning one way by
@@ -339,15 +397,14 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
         b: p2,
         c: v,
         r,
-        sa: v1.y.atan2(v1.x),
         sw,
     }
 }
 
-/// One segment moved by `o` to its left, as a raw segment: an arc that collapsed to its
-/// chord is a bridge.
-fn offset_raw(s: &Seg, o: f64) -> RawSeg {
-    let seg = offset_seg(s, o);
+/// One segment moved by `o` to its left (`t` its unit tangent at the start), as a raw
+/// segment: an arc that collapsed to its chord is a bridge.
+fn offset_raw(s: &Seg, t: Point, o: f64) -> RawSeg {
+    let seg = offset_seg(s, t, o);
     let origin = if s.is_arc() && !seg.is_arc() {
         Origin::Bridge
     } else {
@@ -356,10 +413,11 @@ fn offset_raw(s: &Seg, o: f64) -> RawSeg {
     RawSeg { seg, origin }
 }
 
-/// One segment moved by `o` to its left. An arc whose radius would fall to zero or below
+/// One segment moved by `o` to its left; `t` is its unit tangent at the start (the caller
+/// has it: a line moves along its normal). An arc whose radius would fall to zero or below
 /// becomes the chord between its moved ends: every point of it lies nearer the input than
 /// |o|, so the pruning drops it.
-pub fn offset_seg(s: &Seg, o: f64) -> Seg {
+fn offset_seg(s: &Seg, t: Point, o: f64) -> Seg {
     if s.is_arc() {
         // left of a counter-clockwise arc is towards its centre
         let r2 = if s.sw > 0.0 { s.r - o } else { s.r + o };
@@ -373,14 +431,13 @@ pub fn offset_seg(s: &Seg, o: f64) -> Seg {
                 b,
                 c: s.c,
                 r: r2,
-                sa: s.sa,
                 sw: s.sw,
             }
         } else {
             Seg::line(a, b)
         }
     } else {
-        let n = (s.b - s.a).unit().perp() * o;
+        let n = t.perp() * o;
         Seg::line(s.a + n, s.b + n)
     }
 }

@@ -58,9 +58,10 @@ fn arc_points(s: &Seg, r: f64, sag: f64) -> Vec<Point> {
     } else {
         1
     };
+    let sa = s.start_angle();
     (0..=k)
         .map(|j| {
-            let ang = s.sa + s.sw * j as f64 / k as f64;
+            let ang = sa + s.sw * j as f64 / k as f64;
             s.c + Point::new(ang.cos(), ang.sin()) * r
         })
         .collect()
