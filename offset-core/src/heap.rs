@@ -3,7 +3,7 @@
 //! 128 KiB by a fresh mapping, and gives the top of the heap back to the system as soon as
 //! a little is free there, so each such buffer is faulted in page by page again: a fifth
 //! of the time of a 10,000-vertex offset and of a 100,000-vertex one (docs/BENCHMARKS.md,
-//! "the heap"). A process that plans calls [`hold_freed_memory`] once, before it plans.
+//! round of 2026-12-07). A process that plans calls [`hold_freed_memory`] once, first.
 //!
 //! Only processes that end after planning call it (the planner's child, the `plan`,
 //! `offset` and `preview` commands, the benches): the daemon itself keeps glibc's defaults
@@ -71,7 +71,13 @@ mod tests {
         assert!(hold_freed_memory(), "glibc refused the thresholds");
         let held = std::thread::spawn(move || faults_of_a_second_buffer(bytes)).join();
         let (by_default, held) = (by_default.unwrap(), held.unwrap());
-        assert!(by_default > pages / 2, "{by_default} faults of {pages} pages by default");
-        assert!(held < pages / 10, "{held} faults of {pages} pages with freed memory held");
+        assert!(
+            by_default > pages / 2,
+            "{by_default} faults of {pages} pages by default"
+        );
+        assert!(
+            held < pages / 10,
+            "{held} faults of {pages} pages with freed memory held"
+        );
     }
 }
