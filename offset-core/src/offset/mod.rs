@@ -351,13 +351,18 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
 }
 /// `Polyline::winding_numbers` of a closed loop, the same numbers: a segment is asked
 /// about a point only when the point's height lies within the segment's reach (its chord's
-/// heights for a line, widened as `geom::winding_of` widens an arc's box), so each of the
-/// loop's segments costs a comparison or two per point rather than a winding test.
+/// heights for a line, widened as `geom::winding_of` widens an arc's box). The points are
+/// sorted by height, so a segment finds the ones in its reach by a binary search and costs
+/// a few comparisons, not one per point (ten islands' probes against a 100,000-segment
+/// outer were a million comparisons).
 fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
     let mut w = vec![0; ps.len()];
     if !pl.closed {
         return w;
     }
+    let mut by_height: Vec<usize> = (0..ps.len()).collect();
+    by_height.sort_unstable_by(|&i, &j| ps[i].y.total_cmp(&ps[j].y));
+    let heights: Vec<f64> = by_height.iter().map(|&i| ps[i].y).collect();
     let next = pl.vertices.iter().skip(1).chain(pl.vertices.first());
     for (v, u) in pl.vertices.iter().zip(next) {
         let (a, b) = (v.pos(), u.pos());
@@ -368,10 +373,12 @@ fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
             let m = (b - a).len() * (v.bulge.abs() + 1.0);
             (a.y.min(b.y) - m, a.y.max(b.y) + m)
         };
-        for (wk, &p) in w.iter_mut().zip(ps) {
-            if p.y >= lo && p.y <= hi {
-                *wk += crate::geom::winding_of(a, b, v.bulge, p);
+        let first = heights.partition_point(|&y| y < lo);
+        for (&y, &i) in heights[first..].iter().zip(&by_height[first..]) {
+            if y > hi {
+                break;
             }
+            w[i] += crate::geom::winding_of(a, b, v.bulge, ps[i]);
         }
     }
     w
