@@ -105,7 +105,7 @@ impl HeightField {
                 for k in 0..4 {
                     if c[k] && !c[(k + 1) % 4] {
                         let mut e = (k + 1) % 4;
-                        while !(!c[e] && c[(e + 1) % 4]) {
+                        while c[e] || !c[(e + 1) % 4] {
                             e = (e + 1) % 4;
                         }
                         next.insert(edges[k], edges[e]);
