@@ -325,6 +325,9 @@ pub fn prune(
         }
         None
     };
+    // a hit farther than this from either end of a stretch cannot be within ε + its
+    // length of both, so `gap` is asked only of hits nearer
+    let reach = eps * (1.0 + NEAR_LEN);
     let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.seg.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
     // (segment, parameter, point, which piece is inside the other curve) of every split
@@ -355,8 +358,6 @@ pub fn prune(
         // segments a few sub-ε pieces apart along the curve (a dense loop shrunk almost to a
         // point leaves pieces shorter than ε): where they meet near the stretch between them
         // they only touch through it, no loop of any size lies between them
-        // (asked only of a hit that close to both ends: the stretch is at most NEAR_LEN ε)
-        let reach = eps * (1.0 + NEAR_LEN);
         let (mut gij, mut gji) = (None, None);
         for (p, t, u) in h.iter() {
             // the shared end of neighbours is no crossing
