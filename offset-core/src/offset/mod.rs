@@ -618,25 +618,30 @@ fn each_crossing(
     mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
     mut found: impl FnMut(Crossing),
 ) {
+    // the segments numbered one path after another, each number's (path, index) beside
+    // it; the segments themselves are read where they lie (at a million segments a copy
+    // of them all is 64 MB written and read again)
     let total: usize = paths.iter().map(|(segs, _)| segs.len()).sum();
-    let mut all: Vec<Seg> = Vec::with_capacity(total);
-    let mut owner: Vec<(usize, usize)> = Vec::with_capacity(total);
+    let mut owner: Vec<(u32, u32)> = Vec::with_capacity(total);
+    let mut boxes: Vec<index::BBox> = Vec::with_capacity(total);
     for (pi, (segs, _)) in paths.iter().enumerate() {
         for (k, s) in segs.iter().enumerate() {
-            all.push(*s);
-            owner.push((pi, k));
+            owner.push((pi as u32, k as u32));
+            let b = s.bbox();
+            boxes.push([b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]);
         }
     }
-    let boxes: Vec<index::BBox> = all
-        .iter()
-        .map(|s| {
-            let b = s.bbox();
-            [b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]
-        })
-        .collect();
+    let owner_of = |i: usize| -> (usize, usize) {
+        let (p, k) = owner[i];
+        (p as usize, k as usize)
+    };
+    let seg_of = |i: usize| -> &Seg {
+        let (p, k) = owner_of(i);
+        &paths[p].0[k]
+    };
     let adjacent = |i: usize, j: usize| -> bool {
-        let (pi, ki) = owner[i];
-        let (pj, kj) = owner[j];
+        let (pi, ki) = owner_of(i);
+        let (pj, kj) = owner_of(j);
         if pi != pj {
             return false;
         }
@@ -645,10 +650,10 @@ fn each_crossing(
         kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
     };
     index::overlapping_pairs_in_order(&boxes, |i, j| {
-        if !wanted(i.min(j), owner[i], owner[j]) {
+        if !wanted(i.min(j), owner_of(i), owner_of(j)) {
             return;
         }
-        let (si, sj) = (&all[i], &all[j]);
+        let (si, sj) = (seg_of(i), seg_of(j));
         let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
         if (adj_ij && prune::meet_only_at_the_joint(si, sj, eps))
             || (adj_ji && prune::meet_only_at_the_joint(sj, si, eps))
@@ -674,14 +679,14 @@ fn each_crossing(
             if adj_ji && p.dist(si.a) <= eps * 4.0 {
                 continue;
             }
-            if !adj_ij && !adj_ji && touches(paths, owner[i], t, owner[j], u, p, eps) {
+            if !adj_ij && !adj_ji && touches(paths, owner_of(i), t, owner_of(j), u, p, eps) {
                 continue;
             }
             found(Crossing {
                 at: p,
-                a: owner[i],
+                a: owner_of(i),
                 ta: t,
-                b: owner[j],
+                b: owner_of(j),
                 tb: u,
                 order: i.min(j),
             });
@@ -915,13 +920,15 @@ fn finish_known(
     uncrossed: bool,
 ) -> Vec<Loop> {
     let valid_eps = slack(opts.tolerance, eps);
-    let as_raw = uncrossed
-        && pieces
-            .iter()
-            .all(|(segs, _)| segs.iter().all(|s| s.length() >= valid_eps));
+    // (despike says whether it left a piece as it was: no segment shorter than the slack)
+    let mut as_raw = uncrossed;
     let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
         .into_iter()
-        .map(|(segs, closed)| (despike(segs, closed, valid_eps), closed))
+        .map(|(segs, closed)| {
+            let (segs, untouched) = despike(segs, closed, valid_eps);
+            as_raw &= untouched;
+            (segs, closed)
+        })
         .collect();
     // what the prune and the joins leave may still zig-zag by less than the bound where
     // nearly tangent offsets were cut and stitched: cut those lobes off here, so the result
@@ -950,25 +957,18 @@ fn finish_known(
 /// each shorter than `delta`, which may turn back on themselves by a few nanometres) so the
 /// result is valid input again: a run shorter than `delta` in all is absorbed by a
 /// neighbouring line (that line's end moves onto the run's far end), a longer one becomes
-/// lines about `delta` long. No point moves by more than `delta`.
-fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
-    // (a line's squared length against delta², no root)
-    let long = |s: &Seg| {
-        if s.is_arc() {
-            s.length() >= delta
-        } else {
-            let d = s.b - s.a;
-            d.dot(d) >= delta * delta
-        }
-    };
+/// lines about `delta` long. No point moves by more than `delta`. True beside the result
+/// when no segment was short (the segments as they came).
+fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> (Vec<Seg>, bool) {
+    let long = |s: &Seg| !s.shorter_than(delta);
     if segs.iter().all(long) {
-        return segs;
+        return (segs, true);
     }
     if closed {
         // start at a long segment, so no run wraps round the seam
         match segs.iter().position(long) {
             Some(k) => segs.rotate_left(k),
-            None => return resample_loop(segs, delta),
+            None => return (resample_loop(segs, delta), false),
         }
     }
     let n = segs.len();
@@ -1015,7 +1015,7 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> Vec<Seg> {
         }
         k = e;
     }
-    out
+    (out, false)
 }
 
 /// A closed loop all of whose segments are shorter than `delta` (a dense loop shrunk to
@@ -1059,21 +1059,27 @@ struct Loop {
 
 /// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
 /// co-circular arcs merged, loops with no area (a region offset to a line) dropped.
-fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
+fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     let tiny = eps * 1e-2;
-    let mut out: Vec<Seg> = Vec::with_capacity(segs.len());
-    for s in segs {
-        if s.length() <= tiny {
+    // merged in place: the kept segments move to the front
+    let mut kept = 0;
+    for i in 0..out.len() {
+        let s = out[i];
+        if s.shorter_than(tiny) {
             continue;
         }
-        if let Some(last) = out.last_mut() {
-            if let Some(m) = merge(last, &s, eps) {
-                *last = m;
+        if kept > 0 {
+            if let Some(m) = merge(&out[kept - 1], &s, eps) {
+                out[kept - 1] = m;
                 continue;
             }
         }
-        out.push(s);
+        if kept != i {
+            out[kept] = s;
+        }
+        kept += 1;
     }
+    out.truncate(kept);
     if closed {
         while out.len() > 2 {
             let (first, last) = (out[0], out[out.len() - 1]);
@@ -1088,26 +1094,31 @@ fn build(segs: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     } else if out.is_empty() {
         return None;
     }
-    let (mut len, mut area2) = (0.0, 0.0);
+    // the length's upper bound |dx| + |dy| for lines (no root): the exact length is
+    // summed only for a loop whose area comes near ε times that
+    let (mut len_bound, mut area2) = (0.0, 0.0);
     let mut bounds = Bounds::EMPTY;
     // about the first point: a stitched loop may end a few ε from where it starts (the
     // stitch matches ends within 16 ε), and its area is that of the loop closed there
     let o = out.first().map_or(Point::new(0.0, 0.0), |s| s.a);
+    let mut vs: Vec<Vertex> = Vec::with_capacity(out.len() + 1);
     for s in &out {
-        len += s.length();
+        vs.push(Vertex::new(s.a.x, s.a.y, s.bulge()));
+        len_bound += if s.is_arc() {
+            s.length()
+        } else {
+            (s.b.x - s.a.x).abs() + (s.b.y - s.a.y).abs()
+        };
         area2 += s.area2_about(o);
         let b = s.bbox();
         bounds.add_point(Point::new(b[0], b[1]));
         bounds.add_point(Point::new(b[2], b[3]));
     }
     let area = if closed { area2 * 0.5 } else { 0.0 };
-    if closed && (out.len() < 2 || area.abs() <= eps * len) {
+    let no_area = || area.abs() <= eps * out.iter().map(|s| s.length()).sum::<f64>();
+    if closed && (out.len() < 2 || (area.abs() <= eps * len_bound && no_area())) {
         return None;
     }
-    let mut vs: Vec<Vertex> = out
-        .iter()
-        .map(|s| Vertex::new(s.a.x, s.a.y, s.bulge()))
-        .collect();
     if !closed {
         let e = out[out.len() - 1].b;
         vs.push(Vertex::new(e.x, e.y, 0.0));
@@ -1126,14 +1137,15 @@ fn merge(s1: &Seg, s2: &Seg, eps: f64) -> Option<Seg> {
     }
     if !s1.is_arc() {
         let d = s2.b - s1.a;
-        let l = d.len();
-        if l <= eps {
+        let l2 = d.dot(d);
+        if l2 <= eps * eps {
             return None;
         }
-        // the shared point must lie on the line from s1.a to s2.b, between them
-        let off = d.cross(s1.b - s1.a).abs() / l;
-        let t = (s1.b - s1.a).dot(d) / (l * l);
-        if off <= eps * 0.1 && t > 0.0 && t < 1.0 {
+        // the shared point must lie on the line from s1.a to s2.b (within 0.1 ε), between
+        // them: squared, no root or division
+        let (cr, along) = (d.cross(s1.b - s1.a), (s1.b - s1.a).dot(d));
+        let tol = eps * 0.1;
+        if cr * cr <= tol * tol * l2 && along > 0.0 && along < l2 {
             return Some(Seg::line(s1.a, s2.b));
         }
         return None;

@@ -559,16 +559,22 @@ pub fn prune(
     };
     for pi in (0..closed.len()).filter(|&pi| uncut[pi]) {
         let (a, b) = (start[pi], start[pi + 1]);
+        // (squared lengths: the same order, no root)
         let longest = rs[a..b]
             .iter()
             .map(|r| r.seg)
-            .max_by(|x, y| x.length().total_cmp(&y.length()))
-            .filter(|s| s.length() > 0.0);
+            .max_by(|x, y| x.length2().total_cmp(&y.length2()))
+            .filter(|s| s.length2() > 0.0);
         if longest.is_some_and(|s| keeps_distance(&s)) {
-            let keep: Vec<usize> = (a..b).filter(|&g| rs[g].seg.length() > 0.0).collect();
+            let mut segs = Vec::with_capacity(b - a);
+            let mut whole_join = Vec::with_capacity(b - a);
+            for g in (a..b).filter(|&g| rs[g].seg.length2() > 0.0) {
+                segs.push(rs[g].seg);
+                whole_join.push(is_join(g));
+            }
             chains.push(Chain {
-                segs: keep.iter().map(|&g| rs[g].seg).collect(),
-                whole_join: keep.iter().map(|&g| is_join(g)).collect(),
+                segs,
+                whole_join,
                 closed: true,
             });
         }

@@ -163,7 +163,8 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         }
         step += 1;
     }
-    out.retain(|r| r.seg.length() > eps * 1e-3);
+    let short = eps * 1e-3;
+    out.retain(|r| r.seg.length2() > short * short);
     out
 }
 

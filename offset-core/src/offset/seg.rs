@@ -119,6 +119,23 @@ impl Seg {
         }
     }
 
+    /// The squared length: no root for a line (to compare lengths, or a length with a
+    /// bound, in the passes over every segment).
+    pub fn length2(&self) -> f64 {
+        if self.is_arc() {
+            let l = self.r * self.sw;
+            l * l
+        } else {
+            let d = self.b - self.a;
+            d.dot(d)
+        }
+    }
+
+    /// Whether the segment is shorter than `len` (≥ 0), by its squared length.
+    pub fn shorter_than(&self, len: f64) -> bool {
+        self.length2() < len * len
+    }
+
     /// The parameter (0 at `a`, 1 at `b`) of the point of the segment's line or circle
     /// nearest `p`; outside [0, 1] when `p` lies beyond an end.
     pub fn param(&self, p: Point) -> f64 {
