@@ -11,7 +11,8 @@ mod stages;
 mod zigzag;
 
 use crate::geom::{Bounds, Point, Polyline, Region, Shape, Vertex};
-use prune::{prune, Chain, InputSet, RawPath};
+use prune::{prune, Chain, InputSet};
+use raw::RawPath;
 use seg::Seg;
 use serde::{Deserialize, Serialize};
 
@@ -874,10 +875,7 @@ fn run(
 ) -> Vec<Loop> {
     let raws: Vec<RawPath> = paths
         .iter()
-        .map(|(segs, closed)| RawPath {
-            segs: raw::raw_offset(segs, *closed, o, eps),
-            closed: *closed,
-        })
+        .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = slack(opts.tolerance, eps);

@@ -3,7 +3,7 @@
 //! stitch the surviving runs end to end into the offset's paths.
 
 use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
-use super::raw::{Origin, RawSeg};
+use super::raw::{Origin, RawPath, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::Point;
 use std::cell::Cell;
@@ -68,24 +68,36 @@ impl<'a> InputSet<'a> {
         }
     }
 
+    /// Whether some input segment comes nearer `p` or `q` than `thr`: without the tree,
+    /// one scan for both (a scan of a million segments reads 64 MB).
+    pub fn either_closer(&self, p: Point, q: Point, thr: f64) -> bool {
+        if thr <= 0.0 {
+            return false;
+        }
+        if self.index.is_some() {
+            return self.any_closer(p, thr) || self.any_closer(q, thr);
+        }
+        let near = |s: &Seg, p: Point| {
+            // the ends' box first: a line wholly outside the query square is skipped
+            // without a distance (an arc may bulge into it)
+            let out = s.a.x.min(s.b.x) > p.x + thr
+                || s.a.x.max(s.b.x) < p.x - thr
+                || s.a.y.min(s.b.y) > p.y + thr
+                || s.a.y.max(s.b.y) < p.y - thr;
+            (!out || s.is_arc()) && s.dist(p) < thr
+        };
+        self.paths
+            .iter()
+            .any(|segs| segs.iter().any(|s| near(s, p) || near(s, q)))
+    }
+
     /// Whether some input segment comes nearer `p` than `thr`.
     pub fn any_closer(&self, p: Point, thr: f64) -> bool {
         if thr <= 0.0 {
             return false;
         }
-        let q = [p.x - thr, p.y - thr, p.x + thr, p.y + thr];
         let Some((index, segs)) = &self.index else {
-            return self.paths.iter().any(|segs| {
-                segs.iter().any(|s| {
-                    // the ends' box first: a line wholly outside the query square is
-                    // skipped without a distance (an arc may bulge into it)
-                    let out = s.a.x.min(s.b.x) > q[2]
-                        || s.a.x.max(s.b.x) < q[0]
-                        || s.a.y.min(s.b.y) > q[3]
-                        || s.a.y.max(s.b.y) < q[1];
-                    (!out || s.is_arc()) && s.dist(p) < thr
-                })
-            });
+            return self.either_closer(p, p, thr);
         };
         if segs.get(self.hint.get()).is_some_and(|s| s.dist(p) < thr) {
             return true;
@@ -101,12 +113,6 @@ impl<'a> InputSet<'a> {
         });
         found
     }
-}
-
-/// One raw offset curve.
-pub struct RawPath {
-    pub segs: Vec<RawSeg>,
-    pub closed: bool,
 }
 
 /// A stitched piece of the result.
@@ -280,18 +286,20 @@ pub fn prune(
     let closed: Vec<bool> = paths.iter().map(|p| p.closed).collect();
     let mut start = Vec::with_capacity(paths.len() + 1);
     let mut rs: Vec<RawSeg> = Vec::new();
+    let mut boxes: Vec<BBox> = Vec::new();
     let mut owner: Vec<u32> = Vec::new();
     for (pi, p) in paths.into_iter().enumerate() {
         start.push(rs.len());
         owner.extend(std::iter::repeat_n(pi as u32, p.segs.len()));
         if rs.is_empty() {
             rs = p.segs;
+            boxes = p.boxes;
         } else {
             rs.extend(p.segs);
+            boxes.extend(p.boxes);
         }
     }
     start.push(rs.len());
-    let is_join = |g: usize| rs[g].origin == Origin::Join;
     let n = rs.len();
     let next = |g: usize| -> Option<usize> {
         let p = owner[g] as usize;
@@ -328,7 +336,6 @@ pub fn prune(
     // a hit farther than this from either end of a stretch cannot be within ε + its
     // length of both, so `gap` is asked only of hits nearer
     let reach = eps * (1.0 + NEAR_LEN);
-    let mut boxes: Vec<BBox> = rs.iter().map(|s| grow(s.seg.bbox(), eps)).collect();
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
     // (segment, parameter, point, which piece is inside the other curve) of every split
     let mut splits: Vec<(u32, f64, Point, Inside)> = Vec::new();
@@ -554,24 +561,26 @@ pub fn prune(
     // the outer's lies symmetric about that point, while the rest of it comes nearer)
     let thr = dist - valid_eps;
     let keeps_distance = |longest: &Seg| -> bool {
-        !input.any_closer(longest.point_at(0.5), thr)
-            && !input.any_closer(longest.point_at(0.25), thr)
+        !input.either_closer(longest.point_at(0.5), longest.point_at(0.25), thr)
     };
     for pi in (0..closed.len()).filter(|&pi| uncut[pi]) {
         let (a, b) = (start[pi], start[pi + 1]);
-        // (squared lengths: the same order, no root)
-        let longest = rs[a..b]
-            .iter()
-            .map(|r| r.seg)
-            .max_by(|x, y| x.length2().total_cmp(&y.length2()))
-            .filter(|s| s.length2() > 0.0);
-        if longest.is_some_and(|s| keeps_distance(&s)) {
-            let mut segs = Vec::with_capacity(b - a);
-            let mut whole_join = Vec::with_capacity(b - a);
-            for g in (a..b).filter(|&g| rs[g].seg.length2() > 0.0) {
-                segs.push(rs[g].seg);
-                whole_join.push(is_join(g));
+        // the whole curve as it would be kept, its longest segment found on the way (one
+        // pass over it; squared lengths, the same order), dropped if that one comes too near
+        let mut segs = Vec::with_capacity(b - a);
+        let mut whole_join = Vec::with_capacity(b - a);
+        let mut longest = (0.0, 0);
+        for r in &rs[a..b] {
+            let l2 = r.seg.length2();
+            if l2 > 0.0 {
+                if l2 > longest.0 {
+                    longest = (l2, segs.len());
+                }
+                segs.push(r.seg);
+                whole_join.push(r.origin == Origin::Join);
             }
+        }
+        if longest.0 > 0.0 && keeps_distance(&segs[longest.1]) {
             chains.push(Chain {
                 segs,
                 whole_join,

@@ -3,6 +3,7 @@
 //! trimmed to their intersection (the pair-wise interference step, which removes the
 //! local invalid loops before the curve exists), and round joins at convex corners.
 
+use super::index::BBox;
 use super::seg::{intersect, wrap, Norm, Seg};
 use crate::geom::Point;
 use std::f64::consts::PI;
@@ -47,6 +48,49 @@ const TURN_EPS: f64 = 1e-12;
 /// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
 /// old pair-wise way and left to the global stage.
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
+    let mut out = unfinished(segs, closed, o, eps);
+    let short = eps * 1e-3;
+    out.retain(|r| r.seg.length2() > short * short);
+    out
+}
+
+/// One raw offset curve, with every segment's box grown by ε (what the prune's search for
+/// crossings asks).
+pub struct RawPath {
+    pub segs: Vec<RawSeg>,
+    pub boxes: Vec<BBox>,
+    pub closed: bool,
+}
+
+/// [`raw_offset`] with the boxes, made in the same last pass over the segments (at a
+/// million segments each pass reads 100 MB).
+pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
+    let mut out = unfinished(segs, closed, o, eps);
+    let short2 = (eps * 1e-3) * (eps * 1e-3);
+    let mut boxes: Vec<BBox> = Vec::with_capacity(out.len());
+    let mut kept = 0;
+    for i in 0..out.len() {
+        let r = out[i];
+        if r.seg.length2() <= short2 {
+            continue;
+        }
+        let b = r.seg.bbox();
+        boxes.push([b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]);
+        if kept != i {
+            out[kept] = r;
+        }
+        kept += 1;
+    }
+    out.truncate(kept);
+    RawPath {
+        segs: out,
+        boxes,
+        closed,
+    }
+}
+
+/// The raw offset before segments shorter than ε / 1000 are dropped.
+fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
     let m = segs.len();
     if m == 0 {
         return Vec::new();
@@ -163,8 +207,6 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
         }
         step += 1;
     }
-    let short = eps * 1e-3;
-    out.retain(|r| r.seg.length2() > short * short);
     out
 }
 
