@@ -308,13 +308,6 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
             islands.push(l.poly);
         }
     }
-    let mut regions: Vec<Region> = outers
-        .iter()
-        .map(|(p, _, _)| Region {
-            outer: p.clone(),
-            islands: Vec::new(),
-        })
-        .collect();
     let probes: Vec<Point> = islands
         .iter()
         .map(|isl| {
@@ -343,6 +336,14 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
             }
         }
     }
+    // (the outers move into their regions: at a million vertices a copy is 24 MB)
+    let mut regions: Vec<Region> = outers
+        .into_iter()
+        .map(|(p, _, _)| Region {
+            outer: p,
+            islands: Vec::new(),
+        })
+        .collect();
     for (isl, b) in islands.into_iter().zip(best) {
         if let Some((k, _)) = b {
             regions[k].islands.push(isl);

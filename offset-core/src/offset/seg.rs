@@ -103,11 +103,19 @@ impl Seg {
         self.sw != 0.0
     }
 
+    /// tan(sw / 4), the polyline's bulge. Up to 2 radians of sweep it comes from the half
+    /// chord h, no trigonometry: r sin(sw / 2) = h, r cos(sw / 2) = √(r² − h²), and
+    /// tan(x / 2) = sin x / (1 + cos x), a form that keeps its precision on short arcs
+    /// (nearer a half turn the root would lose it, so `tan` there).
     pub fn bulge(&self) -> f64 {
-        if self.is_arc() {
-            (self.sw / 4.0).tan()
-        } else {
+        if !self.is_arc() {
             0.0
+        } else if self.sw.abs() <= 2.0 {
+            let h = 0.5 * (self.b - self.a).norm();
+            let c = (self.r * self.r - h * h).max(0.0).sqrt();
+            (h / (self.r + c)).copysign(self.sw)
+        } else {
+            (self.sw / 4.0).tan()
         }
     }
 
@@ -695,6 +703,32 @@ mod tests {
         angles.extend([0.0, -0.0, 1e300, -1e300, 3.0 * PI, -3.0 * PI, -PI, PI]);
         for a in angles {
             assert_eq!(wrap(a).to_bits(), by_remainder(a).to_bits(), "wrap({a:e})");
+        }
+    }
+
+    #[test]
+    fn the_bulge_from_the_half_chord_is_tan_of_a_quarter_sweep() {
+        // short and long arcs, both ways round, small and large radii far from the origin
+        for &r in &[1e-3, 0.7, 4.4, 400.0] {
+            for &sw in &[1e-9, 1e-4, 0.1, 0.46, 1.5, 1.999, 2.0, 2.001, 3.0, 6.0] {
+                for sign in [1.0, -1.0] {
+                    let sw = sw * sign;
+                    let c = Point::new(1000.0, -250.0);
+                    let a0: f64 = 0.3;
+                    let a = c + Point::new(a0.cos(), a0.sin()) * r;
+                    let b = c + Point::new((a0 + sw).cos(), (a0 + sw).sin()) * r;
+                    let arc = Seg { a, b, c, r, sw };
+                    let want = (sw / 4.0).tan();
+                    // the ends carry the rounding of coordinates near 1000 (1e-13): as
+                    // much of the chord, so of the bulge, relative to the arc's size
+                    let tol = 1e-12 * want.abs() + 4e-13 / r;
+                    assert!(
+                        (arc.bulge() - want).abs() <= tol,
+                        "r {r} sw {sw}: {} against {want}",
+                        arc.bulge()
+                    );
+                }
+            }
         }
     }
 
