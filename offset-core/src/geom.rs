@@ -93,6 +93,28 @@ impl Neg for Point {
     }
 }
 
+/// The smaller of two finite numbers: one comparison, without `f64::min`'s care for NaN
+/// (the offset kernel's coordinates are checked finite on the way in; a NaN `b` leaves
+/// `a`, as `f64::min` does); for the boxes, which every pass over the segments makes.
+#[inline]
+pub(crate) fn lo(a: f64, b: f64) -> f64 {
+    if b < a {
+        b
+    } else {
+        a
+    }
+}
+
+/// The larger of two finite numbers (see [`lo`]).
+#[inline]
+pub(crate) fn hi(a: f64, b: f64) -> f64 {
+    if b > a {
+        b
+    } else {
+        a
+    }
+}
+
 /// An axis-aligned box. An empty box has `min > max`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Bounds {
@@ -115,10 +137,10 @@ impl Bounds {
         self.min.x > self.max.x || self.min.y > self.max.y
     }
     pub fn add_point(&mut self, p: Point) {
-        self.min.x = self.min.x.min(p.x);
-        self.min.y = self.min.y.min(p.y);
-        self.max.x = self.max.x.max(p.x);
-        self.max.y = self.max.y.max(p.y);
+        self.min.x = lo(self.min.x, p.x);
+        self.min.y = lo(self.min.y, p.y);
+        self.max.x = hi(self.max.x, p.x);
+        self.max.y = hi(self.max.y, p.y);
     }
     pub fn union(&self, o: &Bounds) -> Bounds {
         let mut b = *self;

@@ -2,6 +2,7 @@
 //! node): box queries and nearest-distance searches in O(log n) each, built in O(n log n);
 //! and the pairs of overlapping boxes among segments in path order.
 
+use crate::geom::{hi, lo};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
@@ -72,10 +73,10 @@ fn hilbert(mut x: u32, mut y: u32) -> u32 {
 
 fn union(a: &BBox, b: &BBox) -> BBox {
     [
-        a[0].min(b[0]),
-        a[1].min(b[1]),
-        a[2].max(b[2]),
-        a[3].max(b[3]),
+        lo(a[0], b[0]),
+        lo(a[1], b[1]),
+        hi(a[2], b[2]),
+        hi(a[3], b[3]),
     ]
 }
 

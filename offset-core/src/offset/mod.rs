@@ -10,7 +10,7 @@ pub mod seg;
 mod stages;
 mod zigzag;
 
-use crate::geom::{Bounds, Point, Polyline, Region, Shape, Vertex};
+use crate::geom::{hi, lo, Bounds, Point, Polyline, Region, Shape, Vertex};
 use prune::{prune, Chain, InputSet};
 use raw::RawPath;
 use seg::Seg;
@@ -370,10 +370,10 @@ fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
         let (a, b) = (v.pos(), u.pos());
         let (lo, hi) = if v.bulge == 0.0 {
             // the crossing rule counts a point only when lo <= p.y < hi
-            (a.y.min(b.y), a.y.max(b.y))
+            (lo(a.y, b.y), hi(a.y, b.y))
         } else {
             let m = (b - a).len() * (v.bulge.abs() + 1.0);
-            (a.y.min(b.y) - m, a.y.max(b.y) + m)
+            (lo(a.y, b.y) - m, hi(a.y, b.y) + m)
         };
         let first = heights.partition_point(|&y| y < lo);
         for (&y, &i) in heights[first..].iter().zip(&by_height[first..]) {
@@ -424,17 +424,17 @@ fn shrinks_away(outer: &[Seg], distance: f64) -> bool {
             s.bbox()
         } else {
             [
-                s.a.x.min(s.b.x),
-                s.a.y.min(s.b.y),
-                s.a.x.max(s.b.x),
-                s.a.y.max(s.b.y),
+                lo(s.a.x, s.b.x),
+                lo(s.a.y, s.b.y),
+                hi(s.a.x, s.b.x),
+                hi(s.a.y, s.b.y),
             ]
         };
         b = [
-            b[0].min(sb[0]),
-            b[1].min(sb[1]),
-            b[2].max(sb[2]),
-            b[3].max(sb[3]),
+            lo(b[0], sb[0]),
+            lo(b[1], sb[1]),
+            hi(b[2], sb[2]),
+            hi(b[3], sb[3]),
         ];
     }
     -distance >= 0.5 * (b[2] - b[0]).min(b[3] - b[1])
@@ -468,7 +468,7 @@ fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
     for p in paths {
         // (the vertices are finite here: a plain comparison, not f64::max's NaN rule)
         for v in &p.vertices {
-            let a = v.x.abs().max(v.y.abs());
+            let a = hi(v.x.abs(), v.y.abs());
             if a > m {
                 m = a;
             }

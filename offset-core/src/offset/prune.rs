@@ -5,7 +5,7 @@
 use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
 use super::raw::{Origin, RawPath, RawSeg};
 use super::seg::{intersect, Seg};
-use crate::geom::Point;
+use crate::geom::{hi, lo, Point};
 use std::cell::Cell;
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
@@ -80,10 +80,10 @@ impl<'a> InputSet<'a> {
         let near = |s: &Seg, p: Point| {
             // the ends' box first: a line wholly outside the query square is skipped
             // without a distance (an arc may bulge into it)
-            let out = s.a.x.min(s.b.x) > p.x + thr
-                || s.a.x.max(s.b.x) < p.x - thr
-                || s.a.y.min(s.b.y) > p.y + thr
-                || s.a.y.max(s.b.y) < p.y - thr;
+            let out = lo(s.a.x, s.b.x) > p.x + thr
+                || hi(s.a.x, s.b.x) < p.x - thr
+                || lo(s.a.y, s.b.y) > p.y + thr
+                || hi(s.a.y, s.b.y) < p.y - thr;
             (!out || s.is_arc()) && s.dist(p) < thr
         };
         self.paths

@@ -1,7 +1,7 @@
 //! The kernel's working segment (a line or an arc with its centre, radius and signed sweep)
 //! and the exact intersections of two of them.
 
-use crate::geom::{Point, Segment};
+use crate::geom::{hi, lo, Point, Segment};
 use std::f64::consts::PI;
 
 /// A line (`sw == 0`) or a circular arc about `c` of radius `r` from `a`, sweeping `sw`
@@ -272,10 +272,10 @@ impl Seg {
     /// Bounding box as [min x, min y, max x, max y].
     pub fn bbox(&self) -> [f64; 4] {
         let mut bb = [
-            self.a.x.min(self.b.x),
-            self.a.y.min(self.b.y),
-            self.a.x.max(self.b.x),
-            self.a.y.max(self.b.y),
+            lo(self.a.x, self.b.x),
+            lo(self.a.y, self.b.y),
+            hi(self.a.x, self.b.x),
+            hi(self.a.y, self.b.y),
         ];
         if self.is_arc() {
             // `within_sweep` of the four axis directions, its cross products written out (a
@@ -293,16 +293,16 @@ impl Seg {
             };
             let r = self.r;
             if within(s * -ua.y >= 0.0, s * ub.y >= 0.0) {
-                bb[2] = bb[2].max(self.c.x + r);
+                bb[2] = hi(bb[2], self.c.x + r);
             }
             if within(s * ua.x >= 0.0, s * -ub.x >= 0.0) {
-                bb[3] = bb[3].max(self.c.y + r);
+                bb[3] = hi(bb[3], self.c.y + r);
             }
             if within(s * ua.y >= 0.0, s * -ub.y >= 0.0) {
-                bb[0] = bb[0].min(self.c.x - r);
+                bb[0] = lo(bb[0], self.c.x - r);
             }
             if within(s * -ua.x >= 0.0, s * ub.x >= 0.0) {
-                bb[1] = bb[1].min(self.c.y - r);
+                bb[1] = lo(bb[1], self.c.y - r);
             }
         }
         bb
