@@ -637,26 +637,21 @@ fn each_crossing(
         let (p, k) = owner[i];
         (p as usize, k as usize)
     };
-    let seg_of = |i: usize| -> &Seg {
-        let (p, k) = owner_of(i);
-        &paths[p].0[k]
-    };
-    let adjacent = |i: usize, j: usize| -> bool {
-        let (pi, ki) = owner_of(i);
-        let (pj, kj) = owner_of(j);
-        if pi != pj {
+    // whether segment (path, kb) follows (path, ka) on one path
+    let follows = |(pa, ka): (usize, usize), (pb, kb): (usize, usize)| -> bool {
+        if pa != pb {
             return false;
         }
-        let (segs, closed) = paths[pi];
-        let m = segs.len();
-        kj == ki + 1 || (closed && ki == m - 1 && kj == 0)
+        let (segs, closed) = paths[pa];
+        kb == ka + 1 || (closed && ka == segs.len() - 1 && kb == 0)
     };
     index::overlapping_pairs_in_order(&boxes, |i, j| {
-        if !wanted(i.min(j), owner_of(i), owner_of(j)) {
+        let (oi, oj) = (owner_of(i), owner_of(j));
+        if !wanted(i.min(j), oi, oj) {
             return;
         }
-        let (si, sj) = (seg_of(i), seg_of(j));
-        let (adj_ij, adj_ji) = (adjacent(i, j), adjacent(j, i));
+        let (si, sj) = (&paths[oi.0].0[oi.1], &paths[oj.0].0[oj.1]);
+        let (adj_ij, adj_ji) = (follows(oi, oj), follows(oj, oi));
         if (adj_ij && prune::meet_only_at_the_joint(si, sj, eps))
             || (adj_ji && prune::meet_only_at_the_joint(sj, si, eps))
         {
@@ -681,14 +676,14 @@ fn each_crossing(
             if adj_ji && p.dist(si.a) <= eps * 4.0 {
                 continue;
             }
-            if !adj_ij && !adj_ji && touches(paths, owner_of(i), t, owner_of(j), u, p, eps) {
+            if !adj_ij && !adj_ji && touches(paths, oi, t, oj, u, p, eps) {
                 continue;
             }
             found(Crossing {
                 at: p,
-                a: owner_of(i),
+                a: oi,
                 ta: t,
-                b: owner_of(j),
+                b: oj,
                 tb: u,
                 order: i.min(j),
             });

@@ -430,7 +430,9 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
             }
         }
     }
-    let r = (v1.len() + v2.len()) * 0.5;
+    // both ends lie |o| from the corner (each is the end of a segment moved by o): the
+    // radius is |o|, no root
+    let r = o.abs();
     if r == 0.0 || sw == 0.0 || p1 == p2 {
         return Seg::line(p1, p2);
     }
