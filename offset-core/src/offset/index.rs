@@ -71,6 +71,11 @@ fn hilbert(mut x: u32, mut y: u32) -> u32 {
     (y << 1) | x
 }
 
+/// The box grown by `e` on every side.
+pub fn grow(b: BBox, e: f64) -> BBox {
+    [b[0] - e, b[1] - e, b[2] + e, b[3] + e]
+}
+
 fn union(a: &BBox, b: &BBox) -> BBox {
     [
         lo(a[0], b[0]),

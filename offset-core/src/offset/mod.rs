@@ -629,8 +629,7 @@ fn each_crossing(
     for (pi, (segs, _)) in paths.iter().enumerate() {
         for (k, s) in segs.iter().enumerate() {
             owner.push((pi as u32, k as u32));
-            let b = s.bbox();
-            boxes.push([b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]);
+            boxes.push(index::grow(s.bbox(), eps));
         }
     }
     let owner_of = |i: usize| -> (usize, usize) {

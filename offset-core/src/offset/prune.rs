@@ -2,7 +2,7 @@
 //! split them there, drop each run that comes nearer the input than |d| (minus a hair), and
 //! stitch the surviving runs end to end into the offset's paths.
 
-use super::index::{overlapping_pairs_in_order, BBox, BoxIndex};
+use super::index::{grow, overlapping_pairs_in_order, BBox, BoxIndex};
 use super::raw::{Origin, RawPath, RawSeg};
 use super::seg::{intersect, Seg};
 use crate::geom::{hi, lo, Point};
@@ -136,10 +136,6 @@ pub fn meet_only_at_the_joint(s1: &Seg, s2: &Seg, eps: f64) -> bool {
             t1.dot(t2) > 0.0 && t1.cross(t2).abs() * r <= eps * 0.25
         }
     }
-}
-
-fn grow(b: BBox, e: f64) -> BBox {
-    [b[0] - e, b[1] - e, b[2] + e, b[3] + e]
 }
 
 /// Which piece of a raw segment, on either side of a point where another raw curve crosses

@@ -3,7 +3,7 @@
 //! trimmed to their intersection (the pair-wise interference step, which removes the
 //! local invalid loops before the curve exists), and round joins at convex corners.
 
-use super::index::BBox;
+use super::index::{grow, BBox};
 use super::seg::{intersect, wrap, Norm, Seg};
 use crate::geom::Point;
 use std::f64::consts::PI;
@@ -48,10 +48,7 @@ const TURN_EPS: f64 = 1e-12;
 /// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
 /// old pair-wise way and left to the global stage.
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
-    let mut out = unfinished(segs, closed, o, eps);
-    let short = eps * 1e-3;
-    out.retain(|r| r.seg.length2() > short * short);
-    out
+    raw_path(segs, closed, o, eps).segs
 }
 
 /// One raw offset curve, with every segment's box grown by ε (what the prune's search for
@@ -74,8 +71,7 @@ pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
         if r.seg.length2() <= short2 {
             continue;
         }
-        let b = r.seg.bbox();
-        boxes.push([b[0] - eps, b[1] - eps, b[2] + eps, b[3] + eps]);
+        boxes.push(grow(r.seg.bbox(), eps));
         if kept != i {
             out[kept] = r;
         }
