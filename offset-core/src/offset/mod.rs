@@ -10,7 +10,7 @@ pub mod seg;
 mod stages;
 mod zigzag;
 
-use crate::geom::{hi, lo, Bounds, Point, Polyline, Region, Shape, Vertex};
+use crate::geom::{hi, lo, Point, Polyline, Region, Shape, Vertex};
 use prune::{prune, Chain, InputSet};
 use raw::RawPath;
 use seg::Seg;
@@ -299,11 +299,11 @@ fn offset_loops(
 /// the smallest outer around them. An island with no outer around it is what is left of an
 /// island whose offset swallowed the outer's (Park 2001): it goes.
 fn assemble(polys: Vec<Loop>) -> Vec<Region> {
-    let mut outers: Vec<(Polyline, f64, Bounds)> = Vec::new();
+    let mut outers: Vec<(Polyline, f64)> = Vec::new();
     let mut islands = Vec::new();
     for l in polys {
         if l.area > 0.0 {
-            outers.push((l.poly, l.area, l.bounds));
+            outers.push((l.poly, l.area));
         } else {
             islands.push(l.poly);
         }
@@ -320,11 +320,20 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
         })
         .collect();
     // per island: the smallest outer around its probe; each outer is walked once for all
-    // the probes inside its bounds
+    // the probes inside its bounds (of several outers: one outer's walk answers for every
+    // probe, and its bounds would cost a walk of their own)
     let mut best: Vec<Option<(usize, f64)>> = vec![None; islands.len()];
-    for (k, (o, a, b)) in outers.iter().enumerate() {
+    let several = outers.len() > 1;
+    for (k, (o, a)) in outers.iter().enumerate() {
+        if probes.is_empty() {
+            break;
+        }
+        let b = several.then(|| o.bounds());
         let inside: Vec<usize> = (0..probes.len())
-            .filter(|&i| b.contains(probes[i]) && best[i].is_none_or(|(_, ba)| *a < ba))
+            .filter(|&i| {
+                b.is_none_or(|b| b.contains(probes[i]))
+                    && best[i].is_none_or(|(_, ba)| *a < ba)
+            })
             .collect();
         if inside.is_empty() {
             continue;
@@ -339,7 +348,7 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
     // (the outers move into their regions: at a million vertices a copy is 24 MB)
     let mut regions: Vec<Region> = outers
         .into_iter()
-        .map(|(p, _, _)| Region {
+        .map(|(p, _)| Region {
             outer: p,
             islands: Vec::new(),
         })
@@ -354,8 +363,9 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
 /// `Polyline::winding_numbers` of a closed loop, the same numbers: a segment is asked
 /// about a point only when the point's height lies within the segment's reach (its chord's
 /// heights for a line, widened as `geom::winding_of` widens an arc's box). The points are
-/// sorted by height, so a segment finds the ones in its reach by a binary search and costs
-/// a few comparisons, not one per point (ten islands' probes against a 100,000-segment
+/// sorted by height, so a segment finds the ones in its reach from where the segment
+/// before it found its own (neighbours along a loop reach about the same heights: a step
+/// or two, not one comparison per point; ten islands' probes against a 100,000-segment
 /// outer were a million comparisons).
 fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
     let mut w = vec![0; ps.len()];
@@ -366,6 +376,7 @@ fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
     by_height.sort_unstable_by(|&i, &j| ps[i].y.total_cmp(&ps[j].y));
     let heights: Vec<f64> = by_height.iter().map(|&i| ps[i].y).collect();
     let next = pl.vertices.iter().skip(1).chain(pl.vertices.first());
+    let mut first = 0;
     for (v, u) in pl.vertices.iter().zip(next) {
         let (a, b) = (v.pos(), u.pos());
         let (lo, hi) = if v.bulge == 0.0 {
@@ -375,7 +386,13 @@ fn winding_numbers(pl: &Polyline, ps: &[Point]) -> Vec<i32> {
             let m = (b - a).len() * (v.bulge.abs() + 1.0);
             (lo(a.y, b.y) - m, hi(a.y, b.y) + m)
         };
-        let first = heights.partition_point(|&y| y < lo);
+        // the first height at lo or above, moved from the last segment's
+        while first > 0 && heights[first - 1] >= lo {
+            first -= 1;
+        }
+        while first < heights.len() && heights[first] < lo {
+            first += 1;
+        }
         for (&y, &i) in heights[first..].iter().zip(&by_height[first..]) {
             if y > hi {
                 break;
@@ -1042,12 +1059,11 @@ fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
     out
 }
 
-/// A finished path with its signed area (0 when open) and bounds, measured from its
-/// segments while they are at hand.
+/// A finished path with its signed area (0 when open), measured from its segments while
+/// they are at hand.
 struct Loop {
     poly: Polyline,
     area: f64,
-    bounds: Bounds,
 }
 
 /// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
@@ -1090,7 +1106,6 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     // the length's upper bound |dx| + |dy| for lines (no root): the exact length is
     // summed only for a loop whose area comes near ε times that
     let (mut len_bound, mut area2) = (0.0, 0.0);
-    let mut bounds = Bounds::EMPTY;
     // about the first point: a stitched loop may end a few ε from where it starts (the
     // stitch matches ends within 16 ε), and its area is that of the loop closed there
     let o = out.first().map_or(Point::new(0.0, 0.0), |s| s.a);
@@ -1103,9 +1118,6 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
             (s.b.x - s.a.x).abs() + (s.b.y - s.a.y).abs()
         };
         area2 += s.area2_about(o);
-        let b = s.bbox();
-        bounds.add_point(Point::new(b[0], b[1]));
-        bounds.add_point(Point::new(b[2], b[3]));
     }
     let area = if closed { area2 * 0.5 } else { 0.0 };
     let no_area = || area.abs() <= eps * out.iter().map(|s| s.length()).sum::<f64>();
@@ -1119,7 +1131,6 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     Some(Loop {
         poly: Polyline::new(vs, closed),
         area,
-        bounds,
     })
 }
 
