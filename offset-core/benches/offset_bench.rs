@@ -198,17 +198,20 @@ impl Kernel for Clipper {
 /// output) of every offset.
 struct Measured {
     times: Vec<f64>,
-    last: Vec<(Vec<Polyline>, f64, Vec<Polyline>)>,
+    last: Done<Vec<Polyline>>,
 }
+
+/// Each offset of a round: (input, distance, output).
+type Done<S> = Vec<(S, f64, S)>;
 
 /// Runs the plan once; returns the time (ms) of its offsets and the sets to check. Only
 /// the offsets are timed: each takes its input by reference, and the (input, output)
-/// pairs kept for the check are moved, not copied (a copy of a kernel's set is the set's
-/// allocation and, for cavalier_contours, its spatial index: at 1,000 vertices about a
-/// tenth of an offset).
-fn run_once<K: Kernel>(k: &K, original: &K::Set, plan: &Plan) -> (f64, Vec<(K::Set, f64, K::Set)>) {
+/// pairs kept for the check are moved or copied outside the timer (a copy of a kernel's
+/// set is its allocations and, for cavalier_contours, its spatial index: copying, not
+/// offsetting).
+fn run_once<K: Kernel>(k: &K, original: &K::Set, plan: &Plan) -> (f64, Done<K::Set>) {
     let mut spent = 0.0;
-    let mut done: Vec<(K::Set, f64, K::Set)> = Vec::new();
+    let mut done: Done<K::Set> = Vec::new();
     for d in plan.distances() {
         let t = Instant::now();
         let out = {
@@ -319,7 +322,7 @@ fn measure<K: Kernel>(
     k: &K,
     set: &K::Set,
     plan: &Plan,
-) -> (f64, Vec<(Vec<Polyline>, f64, Vec<Polyline>)>) {
+) -> (f64, Done<Vec<Polyline>>) {
     let (t, done) = run_once(k, set, plan);
     let done = done
         .iter()
