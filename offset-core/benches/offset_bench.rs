@@ -318,11 +318,7 @@ struct Case {
     clipper_limit_s: f64,
 }
 
-fn measure<K: Kernel>(
-    k: &K,
-    set: &K::Set,
-    plan: &Plan,
-) -> (f64, Done<Vec<Polyline>>) {
+fn measure<K: Kernel>(k: &K, set: &K::Set, plan: &Plan) -> (f64, Done<Vec<Polyline>>) {
     let (t, done) = run_once(k, set, plan);
     let done = done
         .iter()

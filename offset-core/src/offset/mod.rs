@@ -129,10 +129,13 @@ pub fn offset_polyline(
                 .into_iter()
                 .map(|r| r.seg),
         );
-        Ok(run(&[(segs, false)], &splitters, distance, opts, eps)
-            .into_iter()
-            .map(|l| l.poly)
-            .collect())
+        let ends = [raw::ends_of(&segs)];
+        Ok(
+            run(&[(segs, false)], &ends, &splitters, distance, opts, eps)
+                .into_iter()
+                .map(|l| l.poly)
+                .collect(),
+        )
     }
 }
 
@@ -331,8 +334,7 @@ fn assemble(polys: Vec<Loop>) -> Vec<Region> {
         let b = several.then(|| o.bounds());
         let inside: Vec<usize> = (0..probes.len())
             .filter(|&i| {
-                b.is_none_or(|b| b.contains(probes[i]))
-                    && best[i].is_none_or(|(_, ba)| *a < ba)
+                b.is_none_or(|b| b.contains(probes[i])) && best[i].is_none_or(|(_, ba)| *a < ba)
             })
             .collect();
         if inside.is_empty() {
@@ -849,20 +851,21 @@ fn run_closed(
     let mut rest = o;
     let mut on_input = true;
     loop {
+        let timer = stages::Timer::start(&loops);
+        let ends: Vec<raw::Ends> = loops.iter().map(|(s, _)| raw::ends_of(s)).collect();
         let step = match opts.join {
-            Join::Round => stages::first_stage(&loops, rest, on_input),
+            Join::Round => stages::first_stage(&loops, &ends, rest, on_input),
             Join::Miter | Join::Chamfer => None,
         };
         on_input = false;
-        let timer = stages::Timer::start(&loops);
         let Some(step) = step else {
-            let result = run(&loops, &[], rest, opts, eps);
+            let result = run(&loops, &ends, &[], rest, opts, eps);
             timer.report("last stage", rest);
             return result;
         };
         // the stage's loops as regions, so an island left without its outer goes, then
         // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
-        let regions = assemble(run(&loops, &[], step, opts, eps));
+        let regions = assemble(run(&loops, &ends, &[], step, opts, eps));
         timer.report("stage", step);
         rest -= step;
         loops = regions
@@ -878,8 +881,10 @@ fn run_closed(
 }
 
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.
+/// `ends`: each path's tangents (`raw::ends_of`).
 fn run(
     paths: &[(Vec<Seg>, bool)],
+    ends: &[raw::Ends],
     splitters: &[Seg],
     o: f64,
     opts: &OffsetOptions,
@@ -887,7 +892,8 @@ fn run(
 ) -> Vec<Loop> {
     let raws: Vec<RawPath> = paths
         .iter()
-        .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
+        .zip(ends)
+        .map(|((segs, closed), ends)| raw::raw_path(segs, &ends.tangents, *closed, o, eps))
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = slack(opts.tolerance, eps);

@@ -48,7 +48,40 @@ const TURN_EPS: f64 = 1e-12;
 /// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
 /// old pair-wise way and left to the global stage.
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
-    raw_path(segs, closed, o, eps).segs
+    raw_path(segs, &ends_of(segs).tangents, closed, o, eps).segs
+}
+
+/// What the raw offset and the stage schedule both read of a path's segments: the unit
+/// tangents at each one's start and end (a line's two are one, and its offset moves along
+/// the normal of the same one), and the path's length, one root per line for both.
+pub struct Ends {
+    pub tangents: Vec<(Point, Point)>,
+    pub length: f64,
+}
+
+pub fn ends_of(segs: &[Seg]) -> Ends {
+    let mut length = 0.0;
+    let tangents = segs
+        .iter()
+        .map(|s| {
+            if s.is_arc() {
+                length += s.length();
+                (s.tangent_at(0.0), s.tangent_at(1.0))
+            } else {
+                // `Seg::tangent_at` and `Seg::length` of a line, sharing the root
+                let d = s.b - s.a;
+                let l = d.len();
+                length += l;
+                let t = if l > 0.0 {
+                    d * (1.0 / l)
+                } else {
+                    Point::default()
+                };
+                (t, t)
+            }
+        })
+        .collect();
+    Ends { tangents, length }
 }
 
 /// One raw offset curve, with every segment's box grown by ε (what the prune's search for
@@ -61,8 +94,9 @@ pub struct RawPath {
 
 /// [`raw_offset`] with the boxes, made in the same last pass over the segments (at a
 /// million segments each pass reads 100 MB).
-pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
-    let mut out = unfinished(segs, closed, o, eps);
+/// `ends`: the segments' tangents (see [`ends_of`]).
+pub fn raw_path(segs: &[Seg], ends: &[(Point, Point)], closed: bool, o: f64, eps: f64) -> RawPath {
+    let mut out = unfinished(segs, ends, closed, o, eps);
     let short2 = (eps * 1e-3) * (eps * 1e-3);
     let mut boxes: Vec<BBox> = Vec::with_capacity(out.len());
     let mut kept = 0;
@@ -86,27 +120,20 @@ pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
 }
 
 /// The raw offset before segments shorter than ε / 1000 are dropped.
-fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
+fn unfinished(
+    segs: &[Seg],
+    ends: &[(Point, Point)],
+    closed: bool,
+    o: f64,
+    eps: f64,
+) -> Vec<RawSeg> {
     let m = segs.len();
     if m == 0 {
         return Vec::new();
     }
     let corners = if closed { m } else { m - 1 };
     let ring = Ring { m };
-    // per segment: the unit tangents at its start and end, once (a line's two are one, and
-    // its offset moves along the normal of the same one)
-    let ends: Vec<(Point, Point)> = segs
-        .iter()
-        .map(|s| {
-            if s.is_arc() {
-                (s.tangent_at(0.0), s.tangent_at(1.0))
-            } else {
-                let t = s.tangent_at(0.0);
-                (t, t)
-            }
-        })
-        .collect();
-    let tangents = Tangents { ends: &ends, ring };
+    let tangents = Tangents { ends, ring };
     let stackable = |k: usize| -> bool {
         let (t1, t2) = tangents.corner(k);
         let (cr, dt) = (t1.cross(t2), t1.dot(t2));

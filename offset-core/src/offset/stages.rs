@@ -14,6 +14,7 @@
 //! add about as much as the boundary's length again, so the crossings stay proportional to
 //! the boundary: the cost no longer grows with the distance.
 
+use super::raw::Ends;
 use super::seg::Seg;
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -66,19 +67,24 @@ const FIRST_STAGE_SHARE: f64 = 0.6;
 /// it fold the offset back (C); only min(F, C) of the fans meets a fold (a convex loop
 /// grown, or an island grown, has F − C = 2π of fans that cross nothing). Turns at corners
 /// are taken as the sine of the turn (π less it past a right angle), so no trigonometry.
-pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64, on_input: bool) -> Option<f64> {
+/// `ends`: each loop's tangents and length (`raw::ends_of`).
+pub(super) fn first_stage(
+    loops: &[(Vec<Seg>, bool)],
+    ends: &[Ends],
+    o: f64,
+    on_input: bool,
+) -> Option<f64> {
     let side = o.signum();
     let mut length = 0.0;
     let mut crossing_fans = 0.0;
-    for (segs, closed) in loops {
+    for ((segs, closed), ends) in loops.iter().zip(ends) {
         if !closed || segs.is_empty() {
             continue;
         }
+        length += ends.length;
         let (mut away, mut toward) = (0.0, 0.0);
-        let mut t_in = segs[segs.len() - 1].tangent_at(1.0);
-        for s in segs {
-            length += s.length();
-            let t_out = s.tangent_at(0.0);
+        let mut t_in = ends.tangents[segs.len() - 1].1;
+        for (s, &(t_out, t_end)) in segs.iter().zip(&ends.tangents) {
             let (cr, dt) = (t_in.cross(t_out), t_in.dot(t_out));
             let turn = if dt >= 0.0 {
                 cr.abs()
@@ -96,10 +102,8 @@ pub(super) fn first_stage(loops: &[(Vec<Seg>, bool)], o: f64, on_input: bool) ->
                 } else {
                     toward += s.sw.abs();
                 }
-                t_in = s.tangent_at(1.0);
-            } else {
-                t_in = t_out;
             }
+            t_in = t_end;
         }
         crossing_fans += f64::min(away, toward);
     }
