@@ -8,6 +8,11 @@ mod cmd;
 use clap::{CommandFactory, Parser, Subcommand};
 use std::io::Write;
 
+// the planning commands' heap (`offset_core::heap`): the system's allocator until a
+// command that plans calls `hold_freed_memory`, which `serve` never does
+#[global_allocator]
+static HEAP: offset_core::heap::PlanningHeap = offset_core::heap::PlanningHeap;
+
 /// The program's one-line description, in `machlink --help`.
 const ABOUT: &str = "Offset tool paths and stitch paths, streamed to shop-floor machines";
 

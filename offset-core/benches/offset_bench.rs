@@ -31,6 +31,10 @@ use offset_core::geom::{Point, Polyline, Region, Vertex};
 use offset_core::offset::{offset_regions_valid, OffsetOptions, ValidRegions};
 use std::time::Instant;
 
+// the planner's heap (offset_core::heap), under every kernel of the bench alike
+#[global_allocator]
+static HEAP: offset_core::heap::PlanningHeap = offset_core::heap::PlanningHeap;
+
 #[derive(Debug, Default, Copy, Clone, PartialEq, Hash)]
 struct Fine;
 impl clipper2::PointScaler for Fine {

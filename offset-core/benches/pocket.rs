@@ -22,6 +22,9 @@ use offset_core::ops::{
 };
 use offset_core::stats::Kinematics;
 use offset_core::toolpath::{Tool, Toolpath};
+
+#[global_allocator]
+static HEAP: offset_core::heap::PlanningHeap = offset_core::heap::PlanningHeap;
 use std::cell::Cell;
 use std::f64::consts::TAU;
 use std::time::Instant;

@@ -15,6 +15,9 @@ use offset_core::geom::{Polyline, Region};
 use offset_core::offset::{offset_regions_valid, OffsetOptions};
 use std::time::Instant;
 
+#[global_allocator]
+static HEAP: offset_core::heap::PlanningHeap = offset_core::heap::PlanningHeap;
+
 #[path = "../benches/support/inputs.rs"]
 mod inputs;
 use inputs::{dense_circle as circle, gear, islands};
