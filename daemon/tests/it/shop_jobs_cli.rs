@@ -413,7 +413,7 @@ fn the_sign_recipe_is_one_program_drilled_bored_pocketed_and_cut_out_for_every_p
                 if in_pocket {
                     let (di, in_island) = to_rect(x, y, ISLAND);
                     assert!(
-                        !in_island || false,
+                        !in_island,
                         "{post}: move {k} at ({x}, {y}, {z}) cuts the island"
                     );
                     assert!(dw >= T2_RADIUS - 2e-3 && di >= T2_RADIUS - 2e-3, "{post}: move {k} at ({x}, {y}, {z}) gouges: {dw} from the wall, {di} from the island");
