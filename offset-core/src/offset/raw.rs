@@ -4,7 +4,7 @@
 //! local invalid loops before the curve exists), and round joins at convex corners.
 
 use super::index::{grow, BBox};
-use super::seg::{intersect, wrap, Norm, Seg};
+use super::seg::{angle, intersect, wrap, Norm, Seg};
 use crate::geom::Point;
 use std::f64::consts::PI;
 
@@ -441,7 +441,7 @@ fn pair_corner(
 fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
     let v1 = p1 - v;
     let v2 = p2 - v;
-    let mut sw = v1.cross(v2).atan2(v1.dot(v2));
+    let mut sw = angle(v1.cross(v2), v1.dot(v2));
     let want = -o.signum(); // convex joins turn against the offset side
     if !concave && (sw.abs() >= PI - 1e-9 || sw * want < 0.0) {
         if sw.abs() >= PI - 1e-9 {

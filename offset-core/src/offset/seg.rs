@@ -32,6 +32,40 @@ impl Norm for Point {
     }
 }
 
+/// atan2(`cr`, `dt`): the signed angle from one direction to another, given their cross
+/// and dot products. Within a quarter radian of straight on (a round join at a corner of a
+/// dense polyline, the common case) from atan's series, thirteen terms: each one past them
+/// is below 1e-17 of the angle, and the sum is within two units in the last place of
+/// atan2's (test `the_series_angle_is_atan2s`), in a third of atan2's instructions.
+pub fn angle(cr: f64, dt: f64) -> f64 {
+    if dt > 0.0 && cr.abs() <= 0.25 * dt {
+        let z = cr / dt;
+        let w = z * z;
+        // 1 - w/3 + w²/5 - ... + w¹²/25, by Horner's rule
+        const SERIES: [f64; 12] = [
+            -1.0 / 23.0,
+            1.0 / 21.0,
+            -1.0 / 19.0,
+            1.0 / 17.0,
+            -1.0 / 15.0,
+            1.0 / 13.0,
+            -1.0 / 11.0,
+            1.0 / 9.0,
+            -1.0 / 7.0,
+            1.0 / 5.0,
+            -1.0 / 3.0,
+            1.0,
+        ];
+        let mut p = 1.0 / 25.0;
+        for c in SERIES {
+            p = p * w + c;
+        }
+        z * p
+    } else {
+        cr.atan2(dt)
+    }
+}
+
 /// Wraps an angle into [-π, π).
 pub fn wrap(a: f64) -> f64 {
     const TAU: f64 = 2.0 * PI;
@@ -151,7 +185,7 @@ impl Seg {
             // the angle from the start to `p` about the centre: one atan2, as with a stored
             // start angle
             let (u, v) = (self.a - self.c, p - self.c);
-            let d = wrap(u.cross(v).atan2(u.dot(v)) - self.sw * 0.5);
+            let d = wrap(angle(u.cross(v), u.dot(v)) - self.sw * 0.5);
             (d + self.sw * 0.5) / self.sw
         } else {
             let ab = self.b - self.a;
@@ -568,6 +602,35 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_series_angle_is_atan2s() {
+        // directions on both sides of the series' edge (a quarter radian), tiny turns,
+        // both signs, vectors of many lengths; within two units in the last place
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for k in 0..200_000 {
+            let a = match k % 4 {
+                0 => (rnd() - 0.5) * 0.3,
+                1 => (rnd() - 0.5) * 1e-6,
+                2 => 0.25f64.atan() * (1.0 + (rnd() - 0.5) * 1e-9),
+                _ => (rnd() - 0.5) * 6.5,
+            };
+            let scale = 10f64.powf(rnd() * 12.0 - 6.0);
+            let (cr, dt) = (a.sin() * scale, a.cos() * scale);
+            let (ours, libm) = (super::angle(cr, dt), cr.atan2(dt));
+            let ulp = f64::EPSILON * libm.abs().max(f64::MIN_POSITIVE);
+            assert!(
+                (ours - libm).abs() <= 2.0 * ulp,
+                "angle({cr:e}, {dt:e}) = {ours:e}, atan2 {libm:e}"
+            );
+        }
+    }
+
     use super::*;
 
     #[test]
