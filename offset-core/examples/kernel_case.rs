@@ -95,7 +95,7 @@ fn main() {
                 .sum();
         }
         println!(
-            "cavalier_contours {kind}:{n} d = {d}: best {:.2} ms of {reps}, {verts} output vertices",
+            "cavalier_contours {kind}:{n} d = {d}: best {:.3} ms of {reps}, {verts} output vertices",
             best * 1e3
         );
         return;
@@ -132,7 +132,7 @@ fn main() {
         .map(|p| p.len())
         .sum();
     println!(
-        "{kind}:{n} d = {d}: best {:.2} ms of {reps}, {} regions, {verts} output vertices",
+        "{kind}:{n} d = {d}: best {:.3} ms of {reps}, {} regions, {verts} output vertices",
         best * 1e3,
         out.len()
     );
