@@ -19,23 +19,57 @@ use crate::geom::Point;
 /// Whether the closed loop `segs` (all lines) turns left at every corner by less than π and
 /// once round in all: then it is convex and simple.
 pub(super) fn is_convex_ccw(segs: &[Seg]) -> bool {
-    let m = segs.len();
-    if m < 3 || segs.iter().any(|s| s.is_arc()) {
-        return false;
+    let mut turns = Turns::default();
+    for s in segs {
+        turns.add(s);
     }
+    turns.convex_ccw()
+}
+
+/// [`is_convex_ccw`] fed one segment at a time, in order round the loop (so the pass that
+/// makes a loop's segments answers it on the way).
+#[derive(Default)]
+pub(super) struct Turns {
+    first: Point,
+    t_in: Point,
+    segments: usize,
+    arcs: bool,
+    all_left: bool,
+    east: usize,
+}
+
+impl Turns {
+    pub(super) fn add(&mut self, s: &Seg) {
+        self.arcs |= s.is_arc();
+        let t_out = s.b - s.a;
+        if self.segments == 0 {
+            self.first = t_out;
+            self.all_left = true;
+        } else {
+            self.corner(t_out);
+        }
+        self.t_in = t_out;
+        self.segments += 1;
+    }
+
     // each corner turns the direction counter-clockwise by less than π, so the direction
     // passes east (from below the x axis to on or above it) once per full turn
-    let mut east = 0usize;
-    let mut t_in = segs[m - 1].b - segs[m - 1].a;
-    for s in segs {
-        let t_out = s.b - s.a;
-        if !above(t_in.cross(t_out), 0.0) {
+    fn corner(&mut self, t_out: Point) {
+        if !above(self.t_in.cross(t_out), 0.0) {
+            self.all_left = false;
+        }
+        self.east += usize::from(self.t_in.y < 0.0 && t_out.y >= 0.0);
+    }
+
+    /// Whether the segments added make a loop (the last followed by the first) as
+    /// `is_convex_ccw` asks.
+    pub(super) fn convex_ccw(mut self) -> bool {
+        if self.segments < 3 || self.arcs {
             return false;
         }
-        east += usize::from(t_in.y < 0.0 && t_out.y >= 0.0);
-        t_in = t_out;
+        self.corner(self.first);
+        self.all_left && self.east == 1
     }
-    east == 1
 }
 
 /// `x` > `y`, false for NaN (so `!above` refuses a NaN).

@@ -410,9 +410,8 @@ pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize
     const FAN: usize = 8;
     // all four comparisons, no early out: most pairs asked about are near misses, whose
     // outcome no branch predicts (the boxes are finite)
-    let overlap = |a: &BBox, b: &BBox| {
-        (a[0] <= b[2]) & (a[2] >= b[0]) & (a[1] <= b[3]) & (a[3] >= b[1])
-    };
+    let overlap =
+        |a: &BBox, b: &BBox| (a[0] <= b[2]) & (a[2] >= b[0]) & (a[1] <= b[3]) & (a[3] >= b[1]);
     if boxes.len() < 2 {
         return;
     }

@@ -78,16 +78,19 @@ pub fn offset_polyline(
     check_args(distance, opts)?;
     check_finite(pl, 0)?;
     let eps = geometric_eps(opts.tolerance, &[pl]);
-    let segs = clean(pl, eps);
+    let (segs, survey) = clean_surveyed(pl, eps);
     if segs.is_empty() {
         return Ok(Vec::new());
     }
     if pl.closed {
-        let area: f64 = segs.iter().map(|s| s.area2()).sum();
-        let ccw = area >= 0.0;
-        let segs = if ccw { segs } else { reverse(&segs) };
+        let ccw = survey.area2 >= 0.0;
+        let (segs, convex) = if ccw {
+            (segs, Some(survey.convex_ccw))
+        } else {
+            (reverse(&segs), None)
+        };
         let mut paths = vec![(segs, true)];
-        let convex = check_input(&mut paths, eps, opts.tolerance)?;
+        let convex = check_input(&mut paths, eps, opts.tolerance, convex)?;
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -96,7 +99,7 @@ pub fn offset_polyline(
                 .collect();
             return Ok(out);
         }
-        if shrinks_away(&segs, distance) {
+        if shrinks_away(&survey.bbox, distance) {
             return Ok(Vec::new());
         }
         let loops = run_closed(vec![(segs, true)], convex, -distance, opts, eps);
@@ -106,7 +109,7 @@ pub fn offset_polyline(
             .collect())
     } else {
         let mut paths = vec![(segs, false)];
-        check_input(&mut paths, eps, opts.tolerance)?;
+        check_input(&mut paths, eps, opts.tolerance, None)?;
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if segs.is_empty() {
             return Ok(Vec::new());
@@ -220,29 +223,36 @@ fn offset_loops(
     // per region: outer counter-clockwise, islands clockwise, whatever the caller handed us;
     // a region whose outer is empty goes with its islands
     let mut loops: Vec<(Vec<Seg>, bool)> = Vec::new();
+    // per loop: its box, and whether it is convex as it now runs (None: not known)
+    let mut surveys: Vec<(index::BBox, Option<bool>)> = Vec::new();
     let mut outers: Vec<usize> = Vec::new();
     for r in regions {
         for (i, p) in r.boundaries().enumerate() {
-            let segs = clean(p, eps);
+            let (segs, survey) = clean_surveyed(p, eps);
             if segs.is_empty() {
                 if i == 0 {
                     break;
                 }
                 continue;
             }
-            let area: f64 = segs.iter().map(|s| s.area2()).sum();
             let want_ccw = i == 0;
-            let segs = if (area >= 0.0) == want_ccw {
-                segs
+            let (segs, convex) = if (survey.area2 >= 0.0) == want_ccw {
+                (segs, Some(survey.convex_ccw))
             } else {
-                reverse(&segs)
+                (reverse(&segs), None)
             };
             if i == 0 {
                 outers.push(loops.len());
             }
             loops.push((segs, true));
+            surveys.push((survey.bbox, convex));
         }
     }
+    // whether the loops are one convex loop, as surveyed
+    let one_convex = match (loops.as_slice(), surveys.as_slice()) {
+        ([(_, true)], [(_, known)]) => *known,
+        _ => Some(false),
+    };
     let convex = if eps == valid_at {
         // the kernel's own result at this epsilon: valid as it stands (what the check
         // would find, debug builds make sure of)
@@ -257,14 +267,17 @@ fn offset_loops(
             Ok(()),
             "the kernel's result fails the input check"
         );
-        matches!(loops.as_slice(), [(segs, true)] if convex::is_convex_ccw(segs))
+        match (loops.as_slice(), one_convex) {
+            ([(segs, true)], None) => convex::is_convex_ccw(segs),
+            (_, known) => known == Some(true),
+        }
     } else {
-        check_input(&mut loops, eps, opts.tolerance)?
+        check_input(&mut loops, eps, opts.tolerance, one_convex)?
     };
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
-        if shrinks_away(&loops[o].0, distance) {
+        if shrinks_away(&surveys[o].0, distance) {
             let end = outers.get(k + 1).copied().unwrap_or(loops.len());
             keep[o..end].iter_mut().for_each(|x| *x = false);
         }
@@ -423,38 +436,15 @@ pub fn offset_shape(
     Ok(Shape::new(out))
 }
 
-/// Whether shrinking the loop by -`distance` leaves nothing: every point inside a loop lies
-/// within half the smaller side of its bounding box of the loop (walk towards the nearer
-/// side of the box and you leave the loop), so a larger shrink is empty. Answering this up
-/// front spares the collapse of a dense loop into a knot of crossing offsets.
-fn shrinks_away(outer: &[Seg], distance: f64) -> bool {
+/// Whether shrinking a loop whose box is `b` by -`distance` leaves nothing: every point
+/// inside a loop lies within half the smaller side of its bounding box of the loop (walk
+/// towards the nearer side of the box and you leave the loop), so a larger shrink is
+/// empty. Answering this up front spares the collapse of a dense loop into a knot of
+/// crossing offsets. (A box larger than the loop's only answers no more often: the box of
+/// a loop before the input check cut zig-zag lobes off it serves.)
+fn shrinks_away(b: &index::BBox, distance: f64) -> bool {
     if distance >= 0.0 {
         return false;
-    }
-    let mut b = [
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    ];
-    for s in outer {
-        // a line's box is its ends' (no call, no sweep test)
-        let sb = if s.is_arc() {
-            s.bbox()
-        } else {
-            [
-                lo(s.a.x, s.b.x),
-                lo(s.a.y, s.b.y),
-                hi(s.a.x, s.b.x),
-                hi(s.a.y, s.b.y),
-            ]
-        };
-        b = [
-            lo(b[0], sb[0]),
-            lo(b[1], sb[1]),
-            hi(b[2], sb[2]),
-            hi(b[3], sb[3]),
-        ];
     }
     -distance >= 0.5 * (b[2] - b[0]).min(b[3] - b[1])
 }
@@ -502,6 +492,21 @@ fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
 /// segment leaving it; the kept one's was the short segment's), so an arc that starts a
 /// nanometre after a vertex stays an arc rather than becoming its chord.
 fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
+    clean_surveyed(pl, eps).0
+}
+
+/// What the pass that makes a path's segments finds out about them on the way (at 100,000
+/// segments every further pass over them reads 6.4 MB, a third of a millisecond): twice
+/// the signed area of the loop they close, their box, and whether they make one convex
+/// loop of lines, counter-clockwise (`convex::is_convex_ccw`).
+struct Survey {
+    area2: f64,
+    bbox: index::BBox,
+    convex_ccw: bool,
+}
+
+/// [`clean`] with its [`Survey`].
+fn clean_surveyed(pl: &Polyline, eps: f64) -> (Vec<Seg>, Survey) {
     // (squared distances, no root per vertex)
     let eps2 = eps * eps;
     let near = |a: &Vertex, b: &Vertex| {
@@ -533,20 +538,57 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
 }
 
 /// The segments between the vertices `pts`, each with its bulge (and from the last to the
-/// first when `closed`).
-fn segments_of(pts: &[Vertex], closed: bool) -> Vec<Seg> {
+/// first when `closed`), surveyed on the way.
+fn segments_of(pts: &[Vertex], closed: bool) -> (Vec<Seg>, Survey) {
     let segs_n = match pts.len() {
         0 | 1 => 0,
         k if closed => k,
         k => k - 1,
     };
+    let mut area2 = 0.0;
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    let mut turns = convex::Turns::default();
     // each vertex with the next (the first after the last when closed), no division
     let next = pts.iter().skip(1).chain(pts.first());
-    pts.iter()
+    let segs = pts
+        .iter()
         .zip(next)
         .take(segs_n)
-        .map(|(a, b)| Seg::from_bulge(a.pos(), b.pos(), a.bulge))
-        .collect()
+        .map(|(a, b_)| {
+            let s = Seg::from_bulge(a.pos(), b_.pos(), a.bulge);
+            area2 += s.area2();
+            // a line's box is its ends' (no call, no sweep test)
+            let sb = if s.is_arc() {
+                s.bbox()
+            } else {
+                [
+                    lo(s.a.x, s.b.x),
+                    lo(s.a.y, s.b.y),
+                    hi(s.a.x, s.b.x),
+                    hi(s.a.y, s.b.y),
+                ]
+            };
+            b = [
+                lo(b[0], sb[0]),
+                lo(b[1], sb[1]),
+                hi(b[2], sb[2]),
+                hi(b[3], sb[3]),
+            ];
+            turns.add(&s);
+            s
+        })
+        .collect();
+    let survey = Survey {
+        area2,
+        bbox: b,
+        convex_ccw: closed && turns.convex_ccw(),
+    };
+    (segs, survey)
 }
 
 fn reverse(segs: &[Seg]) -> Vec<Seg> {
@@ -571,13 +613,16 @@ fn zigzag_bound(tolerance: f64, eps: f64) -> f64 {
 /// `zigzag_bound` where paths cross themselves (see `zigzag`). Ok(true) when the paths are
 /// one convex loop of lines, counter-clockwise (see `convex`), which cannot cross itself
 /// and needs no crossing search.
+/// `convex`: what a survey of the paths found of `is_convex_ccw`, when they are one loop
+/// (None: find out).
 fn check_input(
     paths: &mut [(Vec<Seg>, bool)],
     eps: f64,
     tolerance: f64,
+    convex: Option<bool>,
 ) -> Result<bool, OffsetError> {
     if let [(segs, true)] = &*paths {
-        if convex::is_convex_ccw(segs) {
+        if convex.unwrap_or_else(|| convex::is_convex_ccw(segs)) {
             return Ok(true);
         }
     }
