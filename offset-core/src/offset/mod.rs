@@ -76,8 +76,7 @@ pub fn offset_polyline(
     opts: &OffsetOptions,
 ) -> Result<Vec<Polyline>, OffsetError> {
     check_args(distance, opts)?;
-    check_finite(pl, 0)?;
-    let eps = geometric_eps(opts.tolerance, &[pl]);
+    let eps = eps_at(opts.tolerance, check_finite(pl, 0)?);
     let (segs, survey) = clean_surveyed(pl, eps);
     if segs.is_empty() {
         return Ok(Vec::new());
@@ -216,10 +215,11 @@ fn offset_loops(
 ) -> Result<ValidRegions, OffsetError> {
     check_args(distance, opts)?;
     let all: Vec<&Polyline> = regions.iter().flat_map(|r| r.boundaries()).collect();
+    let mut extent: f64 = 0.0;
     for (i, p) in all.iter().enumerate() {
-        check_finite(p, i)?;
+        extent = hi(extent, check_finite(p, i)?);
     }
-    let eps = geometric_eps(opts.tolerance, &all);
+    let eps = eps_at(opts.tolerance, extent);
     // per region: outer counter-clockwise, islands clockwise, whatever the caller handed us;
     // a region whose outer is empty goes with its islands
     let mut loops: Vec<(Vec<Seg>, bool)> = Vec::new();
@@ -459,31 +459,39 @@ fn check_args(distance: f64, opts: &OffsetOptions) -> Result<(), OffsetError> {
     Ok(())
 }
 
-fn check_finite(pl: &Polyline, path: usize) -> Result<(), OffsetError> {
-    match pl
-        .vertices
-        .iter()
-        .position(|v| !(v.x.is_finite() && v.y.is_finite() && v.bulge.is_finite()))
-    {
-        Some(vertex) => Err(OffsetError::NotFinite { path, vertex }),
-        None => Ok(()),
+/// Refuses a path with a coordinate or bulge that is not a finite number, naming the
+/// vertex; else the path's extent, its largest |coordinate| (what `eps_at` asks, found in
+/// the same pass over the vertices).
+fn check_finite(pl: &Polyline, path: usize) -> Result<f64, OffsetError> {
+    let mut m = 0.0;
+    for (vertex, v) in pl.vertices.iter().enumerate() {
+        if !(v.x.is_finite() && v.y.is_finite() && v.bulge.is_finite()) {
+            return Err(OffsetError::NotFinite { path, vertex });
+        }
+        // (finite: a plain comparison, not f64::max's NaN rule)
+        let a = hi(v.x.abs(), v.y.abs());
+        if a > m {
+            m = a;
+        }
     }
+    Ok(m)
 }
 
 /// The kernel's geometric epsilon: a ten-thousandth of the tolerance, but never below what
-/// doubles can resolve at the shape's coordinates.
+/// doubles can resolve at the shape's coordinates (`extent`, the largest |coordinate|).
+fn eps_at(tol: f64, extent: f64) -> f64 {
+    (tol * 1e-4).max(extent.max(1.0) * 1e-14)
+}
+
+/// [`eps_at`] the extent of `paths` (a path that is not finite counts as none: the callers
+/// that may be handed one refuse it with `check_finite` first).
 fn geometric_eps(tol: f64, paths: &[&Polyline]) -> f64 {
-    let mut m: f64 = 1.0;
-    for p in paths {
-        // (the vertices are finite here: a plain comparison, not f64::max's NaN rule)
-        for v in &p.vertices {
-            let a = hi(v.x.abs(), v.y.abs());
-            if a > m {
-                m = a;
-            }
-        }
-    }
-    (tol * 1e-4).max(m * 1e-14)
+    let extent = paths
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| check_finite(p, i).ok())
+        .fold(0.0, hi);
+    eps_at(tol, extent)
 }
 
 /// The path's segments with the ones shorter than `eps` left out (their ends merged). The
@@ -497,10 +505,12 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
 
 /// What the pass that makes a path's segments finds out about them on the way (at 100,000
 /// segments every further pass over them reads 6.4 MB, a third of a millisecond): twice
-/// the signed area of the loop they close, their box, and whether they make one convex
+/// the signed area of the loop they close, whether one is short, their box, and whether they make one convex
 /// loop of lines, counter-clockwise (`convex::is_convex_ccw`).
 struct Survey {
     area2: f64,
+    /// a segment is shorter than the ε asked
+    short: bool,
     bbox: index::BBox,
     convex_ccw: bool,
 }
@@ -514,10 +524,11 @@ fn clean_surveyed(pl: &Polyline, eps: f64) -> (Vec<Seg>, Survey) {
         d.dot(d) <= eps2
     };
     let vs = &pl.vertices;
-    // most drawings have no such segment: their segments straight from the vertices
-    let closing_near = pl.closed && vs.len() > 1 && near(&vs[vs.len() - 1], &vs[0]);
-    if !closing_near && !vs.windows(2).any(|w| near(&w[0], &w[1])) {
-        return segments_of(vs, pl.closed);
+    // most drawings have no such segment: their segments straight from the vertices, the
+    // pass that makes them finding whether one is short
+    let (segs, survey) = segments_of(vs, pl.closed, eps2);
+    if !survey.short {
+        return (segs, survey);
     }
     let mut pts: Vec<Vertex> = Vec::with_capacity(vs.len());
     for v in vs {
@@ -534,18 +545,20 @@ fn clean_surveyed(pl: &Polyline, eps: f64) -> (Vec<Seg>, Survey) {
             pts.pop();
         }
     }
-    segments_of(&pts, pl.closed)
+    segments_of(&pts, pl.closed, eps2)
 }
 
 /// The segments between the vertices `pts`, each with its bulge (and from the last to the
-/// first when `closed`), surveyed on the way.
-fn segments_of(pts: &[Vertex], closed: bool) -> (Vec<Seg>, Survey) {
+/// first when `closed`), surveyed on the way (`short`: a chord no longer than the root of
+/// `short2`).
+fn segments_of(pts: &[Vertex], closed: bool, short2: f64) -> (Vec<Seg>, Survey) {
     let segs_n = match pts.len() {
         0 | 1 => 0,
         k if closed => k,
         k => k - 1,
     };
     let mut area2 = 0.0;
+    let mut short = false;
     let mut b = [
         f64::INFINITY,
         f64::INFINITY,
@@ -561,6 +574,8 @@ fn segments_of(pts: &[Vertex], closed: bool) -> (Vec<Seg>, Survey) {
         .take(segs_n)
         .map(|(a, b_)| {
             let s = Seg::from_bulge(a.pos(), b_.pos(), a.bulge);
+            let d = s.b - s.a;
+            short |= d.dot(d) <= short2;
             area2 += s.area2();
             // a line's box is its ends' (no call, no sweep test)
             let sb = if s.is_arc() {
@@ -585,6 +600,7 @@ fn segments_of(pts: &[Vertex], closed: bool) -> (Vec<Seg>, Survey) {
         .collect();
     let survey = Survey {
         area2,
+        short,
         bbox: b,
         convex_ccw: closed && turns.convex_ccw(),
     };
