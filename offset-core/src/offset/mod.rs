@@ -1041,11 +1041,15 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> (Vec<Seg>, bool) {
     if segs.iter().all(long) {
         return (segs, true);
     }
-    if closed {
-        // start at a long segment, so no run wraps round the seam
-        match segs.iter().position(long) {
-            Some(k) => segs.rotate_left(k),
-            None => return (resample_loop(segs, delta), false),
+    if closed && !long(&segs[0]) {
+        // start at a long segment, so no run wraps round the seam; with none, resampled
+        // (one pass finds out which: a dense loop at near collapse has 100,000 to read)
+        match resample_loop(segs, delta) {
+            Ok(resampled) => return (resampled, false),
+            Err((back, k)) => {
+                segs = back;
+                segs.rotate_left(k);
+            }
         }
     }
     let n = segs.len();
@@ -1099,12 +1103,15 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> (Vec<Seg>, bool) {
 /// near collapse: 100,000 sides of 6e-8 mm): the same loop through every vertex at which
 /// its length since the last one kept reaches `delta`, so its lines are about `delta` long
 /// and no point moves by more than `delta`. A loop shorter than three times `delta` stays
-/// as it is.
-fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
+/// as it is. Err(the loop as it came, k) when its segment k is not that short.
+fn resample_loop(segs: Vec<Seg>, delta: f64) -> Result<Vec<Seg>, (Vec<Seg>, usize)> {
     let first = segs[0].a;
     let mut out: Vec<Seg> = Vec::new();
     let (mut start, mut acc, mut total) = (first, 0.0, 0.0);
-    for s in &segs {
+    for (k, s) in segs.iter().enumerate() {
+        if !s.shorter_than(delta) {
+            return Err((segs, k));
+        }
         let l = s.length();
         acc += l;
         total += l;
@@ -1115,7 +1122,7 @@ fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
         }
     }
     if total < 3.0 * delta {
-        return segs;
+        return Ok(segs);
     }
     // close the loop: the last line ends at the first point, a stub is absorbed
     match out.last_mut() {
@@ -1123,7 +1130,7 @@ fn resample_loop(segs: Vec<Seg>, delta: f64) -> Vec<Seg> {
         _ => out.push(Seg::line(start, first)),
     }
     out.retain(|s| s.a != s.b);
-    out
+    Ok(out)
 }
 
 /// A finished path with its signed area (0 when open), measured from its segments while
