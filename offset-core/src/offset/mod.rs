@@ -131,7 +131,7 @@ pub fn offset_polyline(
                 .into_iter()
                 .map(|r| r.seg),
         );
-        let ends = [raw::ends_of(&segs)];
+        let ends = [raw::ends_of(&segs, distance)];
         Ok(
             run(&[(segs, false)], &ends, &splitters, distance, opts, eps)
                 .into_iter()
@@ -913,7 +913,7 @@ fn run_closed(
     let mut on_input = true;
     loop {
         let timer = stages::Timer::start(&loops);
-        let ends: Vec<raw::Ends> = loops.iter().map(|(s, _)| raw::ends_of(s)).collect();
+        let ends: Vec<raw::Ends> = loops.iter().map(|(s, _)| raw::ends_of(s, rest)).collect();
         let step = match opts.join {
             Join::Round => stages::first_stage(&loops, &ends, rest, on_input),
             Join::Miter | Join::Chamfer => None,

@@ -67,7 +67,7 @@ const FIRST_STAGE_SHARE: f64 = 0.6;
 /// it fold the offset back (C); only min(F, C) of the fans meets a fold (a convex loop
 /// grown, or an island grown, has F − C = 2π of fans that cross nothing). Turns at corners
 /// are taken as the sine of the turn (π less it past a right angle), so no trigonometry.
-/// `ends`: each loop's tangents and length (`raw::ends_of`).
+/// `ends`: each loop's length and turns (`raw::ends_of` to the side of `o`).
 pub(super) fn first_stage(
     loops: &[(Vec<Seg>, bool)],
     ends: &[Ends],
@@ -82,30 +82,7 @@ pub(super) fn first_stage(
             continue;
         }
         length += ends.length;
-        let (mut away, mut toward) = (0.0, 0.0);
-        let mut t_in = ends.tangents[segs.len() - 1].1;
-        for (s, &(t_out, t_end)) in segs.iter().zip(&ends.tangents) {
-            let (cr, dt) = (t_in.cross(t_out), t_in.dot(t_out));
-            let turn = if dt >= 0.0 {
-                cr.abs()
-            } else {
-                std::f64::consts::PI - cr.abs()
-            };
-            if cr * side < 0.0 {
-                away += turn;
-            } else {
-                toward += turn;
-            }
-            if s.is_arc() {
-                if s.sw * side < 0.0 {
-                    away += s.sw.abs();
-                } else {
-                    toward += s.sw.abs();
-                }
-            }
-            t_in = t_end;
-        }
-        crossing_fans += f64::min(away, toward);
+        crossing_fans += f64::min(ends.away, ends.toward);
     }
     if !(crossing_fans > 0.0 && length > 0.0) {
         return None;
