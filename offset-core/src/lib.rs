@@ -29,5 +29,8 @@ pub mod stats;
 pub mod stitch;
 pub mod toolpath;
 
+#[cfg(test)]
+mod test_rng;
+
 pub use geom::{Bounds, Point, Polyline, Region, Segment, Shape, Vertex};
 pub use toolpath::{Move, Tool, ToolKind, Toolpath, P3};

@@ -231,13 +231,8 @@ mod tests {
     #[test]
     fn nearest_agrees_with_brute_force() {
         let mut tris = Vec::new();
-        let mut s = 12345u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) * 10.0
-        };
+        let mut uniform = crate::test_rng::uniform(12345);
+        let mut rnd = || uniform() * 10.0;
         for _ in 0..500 {
             let a = V3::new(rnd(), rnd(), rnd());
             tris.push([

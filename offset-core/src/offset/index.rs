@@ -528,13 +528,7 @@ mod tests {
     fn the_one_nearest_item_is_the_brute_force_nearest_within_the_bound() {
         // scattered boxes of many sizes (n from 1 to a few levels), each item's distance
         // a little above its box's, points inside and far outside, bounds that cut some off
-        let mut seed = 12345u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::uniform(12345);
         for n in [1usize, 2, 15, 16, 17, 300, 5000] {
             let boxes: Vec<BBox> = (0..n)
                 .map(|_| {

@@ -1293,13 +1293,7 @@ mod tests {
     fn the_filtered_winding_numbers_are_the_polylines() {
         // random loops of lines and bulges (some crossing themselves), points scattered
         // over and around them, some at vertex heights exactly (the crossing rule's edge)
-        let mut seed = 987654321u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::uniform(987654321);
         for n in [1usize, 2, 3, 7, 40, 300] {
             for _ in 0..20 {
                 let vs: Vec<Vertex> = (0..n)

@@ -93,7 +93,11 @@ pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
             let d = s.b - s.a;
             let l = d.len();
             length += l;
-            let t = if l > 0.0 { d * (1.0 / l) } else { Point::default() };
+            let t = if l > 0.0 {
+                d * (1.0 / l)
+            } else {
+                Point::default()
+            };
             (t, t)
         };
         if let Some(&(_, t_in)) = tangents.last() {

@@ -606,13 +606,7 @@ mod tests {
     fn the_series_angle_is_atan2s() {
         // directions on both sides of the series' edge (a quarter radian), tiny turns,
         // both signs, vectors of many lengths; within two units in the last place
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::uniform(7);
         for k in 0..200_000 {
             let a = match k % 4 {
                 0 => (rnd() - 0.5) * 0.3,
@@ -711,13 +705,7 @@ mod tests {
             }
             bb
         };
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::uniform(7);
         for i in 0..100_000 {
             let c = Point::new(rnd() * 2000.0 - 1000.0, rnd() * 2000.0 - 1000.0);
             let r = 10f64.powf(rnd() * 8.0 - 4.0);
@@ -751,13 +739,7 @@ mod tests {
             }
             x - PI
         };
-        let mut seed = 42u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rnd = crate::test_rng::uniform(42);
         let mut angles: Vec<f64> = (0..100_000).map(|_| (rnd() - 0.5) * 40.0).collect();
         for k in -6..=6 {
             let edge = k as f64 * PI;
