@@ -231,8 +231,10 @@ const FONT: &[u8] = include_bytes!("../../assets/DejaVuSans-subset.ttf");
 /// Rendering options that know only the carried font (system fonts are never asked for,
 /// so the drawing is the same on every machine).
 fn render_options() -> resvg::usvg::Options<'static> {
-    let mut opt = resvg::usvg::Options::default();
-    opt.font_family = "DejaVu Sans".into();
+    let mut opt = resvg::usvg::Options {
+        font_family: "DejaVu Sans".into(),
+        ..Default::default()
+    };
     let db = opt.fontdb_mut();
     db.load_font_data(FONT.to_vec());
     db.set_sans_serif_family("DejaVu Sans");

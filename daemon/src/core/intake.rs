@@ -691,11 +691,12 @@ pub fn params_of(spec: &JobSpec) -> serde_json::Value {
     v
 }
 
-/// A job of several operations (a recipe), planned here beside the single operations whose
-/// planning it calls and which call it back (`plan` hands a job of operations to
-/// `recipe::plan_operations`, which plans each one with `toolpath`): one file, so the two
-/// never import each other.
 pub mod recipe {
+    //! A job of several operations (a recipe), planned here beside the single operations
+    //! whose planning it calls and which call it back (`plan` hands a job of operations to
+    //! `recipe::plan_operations`, which plans each one with `toolpath`): one file, so the
+    //! two never import each other.
+    //!
     //! Recipes: a job of several operations, each with its own tool (a number from the machine's
     //! `tools` table, or given inline) and the geometry it takes (DXF layers and SVG layers or
     //! groups by name or glob, DXF colours, circles of a diameter range), planned in their order into one tool path with
