@@ -39,6 +39,7 @@ pub(super) struct Turns {
 }
 
 impl Turns {
+    #[inline(always)]
     pub(super) fn add(&mut self, s: &Seg) {
         self.arcs |= s.is_arc();
         let t_out = s.b - s.a;

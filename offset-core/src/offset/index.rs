@@ -76,7 +76,8 @@ pub fn grow(b: BBox, e: f64) -> BBox {
     [b[0] - e, b[1] - e, b[2] + e, b[3] + e]
 }
 
-fn union(a: &BBox, b: &BBox) -> BBox {
+/// The smallest box holding both.
+pub fn union(a: &BBox, b: &BBox) -> BBox {
     [
         lo(a[0], b[0]),
         lo(a[1], b[1]),

@@ -602,6 +602,8 @@ fn arc_arc(s1: &Seg, s2: &Seg, eps: f64) -> Hits {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     #[test]
     fn the_series_angle_is_atan2s() {
         // directions on both sides of the series' edge (a quarter radian), tiny turns,
@@ -616,7 +618,7 @@ mod tests {
             };
             let scale = 10f64.powf(rnd() * 12.0 - 6.0);
             let (cr, dt) = (a.sin() * scale, a.cos() * scale);
-            let (ours, libm) = (super::angle(cr, dt), cr.atan2(dt));
+            let (ours, libm) = (angle(cr, dt), cr.atan2(dt));
             let ulp = f64::EPSILON * libm.abs().max(f64::MIN_POSITIVE);
             assert!(
                 (ours - libm).abs() <= 2.0 * ulp,
@@ -624,8 +626,6 @@ mod tests {
             );
         }
     }
-
-    use super::*;
 
     #[test]
     fn crossing_lines_and_overlaps() {

@@ -65,9 +65,9 @@ const FIRST_STAGE_SHARE: f64 = 0.6;
 ///
 /// Per loop, the turns away from the offset side make the fans (F) and the turns towards
 /// it fold the offset back (C); only min(F, C) of the fans meets a fold (a convex loop
-/// grown, or an island grown, has F − C = 2π of fans that cross nothing). Turns at corners
-/// are taken as the sine of the turn (π less it past a right angle), so no trigonometry.
-/// `ends`: each loop's length and turns (`raw::ends_of` to the side of `o`).
+/// grown, or an island grown, has F − C = 2π of fans that cross nothing). `ends`: each
+/// loop's length and turns, F and C (`raw::ends_of` to the side of `o`, which measures a
+/// corner's turn without trigonometry).
 pub(super) fn first_stage(
     loops: &[(Vec<Seg>, bool)],
     ends: &[Ends],
