@@ -383,8 +383,7 @@ mod tests {
                     continue;
                 }
                 let fast = super::super::finish(vec![(fast, true)], &opts, eps);
-                let ends = [super::super::raw::ends_of(&segs, o)];
-                let general = super::super::run(&[(segs.clone(), true)], &ends, &[], o, &opts, eps);
+                let general = super::super::run(&[(segs.clone(), true)], &[], o, &opts, eps);
                 assert_eq!(fast.len(), 1, "case {case}, o {o}");
                 // the general way may leave sliver loops of a few nm² beside the loop
                 // (seen on the dense ones: up to 7 of them, 6e-9 mm² at most): compare

@@ -131,13 +131,10 @@ pub fn offset_polyline(
                 .into_iter()
                 .map(|r| r.seg),
         );
-        let ends = [raw::ends_of(&segs, distance)];
-        Ok(
-            run(&[(segs, false)], &ends, &splitters, distance, opts, eps)
-                .into_iter()
-                .map(|l| l.poly)
-                .collect(),
-        )
+        Ok(run(&[(segs, false)], &splitters, distance, opts, eps)
+            .into_iter()
+            .map(|l| l.poly)
+            .collect())
     }
 }
 
@@ -947,20 +944,23 @@ fn run_closed(
     let mut on_input = true;
     loop {
         let timer = stages::Timer::start(&loops);
-        let ends: Vec<raw::Ends> = loops.iter().map(|(s, _)| raw::ends_of(s, rest)).collect();
         let step = match opts.join {
-            Join::Round => stages::first_stage(&loops, &ends, rest, on_input),
+            Join::Round => {
+                let ends: Vec<raw::Ends> =
+                    loops.iter().map(|(s, _)| raw::ends_of(s, rest)).collect();
+                stages::first_stage(&loops, &ends, rest, on_input)
+            }
             Join::Miter | Join::Chamfer => None,
         };
         on_input = false;
         let Some(step) = step else {
-            let result = run(&loops, &ends, &[], rest, opts, eps);
+            let result = run(&loops, &[], rest, opts, eps);
             timer.report("last stage", rest);
             return result;
         };
         // the stage's loops as regions, so an island left without its outer goes, then
         // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
-        let regions = assemble(run(&loops, &ends, &[], step, opts, eps));
+        let regions = assemble(run(&loops, &[], step, opts, eps));
         timer.report("stage", step);
         rest -= step;
         loops = regions
@@ -976,10 +976,8 @@ fn run_closed(
 }
 
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.
-/// `ends`: each path's tangents (`raw::ends_of`).
 fn run(
     paths: &[(Vec<Seg>, bool)],
-    ends: &[raw::Ends],
     splitters: &[Seg],
     o: f64,
     opts: &OffsetOptions,
@@ -987,8 +985,7 @@ fn run(
 ) -> Vec<Loop> {
     let raws: Vec<RawPath> = paths
         .iter()
-        .zip(ends)
-        .map(|((segs, closed), ends)| raw::raw_path(segs, &ends.tangents, *closed, o, eps))
+        .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
     let valid_eps = slack(opts.tolerance, eps);
@@ -1176,8 +1173,29 @@ struct Loop {
 
 /// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
 /// co-circular arcs merged, loops with no area (a region offset to a line) dropped.
+///
+/// One pass: a segment's vertex, area and length are taken as soon as the next one does
+/// not merge into it, while it is in the cache (at a million segments a second pass read
+/// 80 MB again). Only where the loop's last segment merges into its first (a loop that
+/// starts inside a line) are they taken again in a second pass.
 fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     let tiny = eps * 1e-2;
+    // the vertices, the length's upper bound |dx| + |dy| for lines (no root: the exact
+    // length is summed only for a loop whose area comes near ε times that) and twice the
+    // area about the first point (a stitched loop may end a few ε from where it starts: the
+    // stitch matches ends within 16 ε, and its area is that of the loop closed there)
+    let mut vs: Vec<Vertex> = Vec::with_capacity(out.len() + 1);
+    let (mut len_bound, mut area2) = (0.0, 0.0);
+    let mut o = Point::new(0.0, 0.0);
+    let take = |s: &Seg, o: Point, vs: &mut Vec<Vertex>, len_bound: &mut f64, area2: &mut f64| {
+        vs.push(Vertex::new(s.a.x, s.a.y, s.bulge()));
+        *len_bound += if s.is_arc() {
+            s.length()
+        } else {
+            (s.b.x - s.a.x).abs() + (s.b.y - s.a.y).abs()
+        };
+        *area2 += s.area2_about(o);
+    };
     // merged in place: the kept segments move to the front
     let mut kept = 0;
     for i in 0..out.len() {
@@ -1190,6 +1208,10 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
                 out[kept - 1] = m;
                 continue;
             }
+            // nothing more merges into the one before: it is final
+            take(&out[kept - 1], o, &mut vs, &mut len_bound, &mut area2);
+        } else {
+            o = s.a;
         }
         if kept != i {
             out[kept] = s;
@@ -1197,7 +1219,9 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
         kept += 1;
     }
     out.truncate(kept);
-    if closed {
+    let closing_merges =
+        closed && out.len() > 2 && merge(&out[out.len() - 1], &out[0], eps).is_some();
+    if closing_merges {
         while out.len() > 2 {
             let (first, last) = (out[0], out[out.len() - 1]);
             match merge(&last, &first, eps) {
@@ -1208,24 +1232,17 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
                 None => break,
             }
         }
-    } else if out.is_empty() {
+        // the first segment changed: everything again, about its new start
+        vs.clear();
+        (len_bound, area2) = (0.0, 0.0);
+        o = out[0].a;
+        for s in &out {
+            take(s, o, &mut vs, &mut len_bound, &mut area2);
+        }
+    } else if let Some(last) = out.last() {
+        take(last, o, &mut vs, &mut len_bound, &mut area2);
+    } else if !closed {
         return None;
-    }
-    // the length's upper bound |dx| + |dy| for lines (no root): the exact length is
-    // summed only for a loop whose area comes near ε times that
-    let (mut len_bound, mut area2) = (0.0, 0.0);
-    // about the first point: a stitched loop may end a few ε from where it starts (the
-    // stitch matches ends within 16 ε), and its area is that of the loop closed there
-    let o = out.first().map_or(Point::new(0.0, 0.0), |s| s.a);
-    let mut vs: Vec<Vertex> = Vec::with_capacity(out.len() + 1);
-    for s in &out {
-        vs.push(Vertex::new(s.a.x, s.a.y, s.bulge()));
-        len_bound += if s.is_arc() {
-            s.length()
-        } else {
-            (s.b.x - s.a.x).abs() + (s.b.y - s.a.y).abs()
-        };
-        area2 += s.area2_about(o);
     }
     let area = if closed { area2 * 0.5 } else { 0.0 };
     let no_area = || area.abs() <= eps * out.iter().map(|s| s.length()).sum::<f64>();

@@ -48,7 +48,7 @@ const TURN_EPS: f64 = 1e-12;
 /// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
 /// old pair-wise way and left to the global stage.
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
-    raw_path(segs, &ends_of(segs, o).tangents, closed, o, eps).segs
+    raw_path(segs, closed, o, eps).segs
 }
 
 /// What the raw offset and the stage schedule both read of a path's segments: the unit
@@ -59,7 +59,6 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
 /// the turn, π less it past a right angle, so no trigonometry). One pass over the
 /// segments: at 100,000 each pass reads 6.4 MB.
 pub struct Ends {
-    pub tangents: Vec<(Point, Point)>,
     pub length: f64,
     pub away: f64,
     pub toward: f64,
@@ -82,7 +81,8 @@ pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
         let t = if dt >= 0.0 { cr.abs() } else { PI - cr.abs() };
         (t, cr * side < 0.0)
     };
-    let mut tangents: Vec<(Point, Point)> = Vec::with_capacity(segs.len());
+    let mut first: Option<Point> = None;
+    let mut last: Option<Point> = None;
     for s in segs {
         let ends = if s.is_arc() {
             length += s.length();
@@ -100,19 +100,19 @@ pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
             };
             (t, t)
         };
-        if let Some(&(_, t_in)) = tangents.last() {
+        if let Some(t_in) = last {
             let (t, is_away) = corner(t_in, ends.0);
             add(t, is_away);
         }
-        tangents.push(ends);
+        first.get_or_insert(ends.0);
+        last = Some(ends.1);
     }
     // the corner that closes the loop
-    if let (Some(&(t_out, _)), Some(&(_, t_in))) = (tangents.first(), tangents.last()) {
+    if let (Some(t_out), Some(t_in)) = (first, last) {
         let (t, is_away) = corner(t_in, t_out);
         add(t, is_away);
     }
     Ends {
-        tangents,
         length,
         away,
         toward,
@@ -127,26 +127,30 @@ pub struct RawPath {
     pub closed: bool,
 }
 
-/// [`raw_offset`] with the boxes, made in the same last pass over the segments (at a
-/// million segments each pass reads 100 MB).
-/// `ends`: the segments' tangents (see [`ends_of`]).
-pub fn raw_path(segs: &[Seg], ends: &[(Point, Point)], closed: bool, o: f64, eps: f64) -> RawPath {
-    let mut out = unfinished(segs, ends, closed, o, eps);
-    let short2 = (eps * 1e-3) * (eps * 1e-3);
-    let mut boxes: Vec<BBox> = Vec::with_capacity(out.len());
-    let mut kept = 0;
-    for i in 0..out.len() {
-        let r = out[i];
-        if r.seg.length2() <= short2 {
-            continue;
+/// [`raw_offset`] with the boxes, each made as soon as its segment is final, while the
+/// segment is still in the cache (at a million segments a pass of its own over the raw
+/// offset read 100 MB again).
+pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
+    let mut boxing = Boxing::new(eps, 2 * segs.len());
+    let mut out = unfinished(segs, closed, o, eps, &mut boxing);
+    let Boxing {
+        mut boxes, short, ..
+    } = boxing;
+    if short {
+        // (rare) the segments shorter than ε / 1000 go, with their boxes
+        let short2 = short_length2(eps);
+        let mut kept = 0;
+        for i in 0..out.len() {
+            if out[i].seg.length2() <= short2 {
+                continue;
+            }
+            out[kept] = out[i];
+            boxes[kept] = boxes[i];
+            kept += 1;
         }
-        boxes.push(grow(r.seg.bbox(), eps));
-        if kept != i {
-            out[kept] = r;
-        }
-        kept += 1;
+        out.truncate(kept);
+        boxes.truncate(kept);
     }
-    out.truncate(kept);
     RawPath {
         segs: out,
         boxes,
@@ -154,21 +158,78 @@ pub fn raw_path(segs: &[Seg], ends: &[(Point, Point)], closed: bool, o: f64, eps
     }
 }
 
-/// The raw offset before segments shorter than ε / 1000 are dropped.
-fn unfinished(
-    segs: &[Seg],
-    ends: &[(Point, Point)],
-    closed: bool,
-    o: f64,
+/// A raw segment no longer than the root of this goes (ε / 1000).
+fn short_length2(eps: f64) -> f64 {
+    (eps * 1e-3) * (eps * 1e-3)
+}
+
+/// The boxes of a raw offset in the making, grown by ε. While it is made, its first
+/// segment (the closing corner trims it) and its last (the next corner trims or pops it)
+/// may still change, and every segment between is final: `catch_up` boxes those; `finish`
+/// the rest. `short`: some segment is shorter than ε / 1000.
+struct Boxing {
+    /// the first one's box is a placeholder until `finish`
+    boxes: Vec<BBox>,
+    short: bool,
     eps: f64,
-) -> Vec<RawSeg> {
+    short2: f64,
+}
+
+impl Boxing {
+    /// `room`: the most segments expected.
+    fn new(eps: f64, room: usize) -> Boxing {
+        let mut boxes = Vec::with_capacity(room.max(1));
+        boxes.push([0.0; 4]);
+        Boxing {
+            boxes,
+            short: false,
+            eps,
+            short2: short_length2(eps),
+        }
+    }
+
+    fn add(&mut self, r: &RawSeg) {
+        self.short |= r.seg.length2() <= self.short2;
+        self.boxes.push(grow(r.seg.bbox(), self.eps));
+    }
+
+    /// Boxes every segment of `out` but its first and its last not yet boxed.
+    #[inline]
+    fn catch_up(&mut self, out: &[RawSeg]) {
+        for r in out
+            .iter()
+            .take(out.len().saturating_sub(1))
+            .skip(self.boxes.len())
+        {
+            self.add(r);
+        }
+    }
+
+    /// Boxes the segments left, the first included.
+    fn finish(&mut self, out: &[RawSeg]) {
+        self.catch_up(out);
+        for r in out.iter().skip(self.boxes.len()) {
+            self.add(r);
+        }
+        if let Some(first) = out.first() {
+            self.short |= first.seg.length2() <= self.short2;
+            self.boxes[0] = grow(first.seg.bbox(), self.eps);
+        }
+        self.boxes.truncate(out.len());
+    }
+}
+
+/// The raw offset before segments shorter than ε / 1000 are dropped, boxed by `boxing` as
+/// it is made.
+fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing) -> Vec<RawSeg> {
     let m = segs.len();
     if m == 0 {
+        boxing.finish(&[]);
         return Vec::new();
     }
     let corners = if closed { m } else { m - 1 };
     let ring = Ring { m };
-    let tangents = Tangents { ends, ring };
+    let tangents = Tangents { segs, ring };
     let stackable = |k: usize| -> bool {
         let (t1, t2) = tangents.corner(k);
         let (cr, dt) = (t1.cross(t2), t1.dot(t2));
@@ -192,13 +253,14 @@ fn unfinished(
         0
     };
     let mut out: Vec<RawSeg> = Vec::with_capacity(2 * m);
-    out.push(offset_raw(&segs[s0], ends[s0].0, o));
+    out.push(offset_raw(&segs[s0], tangents.at(s0).0, o));
     // the stack's scratch, one for every run of this path
     let mut stack: Vec<(Seg, Seg)> = Vec::new();
     let mut step = 0;
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
     while step < corners {
+        boxing.catch_up(&out);
         let k = ring.at(s0, step);
         let closing = closed && step == m - 1;
         if !closing && step >= pairwise_until && stackable(k) {
@@ -216,7 +278,7 @@ fn unfinished(
                 let floor = out
                     .pop()
                     .map(|r| r.seg)
-                    .unwrap_or_else(|| offset_seg(&segs[k], ends[k].0, o));
+                    .unwrap_or_else(|| offset_seg(&segs[k], tangents.at(k).0, o));
                 if stack_run(segs, tangents, s0, step, end, floor, o, eps, &mut stack) {
                     out.extend(stack.drain(..).map(|(seg, _)| RawSeg {
                         seg,
@@ -237,7 +299,7 @@ fn unfinished(
         let next_raw = if closing {
             out[0]
         } else {
-            offset_raw(&segs[k2], ends[k2].0, o)
+            offset_raw(&segs[k2], tangents.at(k2).0, o)
         };
         let mut next = next_raw.seg;
         let last = out.len() - 1;
@@ -265,6 +327,7 @@ fn unfinished(
         }
         step += 1;
     }
+    boxing.finish(&out);
     out
 }
 
@@ -296,17 +359,44 @@ impl Ring {
     }
 }
 
-/// The unit tangents of a path's segments at their ends, each computed once.
+/// The unit tangents of a path's segments at their ends, computed where they are asked
+/// (a root per line: cheaper than an array of them made in a pass of its own, written and
+/// read again, 32 MB at a million segments).
 #[derive(Clone, Copy)]
 struct Tangents<'a> {
-    ends: &'a [(Point, Point)],
+    segs: &'a [Seg],
     ring: Ring,
 }
 
 impl Tangents<'_> {
+    /// The unit tangents of segment `k` at its start and its end.
+    #[inline]
+    fn at(self, k: usize) -> (Point, Point) {
+        tangents_of(&self.segs[k])
+    }
+
     /// The unit tangents into and out of corner `k`, the end of segment `k`.
+    #[inline]
     fn corner(self, k: usize) -> (Point, Point) {
-        (self.ends[k].1, self.ends[self.ring.next(k)].0)
+        (self.at(k).1, self.at(self.ring.next(k)).0)
+    }
+}
+
+/// A segment's unit tangents at its start and its end (`Seg::tangent_at` at 0 and 1; a
+/// zero-length line's are zero).
+#[inline]
+fn tangents_of(s: &Seg) -> (Point, Point) {
+    if s.is_arc() {
+        (s.tangent_at(0.0), s.tangent_at(1.0))
+    } else {
+        let d = s.b - s.a;
+        let l = d.len();
+        let t = if l > 0.0 {
+            d * (1.0 / l)
+        } else {
+            Point::default()
+        };
+        (t, t)
     }
 }
 
@@ -331,11 +421,11 @@ fn stack_run(
     let ring = tangents.ring;
     stack.clear();
     let k0 = ring.at(s0, from);
-    stack.push((floor, offset_seg(&segs[k0], tangents.ends[k0].0, o)));
+    stack.push((floor, offset_seg(&segs[k0], tangents.at(k0).0, o)));
     for step in from..to {
         let k = ring.at(s0, step);
         let k2 = ring.next(k);
-        let whole = offset_seg(&segs[k2], tangents.ends[k2].0, o);
+        let whole = offset_seg(&segs[k2], tangents.at(k2).0, o);
         let mut next = whole;
         let mut adjacent = true;
         loop {
