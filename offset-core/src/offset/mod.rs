@@ -89,7 +89,7 @@ pub fn offset_polyline(
             (reverse(&segs), None)
         };
         let mut paths = vec![(segs, true)];
-        let convex = check_input(&mut paths, eps, opts.tolerance, convex)?;
+        let Checked { convex, boxes } = check_input(&mut paths, eps, opts.tolerance, convex)?;
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -101,7 +101,7 @@ pub fn offset_polyline(
         if shrinks_away(&survey.bbox, distance) {
             return Ok(Vec::new());
         }
-        let loops = run_closed(vec![(segs, true)], convex, -distance, opts, eps);
+        let loops = run_closed(vec![(segs, true)], convex, boxes, -distance, opts, eps);
         Ok(loops
             .into_iter()
             .map(|l| if ccw { l.poly } else { l.poly.reversed() })
@@ -131,10 +131,17 @@ pub fn offset_polyline(
                 .into_iter()
                 .map(|r| r.seg),
         );
-        Ok(run(&[(segs, false)], &splitters, distance, opts, eps)
-            .into_iter()
-            .map(|l| l.poly)
-            .collect())
+        Ok(run(
+            &[(segs, false)],
+            &splitters,
+            Vec::new(),
+            distance,
+            opts,
+            eps,
+        )
+        .into_iter()
+        .map(|l| l.poly)
+        .collect())
     }
 }
 
@@ -260,17 +267,23 @@ fn offset_loops(
                     .map(|(s, c)| (s.as_slice(), *c))
                     .collect::<Vec<_>>(),
                 eps
-            ),
+            )
+            .map(|_| ()),
             Ok(()),
             "the kernel's result fails the input check"
         );
-        match (loops.as_slice(), one_convex) {
+        let convex = match (loops.as_slice(), one_convex) {
             ([(segs, true)], None) => convex::is_convex_ccw(segs),
             (_, known) => known == Some(true),
+        };
+        Checked {
+            convex,
+            boxes: Vec::new(),
         }
     } else {
         check_input(&mut loops, eps, opts.tolerance, one_convex)?
     };
+    let Checked { convex, mut boxes } = convex;
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -278,6 +291,10 @@ fn offset_loops(
             let end = outers.get(k + 1).copied().unwrap_or(loops.len());
             keep[o..end].iter_mut().for_each(|x| *x = false);
         }
+    }
+    if keep.iter().any(|k| !k) {
+        // (the check's boxes are of every loop)
+        boxes = Vec::new();
     }
     let loops: Vec<(Vec<Seg>, bool)> = loops
         .into_iter()
@@ -301,7 +318,7 @@ fn offset_loops(
             eps: f64::NAN,
         });
     }
-    let polys = run_closed(loops, convex, -distance, opts, eps);
+    let polys = run_closed(loops, convex, boxes, -distance, opts, eps);
     Ok(ValidRegions {
         regions: assemble(polys),
         eps,
@@ -667,29 +684,45 @@ fn check_input(
     eps: f64,
     tolerance: f64,
     convex: Option<bool>,
-) -> Result<bool, OffsetError> {
+) -> Result<Checked, OffsetError> {
     if let [(segs, true)] = &*paths {
         if convex.unwrap_or_else(|| convex::is_convex_ccw(segs)) {
-            return Ok(true);
+            return Ok(Checked {
+                convex: true,
+                boxes: Vec::new(),
+            });
         }
     }
+    let checked = |boxes| Checked {
+        convex: false,
+        boxes,
+    };
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first.map(|()| false);
+        return first.map(checked);
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps).map(|()| false)
+    check_crossings(&views, eps).map(checked)
+}
+
+/// What the input check found: whether the paths are one convex loop of lines, and the
+/// boxes of the paths' segments as they now are, grown by ε (none for a convex loop).
+struct Checked {
+    convex: bool,
+    boxes: Vec<index::BBox>,
 }
 
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
 /// Neighbouring segments may meet only at their shared vertex (a spike that runs back along
 /// itself is allowed: it offsets as a 180° turn).
-fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError> {
+/// Ok: the boxes the search made, each segment's grown by ε, the paths one after another
+/// (what the offset's distance questions ask of the same segments: see `InputSet::new`).
+fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<Vec<index::BBox>, OffsetError> {
     // report the crossing met first along the paths
     let best = std::cell::Cell::new(usize::MAX);
     let mut first: Option<Crossing> = None;
-    each_crossing(
+    let boxes = each_crossing(
         paths,
         eps,
         |order, _, _| order < best.get(),
@@ -705,7 +738,7 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<(), OffsetError
             path: c.a.0,
             at: c.at,
         }),
-        None => Ok(()),
+        None => Ok(boxes),
     }
 }
 
@@ -724,13 +757,13 @@ struct Crossing {
 
 /// Calls `found` for the crossings (by the input rule) of every pair of segments `wanted`
 /// asks for (it is given the pair's order and both segments' (path, index)); at most one
-/// crossing per pair.
+/// crossing per pair. Returns the segments' boxes grown by ε, one path after another.
 fn each_crossing(
     paths: &[(&[Seg], bool)],
     eps: f64,
     mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
     mut found: impl FnMut(Crossing),
-) {
+) -> Vec<index::BBox> {
     // the segments numbered one path after another, each number's (path, index) beside
     // it; the segments themselves are read where they lie (at a million segments a copy
     // of them all is 64 MB written and read again)
@@ -800,6 +833,7 @@ fn each_crossing(
             return;
         }
     });
+    boxes
 }
 
 /// Where the boundary runs on either side of `p`, a point of segment `k` of `path` at
@@ -926,10 +960,12 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
 /// Closed, oriented loops (outers counter-clockwise, islands clockwise) offset by `o` to
 /// the left: in one stage, or with round joins and a distance much larger than the
 /// loops' features in several (see `stages`), each from the loops the one before left.
-/// `convex`: the loops are one convex loop of lines (as `check_input` found).
+/// `convex`: the loops are one convex loop of lines (as `check_input` found); `boxes`: the
+/// loops' segments' boxes grown by ε if the check made them (see `run`), else none.
 fn run_closed(
     mut loops: Vec<(Vec<Seg>, bool)>,
     convex: bool,
+    mut boxes: Vec<index::BBox>,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
@@ -954,13 +990,20 @@ fn run_closed(
         };
         on_input = false;
         let Some(step) = step else {
-            let result = run(&loops, &[], rest, opts, eps);
+            let result = run(&loops, &[], boxes, rest, opts, eps);
             timer.report("last stage", rest);
             return result;
         };
         // the stage's loops as regions, so an island left without its outer goes, then
         // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
-        let regions = assemble(run(&loops, &[], step, opts, eps));
+        let regions = assemble(run(
+            &loops,
+            &[],
+            std::mem::take(&mut boxes),
+            step,
+            opts,
+            eps,
+        ));
         timer.report("stage", step);
         rest -= step;
         loops = regions
@@ -976,9 +1019,13 @@ fn run_closed(
 }
 
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.
+/// `boxes`: the paths' segments' boxes one path after another, grown by ε, as the input
+/// check made them (at a million segments, making them again for the distance questions
+/// read 64 MB and wrote 32 MB); empty: none made yet.
 fn run(
     paths: &[(Vec<Seg>, bool)],
     splitters: &[Seg],
+    boxes: Vec<index::BBox>,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
@@ -987,7 +1034,7 @@ fn run(
         .iter()
         .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
         .collect();
-    let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect());
+    let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect(), boxes);
     let valid_eps = slack(opts.tolerance, eps);
     let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());

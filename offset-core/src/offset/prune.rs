@@ -40,6 +40,8 @@ type Cells = HashMap<(i64, i64), Vec<usize>, BuildHasherDefault<CellHasher>>;
 /// neighbours along a path lie side by side, so no sort).
 pub struct InputSet<'a> {
     paths: Vec<&'a [Seg]>,
+    /// the segments' boxes, if made already (the input check's, grown by ε)
+    boxes: Vec<BBox>,
     index: Option<(BoxIndex, Vec<&'a Seg>)>,
     /// the segment that last answered "nearer": asked first next time (the runs come in
     /// order along their curves, and neighbouring invalid runs mostly come too near the
@@ -51,9 +53,12 @@ pub struct InputSet<'a> {
 const SCANS: usize = 4;
 
 impl<'a> InputSet<'a> {
-    pub fn new(paths: Vec<&'a [Seg]>) -> InputSet<'a> {
+    /// `boxes`: the segments' boxes, one path after another, or a superset of each (the
+    /// input check's, grown by ε), if they were made; else empty.
+    pub fn new(paths: Vec<&'a [Seg]>, boxes: Vec<BBox>) -> InputSet<'a> {
         InputSet {
             paths,
+            boxes,
             index: None,
             hint: Cell::new(0),
         }
@@ -63,7 +68,10 @@ impl<'a> InputSet<'a> {
     pub fn expect(&mut self, questions: usize) {
         if questions > SCANS && self.index.is_none() {
             let segs: Vec<&Seg> = self.paths.iter().flat_map(|p| p.iter()).collect();
-            let boxes: Vec<BBox> = segs.iter().map(|s| s.bbox()).collect();
+            let boxes = match std::mem::take(&mut self.boxes) {
+                given if given.len() == segs.len() => given,
+                _ => segs.iter().map(|s| s.bbox()).collect(),
+            };
             self.index = Some((BoxIndex::in_order_owned(boxes), segs));
         }
     }
