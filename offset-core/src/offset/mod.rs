@@ -1038,10 +1038,14 @@ fn run(
     let valid_eps = slack(opts.tolerance, eps);
     let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());
+    // per piece: no segment of it is shorter than the slack, as the prune found (round
+    // joins leave the segments as they are)
+    let mut long: Vec<bool> = Vec::with_capacity(chains.len());
     for Chain {
         segs,
         whole_join,
         closed,
+        shortest2,
     } in chains
     {
         // an open piece no longer than the validity slack is a sliver at a crossing (three
@@ -1049,18 +1053,19 @@ fn run(
         if !closed && segs.iter().map(|s| s.length()).sum::<f64>() <= valid_eps {
             continue;
         }
+        long.push(opts.join == Join::Round && shortest2 >= valid_eps * valid_eps);
         pieces.push((joins::apply(segs, &whole_join, opts), closed));
     }
     // whole raw curves that cross nothing, round joins as they are: nothing for the
     // zig-zag repair to find, unless the sliver repair changes them (see `finish`)
     let uncrossed = uncrossed && opts.join == Join::Round;
-    finish_known(pieces, opts, eps, uncrossed)
+    finish_known(pieces, &long, opts, eps, uncrossed)
 }
 
 /// The offset's pieces as the result: slivers replaced (see `despike`), zig-zags cut off,
 /// then polylines.
 fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<Loop> {
-    finish_known(pieces, opts, eps, false)
+    finish_known(pieces, &[], opts, eps, false)
 }
 
 /// `finish`; `uncrossed`: the pieces are whole raw curves among which the prune's crossing
@@ -1068,8 +1073,12 @@ fn finish(pieces: Vec<(Vec<Seg>, bool)>, opts: &OffsetOptions, eps: f64) -> Vec<
 /// they are (no segment shorter than the slack), the zig-zag repair's crossing search would
 /// find nothing either (it asks about a subset of the same pairs of the same segments, by
 /// a rule that lets through every meeting the prune let through), and is skipped.
+/// `long`: per piece, true when no segment of it is shorter than the slack (then the
+/// sliver repair need not read it: at a million segments each pass reads 80 MB); empty
+/// or false: not known.
 fn finish_known(
     pieces: Vec<(Vec<Seg>, bool)>,
+    long: &[bool],
     opts: &OffsetOptions,
     eps: f64,
     uncrossed: bool,
@@ -1079,7 +1088,12 @@ fn finish_known(
     let mut as_raw = uncrossed;
     let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
         .into_iter()
-        .map(|(segs, closed)| {
+        .enumerate()
+        .map(|(k, (segs, closed))| {
+            if long.get(k) == Some(&true) {
+                debug_assert!(segs.iter().all(|s| !s.shorter_than(valid_eps)));
+                return (segs, closed);
+            }
             let (segs, untouched) = despike(segs, closed, valid_eps);
             as_raw &= untouched;
             (segs, closed)

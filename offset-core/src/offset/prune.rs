@@ -129,6 +129,9 @@ pub struct Chain {
     /// per segment: it is a whole round join (one a miter or chamfer may replace)
     pub whole_join: Vec<bool>,
     pub closed: bool,
+    /// the least squared length of its segments where the pass that made them found it
+    /// (a whole raw curve), else 0: known to be no less
+    pub shortest2: f64,
 }
 
 /// Whether `s1` followed by `s2` (joined end to start) can meet nowhere but at their joint:
@@ -574,12 +577,14 @@ pub fn prune(
         let mut segs = Vec::with_capacity(b - a);
         let mut whole_join = Vec::with_capacity(b - a);
         let mut longest = (0.0, 0);
+        let mut shortest2 = f64::INFINITY;
         for r in &rs[a..b] {
             let l2 = r.seg.length2();
             if l2 > 0.0 {
                 if l2 > longest.0 {
                     longest = (l2, segs.len());
                 }
+                shortest2 = shortest2.min(l2);
                 segs.push(r.seg);
                 whole_join.push(r.origin == Origin::Join);
             }
@@ -589,6 +594,7 @@ pub fn prune(
                 segs,
                 whole_join,
                 closed: true,
+                shortest2,
             });
         }
     }
@@ -630,6 +636,7 @@ pub fn prune(
                 segs,
                 whole_join,
                 closed: true,
+                shortest2: 0.0,
             });
         }
     }
@@ -789,6 +796,7 @@ pub fn prune(
             segs,
             whole_join,
             closed: is_loop,
+            shortest2: 0.0,
         });
     }
     Pruned { chains, uncrossed }
