@@ -51,13 +51,12 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
     raw_path(segs, closed, o, eps).segs
 }
 
-/// What the raw offset and the stage schedule both read of a path's segments: the unit
-/// tangents at each one's start and end (a line's two are one, and its offset moves along
-/// the normal of the same one), the path's length, one root per line for both, and how
-/// much it turns away from and towards the side `side` (> 0: left) at its corners and
-/// along its arcs, closed (`stages::first_stage`; each corner's turn taken as the sine of
-/// the turn, π less it past a right angle, so no trigonometry). One pass over the
-/// segments: at 100,000 each pass reads 6.4 MB.
+/// What the stage schedule reads of a path's segments (`stages::first_stage`): the path's
+/// length, and how much it turns away from and towards the side `side` (> 0: left) at its
+/// corners and along its arcs, closed (each corner's turn taken as the sine of the turn
+/// between unit tangents, π less it past a right angle, so no trigonometry; one root per
+/// line for its length and its tangent). One pass over the segments, writing nothing: the
+/// raw offset finds the tangents again where it needs them (see `Tangents`).
 pub struct Ends {
     pub length: f64,
     pub away: f64,
