@@ -257,7 +257,7 @@ fn offset_loops(
         ([(_, true)], [(_, known)]) => *known,
         _ => Some(false),
     };
-    let convex = if eps == valid_at {
+    let checked = if eps == valid_at {
         // the kernel's own result at this epsilon: valid as it stands (what the check
         // would find, debug builds make sure of)
         debug_assert_eq!(
@@ -283,7 +283,7 @@ fn offset_loops(
     } else {
         check_input(&mut loops, eps, opts.tolerance, one_convex)?
     };
-    let Checked { convex, mut boxes } = convex;
+    let Checked { convex, mut boxes } = checked;
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {

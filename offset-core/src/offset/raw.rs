@@ -83,22 +83,11 @@ pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
     let mut first: Option<Point> = None;
     let mut last: Option<Point> = None;
     for s in segs {
-        let ends = if s.is_arc() {
-            length += s.length();
+        let (ends, l) = tangents_and_length(s);
+        length += l;
+        if s.is_arc() {
             add(s.sw.abs(), s.sw * side < 0.0);
-            (s.tangent_at(0.0), s.tangent_at(1.0))
-        } else {
-            // `Seg::tangent_at` and `Seg::length` of a line, sharing the root
-            let d = s.b - s.a;
-            let l = d.len();
-            length += l;
-            let t = if l > 0.0 {
-                d * (1.0 / l)
-            } else {
-                Point::default()
-            };
-            (t, t)
-        };
+        }
         if let Some(t_in) = last {
             let (t, is_away) = corner(t_in, ends.0);
             add(t, is_away);
@@ -206,7 +195,6 @@ impl Boxing {
 
     /// Boxes the segments left, the first included.
     fn finish(&mut self, out: &[RawSeg]) {
-        self.catch_up(out);
         for r in out.iter().skip(self.boxes.len()) {
             self.add(r);
         }
@@ -371,7 +359,7 @@ impl Tangents<'_> {
     /// The unit tangents of segment `k` at its start and its end.
     #[inline]
     fn at(self, k: usize) -> (Point, Point) {
-        tangents_of(&self.segs[k])
+        tangents_and_length(&self.segs[k]).0
     }
 
     /// The unit tangents into and out of corner `k`, the end of segment `k`.
@@ -382,11 +370,11 @@ impl Tangents<'_> {
 }
 
 /// A segment's unit tangents at its start and its end (`Seg::tangent_at` at 0 and 1; a
-/// zero-length line's are zero).
+/// zero-length line's are zero), and its length: a line's share the root.
 #[inline]
-fn tangents_of(s: &Seg) -> (Point, Point) {
+fn tangents_and_length(s: &Seg) -> ((Point, Point), f64) {
     if s.is_arc() {
-        (s.tangent_at(0.0), s.tangent_at(1.0))
+        ((s.tangent_at(0.0), s.tangent_at(1.0)), s.length())
     } else {
         let d = s.b - s.a;
         let l = d.len();
@@ -395,7 +383,7 @@ fn tangents_of(s: &Seg) -> (Point, Point) {
         } else {
             Point::default()
         };
-        (t, t)
+        ((t, t), l)
     }
 }
 
