@@ -17,11 +17,16 @@ use super::seg::Seg;
 use crate::geom::Point;
 
 /// Whether the closed loop `segs` (all lines) turns left at every corner by less than π and
-/// once round in all: then it is convex and simple.
+/// once round in all: then it is convex and simple. Stops at the first arc or the first
+/// corner that does not turn left (a gear's offset: at 100,000 vertices the whole pass
+/// read 8 MB for an answer its first valley gives).
 pub(super) fn is_convex_ccw(segs: &[Seg]) -> bool {
     let mut turns = Turns::default();
     for s in segs {
         turns.add(s);
+        if turns.refused() {
+            return false;
+        }
     }
     turns.convex_ccw()
 }
@@ -60,6 +65,13 @@ impl Turns {
             self.all_left = false;
         }
         self.east += usize::from(self.t_in.y < 0.0 && t_out.y >= 0.0);
+    }
+
+    /// Whether the segments added so far already rule the loop out (an arc, or a corner
+    /// that does not turn left), whatever follows.
+    #[inline(always)]
+    fn refused(&self) -> bool {
+        self.arcs || !self.all_left
     }
 
     /// Whether the segments added make a loop (the last followed by the first) as

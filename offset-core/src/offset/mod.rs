@@ -126,11 +126,7 @@ pub fn offset_polyline(
         }
         // a piece of this side's offset may come round to the path's other side: the other
         // side's raw offset marks where it starts to come too near (the dual offset)
-        splitters.extend(
-            raw::raw_offset(&segs, false, -distance, eps)
-                .into_iter()
-                .map(|r| r.seg),
-        );
+        splitters.extend(raw::raw_path(&segs, false, -distance, eps).segs);
         Ok(run(
             &[(segs, false)],
             &splitters,

@@ -3,7 +3,7 @@
 //! stitch the surviving runs end to end into the offset's paths.
 
 use super::index::{grow, overlapping_pairs_in_order, BBox, BoxIndex};
-use super::raw::{Origin, RawPath, RawSeg};
+use super::raw::{Extremes, Origin, RawPath};
 use super::seg::{intersect, Seg};
 use crate::geom::{hi, lo, Point};
 use std::cell::Cell;
@@ -171,12 +171,22 @@ enum Inside {
 /// segments), and the two cross at an angle whose sine is well above what rounding can
 /// make of it (the tangents' directions, and how far the crossing may slide along the
 /// curves: less than ε).
-fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, p: Point, left: bool, eps: f64) -> Inside {
-    if b.origin == Origin::Bridge {
+#[allow(clippy::too_many_arguments)]
+fn inside_of(
+    a: &Seg,
+    ta: f64,
+    b: &Seg,
+    b_origin: Origin,
+    tb: f64,
+    p: Point,
+    left: bool,
+    eps: f64,
+) -> Inside {
+    if b_origin == Origin::Bridge {
         return Inside::Unknown;
     }
     let margin = 4.0 * eps;
-    let (la, lb) = (a.seg.length(), b.seg.length());
+    let (la, lb) = (a.length(), b.length());
     if ta * la <= margin
         || (1.0 - ta) * la <= margin
         || tb * lb <= margin
@@ -184,7 +194,7 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, p: Point, left: bool, eps
     {
         return Inside::Unknown;
     }
-    let (da, db) = (tangent_through(&a.seg, p), tangent_through(&b.seg, p));
+    let (da, db) = (tangent_through(a, p), tangent_through(b, p));
     let c = db.cross(da);
     let scale = |s: &Seg| -> (f64, f64) {
         let m =
@@ -200,7 +210,7 @@ fn inside_of(a: &RawSeg, ta: f64, b: &RawSeg, tb: f64, p: Point, left: bool, eps
         };
         (m.max(1.0), if s.is_arc() { s.r } else { s.length() })
     };
-    let ((ma, ra), (mb, rb)) = (scale(&a.seg), scale(&b.seg));
+    let ((ma, ra), (mb, rb)) = (scale(a), scale(b));
     let m = ma.max(mb);
     let sure = 16.0 * f64::EPSILON * m * (1.0 / eps + 1.0 / ra + 1.0 / rb);
     if !(c.abs() > sure) {
@@ -292,7 +302,9 @@ pub fn prune(
     // storage is taken over, not copied)
     let closed: Vec<bool> = paths.iter().map(|p| p.closed).collect();
     let mut start = Vec::with_capacity(paths.len() + 1);
-    let mut rs: Vec<RawSeg> = Vec::new();
+    let extremes: Vec<Option<Extremes>> = paths.iter().map(|p| p.extremes).collect();
+    let mut rs: Vec<Seg> = Vec::new();
+    let mut origins: Vec<Origin> = Vec::new();
     let mut boxes: Vec<BBox> = Vec::new();
     let mut owner: Vec<u32> = Vec::new();
     for (pi, p) in paths.into_iter().enumerate() {
@@ -300,9 +312,11 @@ pub fn prune(
         owner.extend(std::iter::repeat_n(pi as u32, p.segs.len()));
         if rs.is_empty() {
             rs = p.segs;
+            origins = p.origins;
             boxes = p.boxes;
         } else {
             rs.extend(p.segs);
+            origins.extend(p.origins);
             boxes.extend(p.boxes);
         }
     }
@@ -329,7 +343,7 @@ pub fn prune(
             if g == i {
                 return None;
             }
-            len += rs[g].seg.length();
+            len += rs[g].length();
             if len > NEAR_LEN * eps {
                 return None;
             }
@@ -350,7 +364,7 @@ pub fn prune(
         if i >= n {
             return;
         }
-        let si = rs[i].seg;
+        let si = rs[i];
         if j >= n {
             let h = intersect(&si, &splitters[j - n], eps);
             for (p, t, _) in h.iter() {
@@ -358,7 +372,7 @@ pub fn prune(
             }
             return;
         }
-        let sj = &rs[j].seg;
+        let sj = &rs[j];
         let (ni, nj) = (next(i), next(j));
         if (ni == Some(j) && meet_only_at_the_joint(&si, sj, eps))
             || (nj == Some(i) && meet_only_at_the_joint(sj, &si, eps))
@@ -399,13 +413,13 @@ pub fn prune(
                 i as u32,
                 t,
                 p,
-                inside_of(&rs[i], t, &rs[j], u, p, left, eps),
+                inside_of(&rs[i], t, &rs[j], origins[j], u, p, left, eps),
             ));
             splits.push((
                 j as u32,
                 u,
                 p,
-                inside_of(&rs[j], u, &rs[i], t, p, left, eps),
+                inside_of(&rs[j], u, &rs[i], origins[i], t, p, left, eps),
             ));
         }
     });
@@ -445,8 +459,8 @@ pub fn prune(
         }
         let first = pieces.len();
         let mut brk = false;
-        for (g, raw) in rs.iter().enumerate().take(start[pi + 1]).skip(start[pi]) {
-            let s = raw.seg;
+        for g in start[pi]..start[pi + 1] {
+            let s = rs[g];
             let len = s.length();
             let tiny = if len > 0.0 { eps / len } else { 1.0 };
             let (mut t0, mut p0) = (0.0, s.a);
@@ -489,7 +503,7 @@ pub fn prune(
             pieces.push(Piece {
                 seg: s.sub(t0, p0, 1.0, s.b),
                 brk,
-                whole_join: raw.origin == Origin::Join && t0 == 0.0,
+                whole_join: origins[g] == Origin::Join && t0 == 0.0,
                 inside_from_start,
                 inside_to_end: false,
             });
@@ -570,27 +584,57 @@ pub fn prune(
     let keeps_distance = |longest: &Seg| -> bool {
         !input.either_closer(longest.point_at(0.5), longest.point_at(0.25), thr)
     };
-    for pi in (0..closed.len()).filter(|&pi| uncut[pi]) {
+    // the curves nothing cuts, kept whole or dropped whole, from the last path to the first
+    // so each one's segments are split off the end of the numbering (the first path's,
+    // usually the outer and much the longest, are taken as they lie: at a million segments
+    // a copy read 72 MB and wrote 64)
+    let mut whole: Vec<Option<Chain>> = (0..closed.len()).map(|_| None).collect();
+    for pi in (0..closed.len()).rev().filter(|&pi| uncut[pi]) {
         let (a, b) = (start[pi], start[pi + 1]);
+        if let Some(Extremes {
+            longest,
+            shortest2,
+        }) = extremes[pi]
+        {
+            // every segment has a positive length (the raw offset measured them)
+            if !keeps_distance(&rs[a + longest]) {
+                continue;
+            }
+            let whole_join = origins[a..b].iter().map(|&o| o == Origin::Join).collect();
+            rs.truncate(b);
+            let segs = if a == 0 {
+                std::mem::take(&mut rs)
+            } else {
+                rs.split_off(a)
+            };
+            debug_assert!(segs.iter().all(|s| s.length2() > 0.0));
+            whole[pi] = Some(Chain {
+                segs,
+                whole_join,
+                closed: true,
+                shortest2,
+            });
+            continue;
+        }
         // the whole curve as it would be kept, its longest segment found on the way (one
         // pass over it; squared lengths, the same order), dropped if that one comes too near
         let mut segs = Vec::with_capacity(b - a);
         let mut whole_join = Vec::with_capacity(b - a);
         let mut longest = (0.0, 0);
         let mut shortest2 = f64::INFINITY;
-        for r in &rs[a..b] {
-            let l2 = r.seg.length2();
+        for (s, &o) in rs[a..b].iter().zip(&origins[a..b]) {
+            let l2 = s.length2();
             if l2 > 0.0 {
                 if l2 > longest.0 {
                     longest = (l2, segs.len());
                 }
                 shortest2 = shortest2.min(l2);
-                segs.push(r.seg);
-                whole_join.push(r.origin == Origin::Join);
+                segs.push(*s);
+                whole_join.push(o == Origin::Join);
             }
         }
         if longest.0 > 0.0 && keeps_distance(&segs[longest.1]) {
-            chains.push(Chain {
+            whole[pi] = Some(Chain {
                 segs,
                 whole_join,
                 closed: true,
@@ -598,6 +642,7 @@ pub fn prune(
             });
         }
     }
+    chains.extend(whole.into_iter().flatten());
     let valid: Vec<bool> = runs
         .iter()
         .map(|r| {

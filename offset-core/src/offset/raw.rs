@@ -35,20 +35,14 @@ pub struct RawSeg {
 /// a reversal.
 const TURN_EPS: f64 = 1e-12;
 
-/// Offsets one cleaned path's segments by `o` to the left of travel (negative: right).
-/// `closed` joins the last segment to the first. `eps` is the geometric tolerance.
-///
-/// Corners between two lines that turn towards the offset side are resolved with a stack
-/// (the pair-wise interference step of Choi & Park 1999): each new offset line meets the
-/// last one kept, and a kept line whose meeting point falls before its own start is
-/// dominated by its neighbours (the whole of it lies nearer the input than |o|) and is
-/// popped. Over a stretch that turns one way by less than π this is the intersection of the
-/// offset half-planes, i.e. the exact local offset, so the local invalid loops of a curve
-/// whose curvature radius falls below |o| never reach the global stage. Anything else
-/// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
-/// old pair-wise way and left to the global stage.
+/// [`raw_path`]'s segments, each beside its origin (for the tests).
+#[cfg(test)]
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
-    raw_path(segs, closed, o, eps).segs
+    let RawPath { segs, origins, .. } = raw_path(segs, closed, o, eps);
+    segs.into_iter()
+        .zip(origins)
+        .map(|(seg, origin)| RawSeg { seg, origin })
+        .collect()
 }
 
 /// What the stage schedule reads of a path's segments (`stages::first_stage`): the path's
@@ -107,42 +101,87 @@ pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
     }
 }
 
-/// One raw offset curve, with every segment's box grown by ε (what the prune's search for
-/// crossings asks).
+/// One raw offset curve: its segments and, beside them, what each is the offset of (kept
+/// apart, so a curve the prune keeps whole becomes the result's segments as they lie, not
+/// copied), with every segment's box grown by ε (what the prune's search for crossings
+/// asks).
 pub struct RawPath {
-    pub segs: Vec<RawSeg>,
+    pub segs: Vec<Seg>,
+    pub origins: Vec<Origin>,
     pub boxes: Vec<BBox>,
     pub closed: bool,
+    /// the longest segment (the first of the longest) and the shortest one's squared
+    /// length, found while boxing; None when not known (some segment was dropped, or one's
+    /// length is not a positive number)
+    pub extremes: Option<Extremes>,
 }
 
-/// [`raw_offset`] with the boxes, each made as soon as its segment is final, while the
-/// segment is still in the cache (at a million segments a pass of its own over the raw
-/// offset read 100 MB again).
+/// See [`RawPath::extremes`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Extremes {
+    pub longest: usize,
+    pub shortest2: f64,
+}
+
+/// Offsets one cleaned path's segments by `o` to the left of travel (negative: right).
+/// `closed` joins the last segment to the first. `eps` is the geometric tolerance.
+///
+/// Corners between two lines that turn towards the offset side are resolved with a stack
+/// (the pair-wise interference step of Choi & Park 1999): each new offset line meets the
+/// last one kept, and a kept line whose meeting point falls before its own start is
+/// dominated by its neighbours (the whole of it lies nearer the input than |o|) and is
+/// popped. Over a stretch that turns one way by less than π this is the intersection of the
+/// offset half-planes, i.e. the exact local offset, so the local invalid loops of a curve
+/// whose curvature radius falls below |o| never reach the global stage. Anything else
+/// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
+/// old pair-wise way and left to the global stage.
+///
+/// The boxes are made as soon as each segment is final, while it is still in the cache (at
+/// a million segments a pass of its own over the raw offset read 100 MB again).
 pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
     let mut boxing = Boxing::new(eps, 2 * segs.len());
-    let mut out = unfinished(segs, closed, o, eps, &mut boxing);
+    let Out {
+        segs: mut out,
+        mut origins,
+    } = unfinished(segs, closed, o, eps, &mut boxing);
     let Boxing {
-        mut boxes, short, ..
+        mut boxes,
+        short,
+        extremes,
+        ..
     } = boxing;
     if short {
         // (rare) the segments shorter than ε / 1000 go, with their boxes
         let short2 = short_length2(eps);
         let mut kept = 0;
         for i in 0..out.len() {
-            if out[i].seg.length2() <= short2 {
+            if out[i].length2() <= short2 {
                 continue;
             }
             out[kept] = out[i];
+            origins[kept] = origins[i];
             boxes[kept] = boxes[i];
             kept += 1;
         }
         out.truncate(kept);
+        origins.truncate(kept);
         boxes.truncate(kept);
     }
+    let extremes = match extremes {
+        Some((longest, _, shortest2)) if !short && shortest2 > 0.0 && !out.is_empty() => {
+            Some(Extremes {
+                longest,
+                shortest2,
+            })
+        }
+        _ => None,
+    };
     RawPath {
         segs: out,
+        origins,
         boxes,
         closed,
+        extremes,
     }
 }
 
@@ -154,11 +193,14 @@ fn short_length2(eps: f64) -> f64 {
 /// The boxes of a raw offset in the making, grown by ε. While it is made, its first
 /// segment (the closing corner trims it) and its last (the next corner trims or pops it)
 /// may still change, and every segment between is final: `catch_up` boxes those; `finish`
-/// the rest. `short`: some segment is shorter than ε / 1000.
+/// the rest. `short`: some segment is shorter than ε / 1000. `extremes`: the longest
+/// segment so far (index, squared length; the first of equals in the path's order) and the
+/// shortest squared length, or None once a length is not a number.
 struct Boxing {
     /// the first one's box is a placeholder until `finish`
     boxes: Vec<BBox>,
     short: bool,
+    extremes: Option<(usize, f64, f64)>,
     eps: f64,
     short2: f64,
 }
@@ -171,48 +213,99 @@ impl Boxing {
         Boxing {
             boxes,
             short: false,
+            extremes: Some((0, 0.0, f64::INFINITY)),
             eps,
             short2: short_length2(eps),
         }
     }
 
-    fn add(&mut self, r: &RawSeg) {
-        self.short |= r.seg.length2() <= self.short2;
-        self.boxes.push(grow(r.seg.bbox(), self.eps));
+    /// Measures segment `k` (`first`: the path's first, measured last, which wins a tie).
+    #[inline]
+    fn measure(&mut self, k: usize, s: &Seg, first: bool) {
+        let l2 = s.length2();
+        self.short |= l2 <= self.short2;
+        if let Some((longest, max2, min2)) = &mut self.extremes {
+            if l2.is_nan() {
+                self.extremes = None;
+                return;
+            }
+            if l2 > *max2 || (first && l2 == *max2) {
+                (*longest, *max2) = (k, l2);
+            }
+            *min2 = min2.min(l2);
+        }
+    }
+
+    fn add(&mut self, s: &Seg) {
+        self.measure(self.boxes.len(), s, false);
+        self.boxes.push(grow(s.bbox(), self.eps));
     }
 
     /// Boxes every segment of `out` but its first and its last not yet boxed.
     #[inline]
-    fn catch_up(&mut self, out: &[RawSeg]) {
-        for r in out
+    fn catch_up(&mut self, out: &[Seg]) {
+        for s in out
             .iter()
             .take(out.len().saturating_sub(1))
             .skip(self.boxes.len())
         {
-            self.add(r);
+            self.add(s);
         }
     }
 
     /// Boxes the segments left, the first included.
-    fn finish(&mut self, out: &[RawSeg]) {
-        for r in out.iter().skip(self.boxes.len()) {
-            self.add(r);
+    fn finish(&mut self, out: &[Seg]) {
+        for s in out.iter().skip(self.boxes.len()) {
+            self.add(s);
         }
         if let Some(first) = out.first() {
-            self.short |= first.seg.length2() <= self.short2;
-            self.boxes[0] = grow(first.seg.bbox(), self.eps);
+            self.measure(0, first, true);
+            self.boxes[0] = grow(first.bbox(), self.eps);
         }
         self.boxes.truncate(out.len());
     }
 }
 
+/// A raw offset in the making: its segments, and beside them what each is the offset of.
+struct Out {
+    segs: Vec<Seg>,
+    origins: Vec<Origin>,
+}
+
+impl Out {
+    fn with_capacity(n: usize) -> Out {
+        Out {
+            segs: Vec::with_capacity(n),
+            origins: Vec::with_capacity(n),
+        }
+    }
+
+    fn push(&mut self, r: RawSeg) {
+        self.segs.push(r.seg);
+        self.origins.push(r.origin);
+    }
+
+    fn pop(&mut self) -> Option<RawSeg> {
+        let seg = self.segs.pop()?;
+        let origin = self.origins.pop()?;
+        Some(RawSeg { seg, origin })
+    }
+
+    fn get(&self, k: usize) -> RawSeg {
+        RawSeg {
+            seg: self.segs[k],
+            origin: self.origins[k],
+        }
+    }
+}
+
 /// The raw offset before segments shorter than ε / 1000 are dropped, boxed by `boxing` as
 /// it is made.
-fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing) -> Vec<RawSeg> {
+fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing) -> Out {
     let m = segs.len();
     if m == 0 {
         boxing.finish(&[]);
-        return Vec::new();
+        return Out::with_capacity(0);
     }
     let corners = if closed { m } else { m - 1 };
     let ring = Ring { m };
@@ -239,7 +332,7 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
     } else {
         0
     };
-    let mut out: Vec<RawSeg> = Vec::with_capacity(2 * m);
+    let mut out = Out::with_capacity(2 * m);
     out.push(offset_raw(&segs[s0], tangents.at(s0).0, o));
     // the stack's scratch, one for every run of this path
     let mut stack: Vec<(Seg, Seg)> = Vec::new();
@@ -247,7 +340,7 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
     while step < corners {
-        boxing.catch_up(&out);
+        boxing.catch_up(&out.segs);
         let k = ring.at(s0, step);
         let closing = closed && step == m - 1;
         if !closing && step >= pairwise_until && stackable(k) {
@@ -267,10 +360,12 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
                     .map(|r| r.seg)
                     .unwrap_or_else(|| offset_seg(&segs[k], tangents.at(k).0, o));
                 if stack_run(segs, tangents, s0, step, end, floor, o, eps, &mut stack) {
-                    out.extend(stack.drain(..).map(|(seg, _)| RawSeg {
-                        seg,
-                        origin: Origin::Offset,
-                    }));
+                    for (seg, _) in stack.drain(..) {
+                        out.push(RawSeg {
+                            seg,
+                            origin: Origin::Offset,
+                        });
+                    }
                     step = end;
                     continue;
                 }
@@ -284,13 +379,13 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
         // the old pair-wise way for this one corner
         let k2 = ring.next(k);
         let next_raw = if closing {
-            out[0]
+            out.get(0)
         } else {
             offset_raw(&segs[k2], tangents.at(k2).0, o)
         };
         let mut next = next_raw.seg;
-        let last = out.len() - 1;
-        let mut prev = out[last].seg;
+        let last = out.segs.len() - 1;
+        let mut prev = out.segs[last];
         let join = pair_corner(
             &segs[k],
             &segs[k2],
@@ -300,12 +395,12 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
             o,
             eps,
         );
-        out[last].seg = prev;
+        out.segs[last] = prev;
         if let Some(j) = join {
             out.push(j);
         }
         if closing {
-            out[0].seg = next;
+            out.segs[0] = next;
         } else {
             out.push(RawSeg {
                 seg: next,
@@ -314,7 +409,7 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
         }
         step += 1;
     }
-    boxing.finish(&out);
+    boxing.finish(&out.segs);
     out
 }
 
