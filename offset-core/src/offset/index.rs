@@ -134,19 +134,28 @@ impl BoxIndex {
         if n == 0 {
             return BoxIndex::default();
         }
-        let mut boxes: Vec<BBox> = Vec::with_capacity(n + n / (NODE - 1) + 2);
+        let mut boxes: Vec<BBox> = Vec::with_capacity(BoxIndex::room(n));
         boxes.extend_from_slice(item_boxes);
         BoxIndex::pack(boxes, (0..n as u32).collect())
     }
 
+    /// How many boxes a tree over `n` leaves holds, the levels above them included: a
+    /// vector of leaves made with this capacity takes the levels without moving (see
+    /// [`BoxIndex::in_order_owned`]).
+    pub fn room(n: usize) -> usize {
+        n + n / (NODE - 1) + 2
+    }
+
     /// [`BoxIndex::in_order`] over boxes handed over (the leaves stay where they are, the
-    /// levels above go after them: no copy of the leaves).
+    /// levels above go after them: no copy of the leaves when the vector has the
+    /// [`BoxIndex::room`] for them; at 100,000 segments growing it moved 3.2 MB).
     pub fn in_order_owned(mut boxes: Vec<BBox>) -> BoxIndex {
         let n = boxes.len();
         if n == 0 {
             return BoxIndex::default();
         }
-        boxes.reserve(n / (NODE - 1) + 2);
+        if std::env::var_os("MACHLINK_OFFSET_STAGES").is_some() { eprintln!("cap {} room {}", boxes.capacity(), BoxIndex::room(n)); }
+        boxes.reserve(BoxIndex::room(n) - n);
         BoxIndex::pack(boxes, (0..n as u32).collect())
     }
 
