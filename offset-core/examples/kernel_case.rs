@@ -135,7 +135,11 @@ fn main() {
     // every output coordinate and bulge, bit for bit (FNV-1a): a change meant to leave the
     // results as they were prints the same digest
     let mut digest: u64 = 0xcbf2_9ce4_8422_2325;
-    for v in out.iter().flat_map(|r| r.boundaries()).flat_map(|p| &p.vertices) {
+    for v in out
+        .iter()
+        .flat_map(|r| r.boundaries())
+        .flat_map(|p| &p.vertices)
+    {
         for x in [v.x, v.y, v.bulge] {
             for b in x.to_bits().to_le_bytes() {
                 digest = (digest ^ u64::from(b)).wrapping_mul(0x100_0000_01b3);

@@ -154,7 +154,6 @@ impl BoxIndex {
         if n == 0 {
             return BoxIndex::default();
         }
-        if std::env::var_os("MACHLINK_OFFSET_STAGES").is_some() { eprintln!("cap {} room {}", boxes.capacity(), BoxIndex::room(n)); }
         boxes.reserve(BoxIndex::room(n) - n);
         BoxIndex::pack(boxes, (0..n as u32).collect())
     }

@@ -89,7 +89,13 @@ pub fn offset_polyline(
             (reverse(&segs), None)
         };
         let mut paths = vec![(segs, true)];
-        let Checked { convex, boxes } = check_input(&mut paths, eps, opts.tolerance, convex)?;
+        let Checked {
+            convex,
+            boxes,
+            repaired,
+        } = check_input(&mut paths, eps, opts.tolerance, convex)?;
+        // (the survey's sums are of the segments in the order it made them)
+        let turnings = vec![(ccw && !repaired).then_some(survey.turning)];
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -101,7 +107,15 @@ pub fn offset_polyline(
         if shrinks_away(&survey.bbox, distance) {
             return Ok(Vec::new());
         }
-        let loops = run_closed(vec![(segs, true)], convex, boxes, -distance, opts, eps);
+        let loops = run_closed(
+            vec![(segs, true)],
+            convex,
+            boxes,
+            turnings,
+            -distance,
+            opts,
+            eps,
+        );
         Ok(loops
             .loops
             .into_iter()
@@ -227,6 +241,8 @@ fn offset_loops(
     let mut loops: Vec<(Vec<Seg>, bool)> = Vec::new();
     // per loop: its box, and whether it is convex as it now runs (None: not known)
     let mut surveys: Vec<(index::BBox, Option<bool>)> = Vec::new();
+    // per loop: its length and turns as surveyed, if it runs as surveyed
+    let mut turnings: Vec<Option<raw::Turning>> = Vec::new();
     let mut outers: Vec<usize> = Vec::new();
     for r in regions {
         for (i, p) in r.boundaries().enumerate() {
@@ -238,7 +254,8 @@ fn offset_loops(
                 continue;
             }
             let want_ccw = i == 0;
-            let (segs, convex) = if (survey.area2 >= 0.0) == want_ccw {
+            let as_surveyed = (survey.area2 >= 0.0) == want_ccw;
+            let (segs, convex) = if as_surveyed {
                 (segs, Some(survey.convex_ccw))
             } else {
                 (reverse(&segs), None)
@@ -248,6 +265,7 @@ fn offset_loops(
             }
             loops.push((segs, true));
             surveys.push((survey.bbox, convex));
+            turnings.push(as_surveyed.then_some(survey.turning));
         }
     }
     // whether the loops are one convex loop, as surveyed
@@ -277,11 +295,19 @@ fn offset_loops(
         Checked {
             convex,
             boxes: Vec::new(),
+            repaired: false,
         }
     } else {
         check_input(&mut loops, eps, opts.tolerance, one_convex)?
     };
-    let Checked { convex, mut boxes } = checked;
+    let Checked {
+        convex,
+        mut boxes,
+        repaired,
+    } = checked;
+    if repaired {
+        turnings = Vec::new();
+    }
     // a region whose outer shrinks away goes whole (islands inside it cannot grow out of it)
     let mut keep = vec![true; loops.len()];
     for (k, &o) in outers.iter().enumerate() {
@@ -293,6 +319,13 @@ fn offset_loops(
     if keep.iter().any(|k| !k) {
         // (the check's boxes are of every loop)
         boxes = Vec::new();
+        if !turnings.is_empty() {
+            turnings = turnings
+                .into_iter()
+                .zip(&keep)
+                .filter_map(|(t, &k)| k.then_some(t))
+                .collect();
+        }
     }
     let loops: Vec<(Vec<Seg>, bool)> = loops
         .into_iter()
@@ -319,7 +352,7 @@ fn offset_loops(
             eps: f64::NAN,
         });
     }
-    let polys = run_closed(loops, convex, boxes, -distance, opts, eps);
+    let polys = run_closed(loops, convex, boxes, turnings, -distance, opts, eps);
     Ok(ValidRegions {
         regions: assemble(polys),
         eps,
@@ -539,12 +572,14 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
 
 /// What the pass that makes a path's segments finds out about them on the way (at 100,000
 /// segments every further pass over them reads 6.4 MB, a third of a millisecond): twice
-/// the signed area of the loop they close, their box, and whether they make one convex
-/// loop of lines, counter-clockwise (`convex::is_convex_ccw`).
+/// the signed area of the loop they close, their box, whether they make one convex loop
+/// of lines, counter-clockwise (`convex::is_convex_ccw`), and their length and turns as
+/// the stage schedule reads them (`raw::ends_of`).
 struct Survey {
     area2: f64,
     bbox: index::BBox,
     convex_ccw: bool,
+    turning: raw::Turning,
 }
 
 /// What `segments_of` tells each segment it makes, in order: nothing (`()`), or a
@@ -562,6 +597,7 @@ struct Surveying {
     area2: f64,
     bbox: index::BBox,
     turns: convex::Turns,
+    turning: raw::Turning,
 }
 
 impl Default for Surveying {
@@ -575,6 +611,7 @@ impl Default for Surveying {
                 f64::NEG_INFINITY,
             ],
             turns: convex::Turns::default(),
+            turning: raw::Turning::default(),
         }
     }
 }
@@ -598,6 +635,7 @@ impl Look for Surveying {
         };
         self.bbox = index::union(&self.bbox, &sb);
         self.turns.add(s);
+        self.turning.add(s);
     }
 }
 
@@ -609,6 +647,7 @@ fn clean_surveyed(pl: &Polyline, eps: f64) -> (Vec<Seg>, Survey) {
         area2: sv.area2,
         bbox: sv.bbox,
         convex_ccw: pl.closed && sv.turns.convex_ccw(),
+        turning: sv.turning,
     };
     (segs, survey)
 }
@@ -710,27 +749,33 @@ fn check_input(
             return Ok(Checked {
                 convex: true,
                 boxes: Vec::new(),
+                repaired: false,
             });
         }
     }
-    let checked = |boxes| Checked {
-        convex: false,
-        boxes,
+    let checked = |repaired| {
+        move |boxes| Checked {
+            convex: false,
+            boxes,
+            repaired,
+        }
     };
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first.map(checked);
+        return first.map(checked(false));
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps).map(checked)
+    check_crossings(&views, eps).map(checked(true))
 }
 
-/// What the input check found: whether the paths are one convex loop of lines, and the
-/// boxes of the paths' segments as they now are, grown by ε (none for a convex loop).
+/// What the input check found: whether the paths are one convex loop of lines, the boxes
+/// of the paths' segments as they now are, grown by ε (none for a convex loop), and
+/// whether it cut zig-zags off them (then what a survey found of them no longer holds).
 struct Checked {
     convex: bool,
     boxes: Vec<index::BBox>,
+    repaired: bool,
 }
 
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
@@ -983,11 +1028,15 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
 /// the left: in one stage, or with round joins and a distance much larger than the
 /// loops' features in several (see `stages`), each from the loops the one before left.
 /// `convex`: the loops are one convex loop of lines (as `check_input` found); `boxes`: the
-/// loops' segments' boxes grown by ε if the check made them (see `run`), else none.
+/// loops' segments' boxes grown by ε if the check made them (see `run`), else none;
+/// `turnings`: per loop, its length and turns if its survey found them as it now runs
+/// (see `Survey`), else empty or None.
+#[allow(clippy::too_many_arguments)]
 fn run_closed(
     mut loops: Vec<(Vec<Seg>, bool)>,
     convex: bool,
     mut boxes: Vec<index::BBox>,
+    mut turnings: Vec<Option<raw::Turning>>,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
@@ -1004,8 +1053,17 @@ fn run_closed(
         let timer = stages::Timer::start(&loops);
         let step = match opts.join {
             Join::Round => {
-                let ends: Vec<raw::Ends> =
-                    loops.iter().map(|(s, _)| raw::ends_of(s, rest)).collect();
+                // the loops' sums as their survey found them where it did (the first stage),
+                // else a pass over them
+                let known = std::mem::take(&mut turnings);
+                let ends: Vec<raw::Ends> = loops
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (s, _))| match known.get(k) {
+                        Some(Some(t)) if known.len() == loops.len() => t.ends(rest),
+                        _ => raw::ends_of(s, rest),
+                    })
+                    .collect();
                 stages::first_stage(&loops, &ends, rest, on_input)
             }
             Join::Miter | Join::Chamfer => None,
@@ -1396,6 +1454,47 @@ fn merge(s1: &Seg, s2: &Seg, eps: f64) -> Option<Seg> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_survey_finds_the_lengths_and_turns_the_stage_schedule_would() {
+        use std::f64::consts::TAU;
+        // a star of lines, and a circle of two arcs
+        let star: Vec<Point> = (0..10)
+            .map(|i| {
+                let a = i as f64 * TAU / 10.0;
+                let r = if i % 2 == 0 { 10.0 } else { 4.0 };
+                Point::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        for pl in [
+            Polyline::from_points(&star, true),
+            Polyline::circle(Point::new(1.0, 2.0), 3.0),
+        ] {
+            let (segs, survey) = clean_surveyed(&pl, 1e-9);
+            let bits = |e: &raw::Ends| [e.length, e.away, e.toward].map(f64::to_bits);
+            for side in [1.0, -2.5] {
+                let (a, b) = (survey.turning.ends(side), raw::ends_of(&segs, side));
+                assert_eq!(bits(&a), bits(&b), "side {side}");
+            }
+            // what turns away from one side turns towards the other
+            let (l, r) = (raw::ends_of(&segs, 1.0), raw::ends_of(&segs, -1.0));
+            assert_eq!((l.away, l.toward), (r.toward, r.away));
+        }
+        // the star turns both ways: five sharp corners left (past a right angle), five
+        // right; the circle turns left only, once round
+        let (segs, _) = clean_surveyed(&Polyline::from_points(&star, true), 1e-9);
+        let e = raw::ends_of(&segs, 1.0);
+        assert!(
+            e.away > 0.5 && e.toward > e.away + 5.0,
+            "{} away, {} toward",
+            e.away,
+            e.toward
+        );
+        let (segs, _) = clean_surveyed(&Polyline::circle(Point::new(0.0, 0.0), 1.0), 1e-9);
+        let e = raw::ends_of(&segs, 1.0);
+        assert_eq!(e.away, 0.0);
+        assert!((e.toward - TAU).abs() <= 1e-12 && (e.length - TAU).abs() <= 1e-12);
+    }
 
     #[test]
     fn cleaning_keeps_an_arc_that_starts_within_eps_of_the_vertex_before_it() {

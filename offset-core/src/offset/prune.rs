@@ -591,11 +591,7 @@ pub fn prune(
     let mut whole: Vec<Option<Chain>> = (0..closed.len()).map(|_| None).collect();
     for pi in (0..closed.len()).rev().filter(|&pi| uncut[pi]) {
         let (a, b) = (start[pi], start[pi + 1]);
-        if let Some(Extremes {
-            longest,
-            shortest2,
-        }) = extremes[pi]
-        {
+        if let Some(Extremes { longest, shortest2 }) = extremes[pi] {
             // every segment has a positive length (the raw offset measured them)
             if !keeps_distance(&rs[a + longest]) {
                 continue;

@@ -58,46 +58,81 @@ pub struct Ends {
 }
 
 pub fn ends_of(segs: &[Seg], side: f64) -> Ends {
-    let mut length = 0.0;
-    let (mut away, mut toward) = (0.0, 0.0);
-    // a turn of `t`, away from the side or not
-    let mut add = |t: f64, is_away: bool| {
-        if is_away {
-            away += t;
+    let mut turning = Turning::default();
+    for s in segs {
+        turning.add(s);
+    }
+    turning.ends(side)
+}
+
+/// [`ends_of`] summed one segment at a time, in the path's order, for either side at once:
+/// the pass that makes the offset's input segments feeds it (`offset::Surveying`), so no
+/// pass of its own reads them again. That pass ran at a million segments in 33 ms, nine
+/// times a plain read of them: each segment's root and division filled the core's window
+/// with one segment's loads in flight at a time.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Turning {
+    length: f64,
+    /// (away, toward) when the side is the left (> 0), and when it is the right
+    left: (f64, f64),
+    right: (f64, f64),
+    first: Option<Point>,
+    last: Option<Point>,
+}
+
+impl Turning {
+    /// A turn of `t` that is `signed` (its sign the turn's sense, > 0 to the left): away
+    /// from the left side when negative, from the right when positive (a zero or NaN sense
+    /// counts towards both, as `cr * side < 0.0` found).
+    #[inline(always)]
+    fn turn(&mut self, t: f64, signed: f64) {
+        if signed < 0.0 {
+            self.left.0 += t;
+            self.right.1 += t;
+        } else if signed > 0.0 {
+            self.left.1 += t;
+            self.right.0 += t;
         } else {
-            toward += t;
+            self.left.1 += t;
+            self.right.1 += t;
         }
-    };
-    // a corner's turn, and whether it turns away from the side
-    let corner = |t_in: Point, t_out: Point| -> (f64, bool) {
+    }
+
+    /// A corner's turn between unit tangents, without trigonometry.
+    #[inline(always)]
+    fn corner(&mut self, t_in: Point, t_out: Point) {
         let (cr, dt) = (t_in.cross(t_out), t_in.dot(t_out));
         let t = if dt >= 0.0 { cr.abs() } else { PI - cr.abs() };
-        (t, cr * side < 0.0)
-    };
-    let mut first: Option<Point> = None;
-    let mut last: Option<Point> = None;
-    for s in segs {
+        self.turn(t, cr);
+    }
+
+    /// The next segment of the path.
+    #[inline(always)]
+    pub fn add(&mut self, s: &Seg) {
         let (ends, l) = tangents_and_length(s);
-        length += l;
+        self.length += l;
         if s.is_arc() {
-            add(s.sw.abs(), s.sw * side < 0.0);
+            self.turn(s.sw.abs(), s.sw);
         }
-        if let Some(t_in) = last {
-            let (t, is_away) = corner(t_in, ends.0);
-            add(t, is_away);
+        if let Some(t_in) = self.last {
+            self.corner(t_in, ends.0);
         }
-        first.get_or_insert(ends.0);
-        last = Some(ends.1);
+        self.first.get_or_insert(ends.0);
+        self.last = Some(ends.1);
     }
-    // the corner that closes the loop
-    if let (Some(t_out), Some(t_in)) = (first, last) {
-        let (t, is_away) = corner(t_in, t_out);
-        add(t, is_away);
-    }
-    Ends {
-        length,
-        away,
-        toward,
+
+    /// The sums of the closed path added, to the side `side` (> 0: left).
+    pub fn ends(mut self, side: f64) -> Ends {
+        // the corner that closes the loop
+        if let (Some(t_out), Some(t_in)) = (self.first, self.last) {
+            self.corner(t_in, t_out);
+        }
+        let (away, toward) = if side > 0.0 { self.left } else { self.right };
+        Ends {
+            length: self.length,
+            away,
+            toward,
+        }
     }
 }
 
@@ -169,10 +204,7 @@ pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
     }
     let extremes = match extremes {
         Some((longest, _, shortest2)) if !short && shortest2 > 0.0 && !out.is_empty() => {
-            Some(Extremes {
-                longest,
-                shortest2,
-            })
+            Some(Extremes { longest, shortest2 })
         }
         _ => None,
     };
