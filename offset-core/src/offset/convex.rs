@@ -70,7 +70,7 @@ impl Turns {
     /// Whether the segments added so far already rule the loop out (an arc, or a corner
     /// that does not turn left), whatever follows.
     #[inline(always)]
-    fn refused(&self) -> bool {
+    pub(super) fn refused(&self) -> bool {
         self.arcs || !self.all_left
     }
 

@@ -95,7 +95,7 @@ pub fn offset_polyline(
             repaired,
         } = check_input(&mut paths, eps, opts.tolerance, convex)?;
         // (the survey's sums are of the segments in the order it made them)
-        let turnings = vec![(ccw && !repaired).then_some(survey.turning)];
+        let turnings = vec![survey.turning.filter(|_| ccw && !repaired)];
         let segs = paths.pop().map(|(s, _)| s).unwrap_or_default();
         if distance == 0.0 {
             let out = build(segs, true, eps)
@@ -265,7 +265,7 @@ fn offset_loops(
             }
             loops.push((segs, true));
             surveys.push((survey.bbox, convex));
-            turnings.push(as_surveyed.then_some(survey.turning));
+            turnings.push(survey.turning.filter(|_| as_surveyed));
         }
     }
     // whether the loops are one convex loop, as surveyed
@@ -573,13 +573,16 @@ fn clean(pl: &Polyline, eps: f64) -> Vec<Seg> {
 /// What the pass that makes a path's segments finds out about them on the way (at 100,000
 /// segments every further pass over them reads 6.4 MB, a third of a millisecond): twice
 /// the signed area of the loop they close, their box, whether they make one convex loop
-/// of lines, counter-clockwise (`convex::is_convex_ccw`), and their length and turns as
-/// the stage schedule reads them (`raw::ends_of`).
+/// of lines, counter-clockwise (`convex::is_convex_ccw`), and, when one of the first
+/// `SURVEY_HEAD` segments rules that out, their length and turns as the stage schedule
+/// reads them (`raw::ends_of`; a convex loop of lines shrinks without the schedule, and
+/// their root and division per segment were a seventh of the time of the dense circle of
+/// 30,000 shrunk to near collapse).
 struct Survey {
     area2: f64,
     bbox: index::BBox,
     convex_ccw: bool,
-    turning: raw::Turning,
+    turning: Option<raw::Turning>,
 }
 
 /// What `segments_of` tells each segment it makes, in order: nothing (`()`), or a
@@ -592,12 +595,22 @@ impl Look for () {
     fn add(&mut self, _: &Seg) {}
 }
 
+/// How many of a path's first segments a [`Surveying`] keeps, to sum from the start once
+/// the path turns out not to be a convex loop of lines (a gear's first valley comes within
+/// a few; a loop that is convex longer gets its sums from a pass of their own).
+const SURVEY_HEAD: usize = 16;
+
 /// A [`Survey`] in the making.
 struct Surveying {
     area2: f64,
     bbox: index::BBox,
     turns: convex::Turns,
-    turning: raw::Turning,
+    /// started at the first segment that rules out a convex loop of lines, if that is
+    /// one of the first `SURVEY_HEAD`
+    turning: Option<raw::Turning>,
+    /// the first segments, and how many of them came
+    head: [Seg; SURVEY_HEAD],
+    count: usize,
 }
 
 impl Default for Surveying {
@@ -611,7 +624,9 @@ impl Default for Surveying {
                 f64::NEG_INFINITY,
             ],
             turns: convex::Turns::default(),
-            turning: raw::Turning::default(),
+            turning: None,
+            head: [Seg::line(Point::default(), Point::default()); SURVEY_HEAD],
+            count: 0,
         }
     }
 }
@@ -635,7 +650,22 @@ impl Look for Surveying {
         };
         self.bbox = index::union(&self.bbox, &sb);
         self.turns.add(s);
-        self.turning.add(s);
+        match &mut self.turning {
+            Some(t) => t.add(s),
+            None if self.count < SURVEY_HEAD => {
+                self.head[self.count] = *s;
+                self.count += 1;
+                if self.turns.refused() {
+                    // the sums from the path's start, in its order
+                    let mut t = raw::Turning::default();
+                    for h in &self.head[..self.count] {
+                        t.add(h);
+                    }
+                    self.turning = Some(t);
+                }
+            }
+            None => {}
+        }
     }
 }
 
@@ -1473,13 +1503,19 @@ mod tests {
             let (segs, survey) = clean_surveyed(&pl, 1e-9);
             let bits = |e: &raw::Ends| [e.length, e.away, e.toward].map(f64::to_bits);
             for side in [1.0, -2.5] {
-                let (a, b) = (survey.turning.ends(side), raw::ends_of(&segs, side));
+                let turning = survey.turning.expect("neither is a convex loop of lines");
+                let (a, b) = (turning.ends(side), raw::ends_of(&segs, side));
                 assert_eq!(bits(&a), bits(&b), "side {side}");
             }
             // what turns away from one side turns towards the other
             let (l, r) = (raw::ends_of(&segs, 1.0), raw::ends_of(&segs, -1.0));
             assert_eq!((l.away, l.toward), (r.toward, r.away));
         }
+        // a convex loop of lines shrinks without the stage schedule: no sums for it
+        let square =
+            [(0.0, 0.0), (4.0, 0.0), (4.0, 3.0), (0.0, 3.0)].map(|(x, y)| Point::new(x, y));
+        let (_, survey) = clean_surveyed(&Polyline::from_points(&square, true), 1e-9);
+        assert!(survey.convex_ccw && survey.turning.is_none());
         // the star turns both ways: five sharp corners left (past a right angle), five
         // right; the circle turns left only, once round
         let (segs, _) = clean_surveyed(&Polyline::from_points(&star, true), 1e-9);
