@@ -49,8 +49,9 @@ pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
 /// length, and how much it turns away from and towards the side `side` (> 0: left) at its
 /// corners and along its arcs, closed (each corner's turn taken as the sine of the turn
 /// between unit tangents, π less it past a right angle, so no trigonometry; one root per
-/// line for its length and its tangent). One pass over the segments, writing nothing: the
-/// raw offset finds the tangents again where it needs them (see `Tangents`).
+/// line for its length and its tangent). One pass over the segments, writing nothing (the
+/// raw offset finds the tangents again where it needs them, see `Tangents`), or the same
+/// sums made by the pass that makes the segments (see `Turning`).
 pub struct Ends {
     pub length: f64,
     pub away: f64,
@@ -752,6 +753,50 @@ fn offset_seg(s: &Seg, t: Point, o: f64) -> Seg {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_raw_path_knows_its_longest_and_shortest_segment_unless_one_was_dropped() {
+        let p = |x: f64, y: f64| Point::new(x, y);
+        // a square grown by 1: four lines and four round joins
+        let square = [p(0.0, 0.0), p(4.0, 0.0), p(4.0, 3.0), p(0.0, 3.0)];
+        let segs: Vec<Seg> = (0..4)
+            .map(|i| Seg::line(square[i], square[(i + 1) % 4]))
+            .collect();
+        let raw = raw_path(&segs, true, -1.0, 1e-9);
+        let e = raw.extremes.expect("no segment dropped");
+        let l2: Vec<f64> = raw.segs.iter().map(|s| s.length2()).collect();
+        let max = l2.iter().cloned().fold(0.0, f64::max);
+        let first_longest = l2.iter().position(|&x| x == max).unwrap();
+        assert_eq!(e.longest, first_longest);
+        assert_eq!(
+            e.shortest2,
+            l2.iter().cloned().fold(f64::INFINITY, f64::min)
+        );
+        assert_eq!(
+            (raw.segs.len(), raw.origins.len(), raw.boxes.len()),
+            (8, 8, 8)
+        );
+        assert_eq!(
+            raw.origins.iter().filter(|&&o| o == Origin::Join).count(),
+            4
+        );
+        // a line of 1e-13 between two collinear ones: its offset is shorter than ε / 1000
+        // and goes, so what the boxing measured no longer holds
+        let segs = vec![
+            Seg::line(p(0.0, 0.0), p(5.0, 0.0)),
+            Seg::line(p(5.0, 0.0), p(5.0 + 1e-13, 0.0)),
+            Seg::line(p(5.0 + 1e-13, 0.0), p(10.0, 0.0)),
+        ];
+        let raw = raw_path(&segs, false, 1.0, 1e-9);
+        assert!(raw.segs.iter().all(|s| s.length2() > short_length2(1e-9)));
+        assert_eq!(
+            (raw.segs.len(), raw.origins.len()),
+            (2, 2),
+            "{:?}",
+            raw.segs
+        );
+        assert_eq!(raw.extremes, None);
+    }
 
     /// A long line, a dense bend of radius `rho` turning `turn` radians to the left, and a
     /// long line out: the inside of the bend is to the left.
