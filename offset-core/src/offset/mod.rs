@@ -398,7 +398,8 @@ fn assemble(polys: Loops) -> Vec<Region> {
     // probe, and its bounds would cost a walk of their own)
     let mut best: Vec<Option<(usize, f64)>> = vec![None; islands.len()];
     let several = outers.len() > 1;
-    if uncrossed && outers.len() == 1 {
+    let one_holds_all = uncrossed && outers.len() == 1;
+    if one_holds_all {
         debug_assert!(
             winding_numbers(&outers[0].0, &probes)
                 .iter()
@@ -408,7 +409,7 @@ fn assemble(polys: Loops) -> Vec<Region> {
         best.fill(Some((0, outers[0].1)));
     }
     for (k, (o, a)) in outers.iter().enumerate() {
-        if probes.is_empty() || (uncrossed && !several) {
+        if probes.is_empty() || one_holds_all {
             break;
         }
         let b = several.then(|| o.bounds());
@@ -783,20 +784,18 @@ fn check_input(
             });
         }
     }
-    let checked = |repaired| {
-        move |boxes| Checked {
-            convex: false,
-            boxes,
-            repaired,
-        }
+    let checked = |boxes, repaired| Checked {
+        convex: false,
+        boxes,
+        repaired,
     };
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first.map(checked(false));
+        return first.map(|boxes| checked(boxes, false));
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps).map(checked(true))
+    check_crossings(&views, eps).map(|boxes| checked(boxes, true))
 }
 
 /// What the input check found: whether the paths are one convex loop of lines, the boxes
@@ -1083,14 +1082,19 @@ fn run_closed(
         let timer = stages::Timer::start(&loops);
         let step = match opts.join {
             Join::Round => {
-                // the loops' sums as their survey found them where it did (the first stage),
-                // else a pass over them
+                // the loops' sums as their survey found them where it did (the first stage,
+                // one per loop), else a pass over them
                 let known = std::mem::take(&mut turnings);
+                let known = if known.len() == loops.len() {
+                    known
+                } else {
+                    Vec::new()
+                };
                 let ends: Vec<raw::Ends> = loops
                     .iter()
                     .enumerate()
                     .map(|(k, (s, _))| match known.get(k) {
-                        Some(Some(t)) if known.len() == loops.len() => t.ends(rest),
+                        Some(Some(t)) => t.ends(rest),
                         _ => raw::ends_of(s, rest),
                     })
                     .collect();
