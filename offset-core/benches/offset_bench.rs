@@ -517,14 +517,75 @@ fn cell(x: &Outcome) -> Option<&Cell> {
     }
 }
 
+/// Milliseconds to three significant figures (the decade and distance ratios are read
+/// from these: a 10k row's 1.5 ms rounded to a tenth was ±3 %).
+fn fmt_ms(ms: f64) -> String {
+    if ms < 1.0 {
+        format!("{ms:.3}")
+    } else if ms < 10.0 {
+        format!("{ms:.2}")
+    } else if ms < 100.0 {
+        format!("{ms:.1}")
+    } else {
+        format!("{ms:.0}")
+    }
+}
+
 fn fmt_time(c: &Outcome) -> String {
     match c {
         Outcome::Measured(c) if c.rounds > 1 => {
-            format!("{:.1} / {:.1} ({} rounds)", c.best, c.median, c.rounds)
+            format!(
+                "{} / {} ({} rounds)",
+                fmt_ms(c.best),
+                fmt_ms(c.median),
+                c.rounds
+            )
         }
-        Outcome::Measured(c) => format!("{:.1} (1 round)", c.best),
+        Outcome::Measured(c) => format!("{} (1 round)", fmt_ms(c.best)),
         Outcome::Stopped { after_s } => format!("stopped after {after_s:.0} s (1 round)"),
     }
+}
+
+/// What the goals of scale and distance read from machlink's best times (by row name):
+/// each decade of the gear rows, without and with islands, and the distance series'
+/// growth from 2 mm. Rows the run left out are left out here.
+fn goal_lines(best: &[(String, f64)]) -> Vec<String> {
+    let of = |name: String| best.iter().find(|(n, _)| *n == name).map(|(_, t)| *t);
+    let mut lines = Vec::new();
+    for (label, islands) in [("gear", ""), ("gear with islands", " + 10 islands")] {
+        let decades: Vec<String> = [1_000usize, 10_000, 100_000]
+            .iter()
+            .filter_map(|&n| {
+                let t0 = of(format!("gear {n}{islands}, d = -2"))?;
+                let t1 = of(format!("gear {}{islands}, d = -2", n * 10))?;
+                Some(format!("{n} → {}: {:.1}×", n * 10, t1 / t0))
+            })
+            .collect();
+        if !decades.is_empty() {
+            lines.push(format!(
+                "decades, {label} (machlink best ÷ best, goal ≤ 12×): {}",
+                decades.join(", ")
+            ));
+        }
+    }
+    let series = |d: u32| {
+        of(format!(
+            "gear 10000 + 10 islands, d = -{d} (distance series)"
+        ))
+    };
+    if let Some(t2) = series(2) {
+        let growth: Vec<String> = [20, 200, 400]
+            .iter()
+            .filter_map(|&d| Some(format!("{d} mm {:.1}×", series(d)? / t2)))
+            .collect();
+        if !growth.is_empty() {
+            lines.push(format!(
+                "distance, gear 10000 + 10 islands (machlink best against 2 mm, goal ≤ 2×): {}",
+                growth.join(", ")
+            ));
+        }
+    }
+    lines
 }
 
 /// Every row, 1M ones included (`quick` drops them when the table is printed, so a row's
@@ -655,6 +716,8 @@ fn main() {
     println!();
     println!("| case | machlink (ms, best / median, rounds) | cavalier_contours 0.9 | Clipper2 0.6 | cavalier_contours ÷ machlink (best, median) | output vertices (arcs): machlink / cavalier_contours / Clipper2 | worst deviation (mm): machlink / cavalier_contours / Clipper2 | load |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|");
+    // machlink's best time per row run, for the goals' lines at the end
+    let mut machlink_best: Vec<(String, f64)> = Vec::new();
     for (index, mut c) in cases().into_iter().enumerate() {
         if quick && c.name.starts_with("gear 1000000") {
             continue;
@@ -667,6 +730,9 @@ fn main() {
             c.clipper_rounds = c.clipper_rounds.min(r);
         }
         let cells = run_case(index, &c);
+        if let Some(m) = cell(&cells[0]) {
+            machlink_best.push((c.name.clone(), m.best));
+        }
         let dev = |x: &Outcome| match cell(x) {
             Some(Cell { dev: Some(d), .. }) => format!("{d:.1e}"),
             Some(_) => "not checked".into(),
@@ -695,6 +761,10 @@ fn main() {
             dev(&cells[2]),
             load_average(),
         );
+    }
+    println!();
+    for line in goal_lines(&machlink_best) {
+        println!("{line}");
     }
     println!();
     println!(

@@ -395,9 +395,15 @@ mod tests {
                     continue;
                 }
                 let fast = super::super::finish(vec![(fast, true)], &opts, eps).loops;
-                let general =
-                    super::super::run(&[(segs.clone(), true)], &[], Vec::new(), o, &opts, eps)
-                        .loops;
+                let general = super::super::run(
+                    &[(segs.clone(), true)],
+                    &[],
+                    Default::default(),
+                    o,
+                    &opts,
+                    eps,
+                )
+                .loops;
                 assert_eq!(fast.len(), 1, "case {case}, o {o}");
                 // the general way may leave sliver loops of a few nm² beside the loop
                 // (seen on the dense ones: up to 7 of them, 6e-9 mm² at most): compare

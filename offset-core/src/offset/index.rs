@@ -1,12 +1,13 @@
-//! A static packed R-tree of boxes (Hilbert-sorted leaves, or leaves in path order, 16 per
+//! A static packed R-tree of boxes (Hilbert-sorted leaves, or leaves in path order, 8 per
 //! node): box queries and nearest-distance searches in O(log n) each, built in O(n log n);
-//! and the pairs of overlapping boxes among segments in path order.
+//! and, over leaves in path order, the pairs of overlapping boxes (the input check walks
+//! them, then the offset's distance questions ask the same tree).
 
 use crate::geom::{hi, lo};
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-const NODE: usize = 16;
+const NODE: usize = 8;
 
 /// Boxes are [min x, min y, max x, max y].
 pub type BBox = [f64; 4];
@@ -16,8 +17,11 @@ pub type BBox = [f64; 4];
 #[derive(Clone, Debug, Default)]
 pub struct BoxIndex {
     boxes: Vec<BBox>,
-    /// for level-0 slots: the item's index
+    /// for level-0 slots: the item's index; empty when the leaves are the items in order
+    /// (a tree packed over boxes as they come: slot i is item i)
     items: Vec<u32>,
+    /// how many items
+    n: usize,
     /// start of each level in `boxes`; the last level holds the root
     levels: Vec<usize>,
 }
@@ -136,7 +140,7 @@ impl BoxIndex {
         }
         let mut boxes: Vec<BBox> = Vec::with_capacity(BoxIndex::room(n));
         boxes.extend_from_slice(item_boxes);
-        BoxIndex::pack(boxes, (0..n as u32).collect())
+        BoxIndex::pack(boxes, Vec::new())
     }
 
     /// How many boxes a tree over `n` leaves holds, the levels above them included: a
@@ -155,14 +159,16 @@ impl BoxIndex {
             return BoxIndex::default();
         }
         boxes.reserve(BoxIndex::room(n) - n);
-        BoxIndex::pack(boxes, (0..n as u32).collect())
+        BoxIndex::pack(boxes, Vec::new())
     }
 
-    /// Adds the levels above the leaves (`boxes` holds the leaves in order).
+    /// Adds the levels above the leaves (`boxes` holds the leaves; `items` the item of
+    /// each, or nothing when they are the items in order).
     fn pack(mut boxes: Vec<BBox>, items: Vec<u32>) -> BoxIndex {
+        let n = boxes.len();
         let mut levels = vec![0usize];
         let mut start = 0;
-        let mut count = items.len();
+        let mut count = n;
         while count > 1 {
             let end = start + count;
             let mut k = start;
@@ -182,21 +188,32 @@ impl BoxIndex {
         BoxIndex {
             boxes,
             items,
+            n,
             levels,
         }
     }
 
     pub fn len(&self) -> usize {
-        self.items.len()
+        self.n
     }
 
     pub fn is_empty(&self) -> bool {
-        self.items.is_empty()
+        self.n == 0
+    }
+
+    /// The item in leaf `slot`.
+    #[inline]
+    fn item(&self, slot: usize) -> usize {
+        if self.items.is_empty() {
+            slot
+        } else {
+            self.items[slot] as usize
+        }
     }
 
     /// Calls `f(item)` for every item whose box overlaps `q`; `f` returns false to stop.
     pub fn query(&self, q: &BBox, mut f: impl FnMut(usize) -> bool) {
-        if self.items.is_empty() {
+        if self.n == 0 {
             return;
         }
         let top = self.levels.len() - 1;
@@ -208,7 +225,7 @@ impl BoxIndex {
                 continue;
             }
             if lvl == 0 {
-                if !f(self.items[slot] as usize) {
+                if !f(self.item(slot)) {
                     return;
                 }
                 continue;
@@ -228,7 +245,7 @@ impl BoxIndex {
     /// nodes by the boundary's nearest stretch, where the square of side 2|d| about it
     /// would hold a large part of the boundary); `f` returns false to stop.
     pub fn query_disc(&self, x: f64, y: f64, r: f64, mut f: impl FnMut(usize) -> bool) {
-        if self.items.is_empty() {
+        if self.n == 0 {
             return;
         }
         let r2 = r * r;
@@ -237,7 +254,7 @@ impl BoxIndex {
             return;
         }
         if top == 0 {
-            f(self.items[0] as usize);
+            f(self.item(0));
             return;
         }
         // nodes whose box comes nearer than r (children are tested before they go on the
@@ -249,7 +266,7 @@ impl BoxIndex {
             let last = (first + NODE).min(self.levels[lvl]);
             if lvl == 1 {
                 for c in first..last {
-                    if box_dist2(&self.boxes[c], x, y) < r2 && !f(self.items[c] as usize) {
+                    if box_dist2(&self.boxes[c], x, y) < r2 && !f(self.item(c)) {
                         return;
                     }
                 }
@@ -299,7 +316,7 @@ impl BoxIndex {
                 o.0.partial_cmp(&self.0).unwrap_or(Ordering::Equal)
             }
         }
-        if self.items.is_empty() {
+        if self.n == 0 {
             return;
         }
         let top = self.levels.len() - 1;
@@ -310,13 +327,13 @@ impl BoxIndex {
                 return;
             }
             if exact {
-                if !f(self.items[slot] as usize, d) {
+                if !f(self.item(slot), d) {
                     return;
                 }
                 continue;
             }
             if lvl == 0 {
-                let dd = dist(self.items[slot] as usize);
+                let dd = dist(self.item(slot));
                 heap.push(E(dd, 0, slot, true));
                 continue;
             }
@@ -347,7 +364,7 @@ impl BoxIndex {
         max: f64,
         mut dist: impl FnMut(usize) -> f64,
     ) -> Option<(usize, f64)> {
-        if self.items.is_empty() {
+        if self.n == 0 {
             return None;
         }
         let mut best: Option<(usize, f64)> = None;
@@ -358,7 +375,7 @@ impl BoxIndex {
             Some((_, b)) => d < *b,
         };
         let mut visit_item = |slot: usize, best: &mut Option<(usize, f64)>| {
-            let item = self.items[slot] as usize;
+            let item = self.item(slot);
             let d = dist(item);
             if beats(d, best) {
                 *best = Some((item, d));
@@ -366,7 +383,7 @@ impl BoxIndex {
         };
         let top = self.levels.len() - 1;
         if top == 0 {
-            for slot in 0..self.items.len() {
+            for slot in 0..self.n {
                 visit_item(slot, &mut best);
             }
             return best;
@@ -406,108 +423,101 @@ impl BoxIndex {
     }
 }
 
-/// Calls `f(i, j)` (i < j) for every pair of overlapping boxes, given in path order (each
-/// next to the one before, as the segments of paths one after another): a tree is packed
-/// over them as they come, eight boxes to a node, and walked against itself, descending only into pairs of nodes whose
-/// boxes overlap. A path that does not come back near itself meets only its own node and
-/// its neighbours at each level, so the work is linear in n plus the pairs; unlike a sweep
-/// along one axis, a long stretch running along the other axis costs nothing extra.
-// (index loops: the indices are what is reported and stacked; the iterator forms counted
-// more instructions)
-#[allow(clippy::needless_range_loop)]
-pub fn overlapping_pairs_in_order(boxes: &[BBox], mut f: impl FnMut(usize, usize)) {
-    const FAN: usize = 8;
-    // all four comparisons, no early out: most pairs asked about are near misses, whose
-    // outcome no branch predicts (the boxes are finite)
-    let overlap =
-        |a: &BBox, b: &BBox| (a[0] <= b[2]) & (a[2] >= b[0]) & (a[1] <= b[3]) & (a[3] >= b[1]);
-    if boxes.len() < 2 {
-        return;
-    }
-    // levels[k] holds the nodes one level above levels[k - 1] (level 0: the boxes)
-    let mut levels: Vec<Vec<BBox>> = Vec::new();
-    loop {
-        let below: &[BBox] = levels.last().map_or(boxes, |l| l.as_slice());
-        if below.len() == 1 {
-            break;
+impl BoxIndex {
+    /// Calls `f(i, j)` (i < j) for every pair of overlapping leaves of a tree packed over
+    /// boxes in path order ([`BoxIndex::in_order`], [`BoxIndex::in_order_owned`]: each box
+    /// next to the one before, as the segments of paths one after another). The tree is
+    /// walked against itself, descending only into pairs of nodes whose boxes overlap. A
+    /// path that does not come back near itself meets only its own node and its neighbours
+    /// at each level, so the work is linear in n plus the pairs; unlike a sweep along one
+    /// axis, a long stretch running along the other axis costs nothing extra. The same
+    /// tree then answers the distance questions over the same segments (`prune::InputSet`).
+    // (index loops: the indices are what is reported and stacked; the iterator forms
+    // counted more instructions)
+    #[allow(clippy::needless_range_loop)]
+    pub fn overlapping_pairs(&self, mut f: impl FnMut(usize, usize)) {
+        debug_assert!(self.items.is_empty(), "a tree in path order");
+        // all four comparisons, no early out: most pairs asked about are near misses,
+        // whose outcome no branch predicts (the boxes are finite)
+        let overlap =
+            |a: &BBox, b: &BBox| (a[0] <= b[2]) & (a[2] >= b[0]) & (a[1] <= b[3]) & (a[3] >= b[1]);
+        if self.n < 2 {
+            return;
         }
-        let up: Vec<BBox> = below
-            .chunks(FAN)
-            .map(|c| c[1..].iter().fold(c[0], |u, b| union(&u, b)))
-            .collect();
-        levels.push(up);
-    }
-    let level = |k: usize| -> &[BBox] {
-        if k == 0 {
-            boxes
-        } else {
-            &levels[k - 1]
-        }
-    };
-    // (level, node a, node b) with a <= b and overlapping boxes
-    let mut stack: Vec<(usize, usize, usize)> = vec![(levels.len(), 0, 0)];
-    // of two different nodes' children, the ones that reach into the common part of the
-    // nodes' boxes: a child outside it overlaps no child of the other node (each lies in
-    // its node's box), so only these are paired; two neighbours along a path share a
-    // corner's worth of their boxes, and a few children each
-    let (mut ia, mut jb) = ([0usize; FAN], [0usize; FAN]);
-    while let Some((k, a, b)) = stack.pop() {
-        let below = level(k - 1);
-        let (a1, b1) = (
-            ((a + 1) * FAN).min(below.len()),
-            ((b + 1) * FAN).min(below.len()),
-        );
-        if a == b {
-            for i in a * FAN..a1 {
-                let bi = below[i];
-                if k == 1 {
-                    // the boxes themselves: report the pairs here rather than through the
-                    // stack
-                    for j in i + 1..b1 {
-                        if overlap(&bi, &below[j]) {
-                            f(i, j);
+        let top = self.levels.len() - 1;
+        let level = |k: usize| -> &[BBox] {
+            let end = if k < top {
+                self.levels[k + 1]
+            } else {
+                self.boxes.len()
+            };
+            &self.boxes[self.levels[k]..end]
+        };
+        // (level, node a, node b) with a <= b and overlapping boxes
+        let mut stack: Vec<(usize, usize, usize)> = vec![(top, 0, 0)];
+        // of two different nodes' children, the ones that reach into the common part of
+        // the nodes' boxes: a child outside it overlaps no child of the other node (each
+        // lies in its node's box), so only these are paired; two neighbours along a path
+        // share a corner's worth of their boxes, and a few children each
+        let (mut ia, mut jb) = ([0usize; NODE], [0usize; NODE]);
+        while let Some((k, a, b)) = stack.pop() {
+            let below = level(k - 1);
+            let (a1, b1) = (
+                ((a + 1) * NODE).min(below.len()),
+                ((b + 1) * NODE).min(below.len()),
+            );
+            if a == b {
+                for i in a * NODE..a1 {
+                    let bi = below[i];
+                    if k == 1 {
+                        // the boxes themselves: report the pairs here rather than through
+                        // the stack
+                        for j in i + 1..b1 {
+                            if overlap(&bi, &below[j]) {
+                                f(i, j);
+                            }
                         }
-                    }
-                } else {
-                    for j in i..b1 {
-                        if overlap(&bi, &below[j]) {
-                            stack.push((k - 1, i, j));
+                    } else {
+                        for j in i..b1 {
+                            if overlap(&bi, &below[j]) {
+                                stack.push((k - 1, i, j));
+                            }
                         }
                     }
                 }
+                continue;
             }
-            continue;
-        }
-        let nodes = level(k);
-        let (na, nb) = (nodes[a], nodes[b]);
-        let common = [
-            na[0].max(nb[0]),
-            na[1].max(nb[1]),
-            na[2].min(nb[2]),
-            na[3].min(nb[3]),
-        ];
-        let mut n_a = 0;
-        for i in a * FAN..a1 {
-            if overlap(&below[i], &common) {
-                ia[n_a] = i;
-                n_a += 1;
+            let nodes = level(k);
+            let (na, nb) = (nodes[a], nodes[b]);
+            let common = [
+                na[0].max(nb[0]),
+                na[1].max(nb[1]),
+                na[2].min(nb[2]),
+                na[3].min(nb[3]),
+            ];
+            let mut n_a = 0;
+            for i in a * NODE..a1 {
+                if overlap(&below[i], &common) {
+                    ia[n_a] = i;
+                    n_a += 1;
+                }
             }
-        }
-        let mut n_b = 0;
-        for j in b * FAN..b1 {
-            if overlap(&below[j], &common) {
-                jb[n_b] = j;
-                n_b += 1;
+            let mut n_b = 0;
+            for j in b * NODE..b1 {
+                if overlap(&below[j], &common) {
+                    jb[n_b] = j;
+                    n_b += 1;
+                }
             }
-        }
-        for &i in &ia[..n_a] {
-            let bi = below[i];
-            for &j in &jb[..n_b] {
-                if overlap(&bi, &below[j]) {
-                    if k == 1 {
-                        f(i, j);
-                    } else {
-                        stack.push((k - 1, i, j));
+            for &i in &ia[..n_a] {
+                let bi = below[i];
+                for &j in &jb[..n_b] {
+                    if overlap(&bi, &below[j]) {
+                        if k == 1 {
+                            f(i, j);
+                        } else {
+                            stack.push((k - 1, i, j));
+                        }
                     }
                 }
             }
@@ -538,7 +548,7 @@ mod tests {
         // scattered boxes of many sizes (n from 1 to a few levels), each item's distance
         // a little above its box's, points inside and far outside, bounds that cut some off
         let mut rnd = crate::test_rng::uniform(12345);
-        for n in [1usize, 2, 15, 16, 17, 300, 5000] {
+        for n in [1usize, 2, 7, 8, 9, 64, 65, 300, 5000] {
             let boxes: Vec<BBox> = (0..n)
                 .map(|_| {
                     let (x, y) = (rnd() * 100.0, rnd() * 100.0);
@@ -600,22 +610,27 @@ mod tests {
                 }
             }
         }
+        // the tree in path order: the pairs, and the same answers as the sorted one
+        let in_order = BoxIndex::in_order(&boxes);
         let mut walked = Vec::new();
-        overlapping_pairs_in_order(&boxes, |i, j| walked.push((i, j)));
+        in_order.overlapping_pairs(|i, j| walked.push((i, j)));
         walked.sort();
         assert_eq!(walked, brute);
+        assert_eq!(in_order.len(), boxes.len());
         // the disc query: exactly the boxes nearer the point than the radius
         for (x, y, r) in [(50.2, 7.3, 4.0), (0.0, 0.0, 0.5), (120.0, 60.0, 30.0)] {
-            let mut got = Vec::new();
-            idx.query_disc(x, y, r, |i| {
-                got.push(i);
-                true
-            });
-            got.sort();
             let want: Vec<usize> = (0..boxes.len())
                 .filter(|&i| box_dist2(&boxes[i], x, y) < r * r)
                 .collect();
-            assert_eq!(got, want, "disc about ({x}, {y}) of radius {r}");
+            for tree in [&idx, &in_order] {
+                let mut got = Vec::new();
+                tree.query_disc(x, y, r, |i| {
+                    got.push(i);
+                    true
+                });
+                got.sort();
+                assert_eq!(got, want, "disc about ({x}, {y}) of radius {r}");
+            }
         }
         let mut best = None;
         idx.nearest(

@@ -91,7 +91,7 @@ pub fn offset_polyline(
         let mut paths = vec![(segs, true)];
         let Checked {
             convex,
-            boxes,
+            tree,
             repaired,
         } = check_input(&mut paths, eps, opts.tolerance, convex)?;
         // (the survey's sums are of the segments in the order it made them)
@@ -110,7 +110,7 @@ pub fn offset_polyline(
         let loops = run_closed(
             vec![(segs, true)],
             convex,
-            boxes,
+            tree,
             turnings,
             -distance,
             opts,
@@ -145,7 +145,7 @@ pub fn offset_polyline(
         Ok(run(
             &[(segs, false)],
             &splitters,
-            Vec::new(),
+            index::BoxIndex::default(),
             distance,
             opts,
             eps,
@@ -294,7 +294,7 @@ fn offset_loops(
         };
         Checked {
             convex,
-            boxes: Vec::new(),
+            tree: index::BoxIndex::default(),
             repaired: false,
         }
     } else {
@@ -302,7 +302,7 @@ fn offset_loops(
     };
     let Checked {
         convex,
-        mut boxes,
+        mut tree,
         repaired,
     } = checked;
     if repaired {
@@ -317,8 +317,8 @@ fn offset_loops(
         }
     }
     if keep.iter().any(|k| !k) {
-        // (the check's boxes are of every loop)
-        boxes = Vec::new();
+        // (the check's tree is of every loop)
+        tree = index::BoxIndex::default();
         if !turnings.is_empty() {
             turnings = turnings
                 .into_iter()
@@ -352,7 +352,7 @@ fn offset_loops(
             eps: f64::NAN,
         });
     }
-    let polys = run_closed(loops, convex, boxes, turnings, -distance, opts, eps);
+    let polys = run_closed(loops, convex, tree, turnings, -distance, opts, eps);
     Ok(ValidRegions {
         regions: assemble(polys),
         eps,
@@ -779,44 +779,46 @@ fn check_input(
         if convex.unwrap_or_else(|| convex::is_convex_ccw(segs)) {
             return Ok(Checked {
                 convex: true,
-                boxes: Vec::new(),
+                tree: index::BoxIndex::default(),
                 repaired: false,
             });
         }
     }
-    let checked = |boxes, repaired| Checked {
+    let checked = |tree, repaired| Checked {
         convex: false,
-        boxes,
+        tree,
         repaired,
     };
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
     let first = check_crossings(&views, eps);
     if first.is_ok() || !zigzag::remove(paths, eps, zigzag_bound(tolerance, eps)) {
-        return first.map(|boxes| checked(boxes, false));
+        return first.map(|tree| checked(tree, false));
     }
     let views: Vec<(&[Seg], bool)> = paths.iter().map(|(s, c)| (s.as_slice(), *c)).collect();
-    check_crossings(&views, eps).map(|boxes| checked(boxes, true))
+    check_crossings(&views, eps).map(|tree| checked(tree, true))
 }
 
-/// What the input check found: whether the paths are one convex loop of lines, the boxes
-/// of the paths' segments as they now are, grown by ε (none for a convex loop), and
-/// whether it cut zig-zags off them (then what a survey found of them no longer holds).
+/// What the input check found: whether the paths are one convex loop of lines, the tree
+/// its crossing search walked over the boxes of the paths' segments as they now are, grown
+/// by ε (none for a convex loop), and whether it cut zig-zags off them (then what a survey
+/// found of them no longer holds).
 struct Checked {
     convex: bool,
-    boxes: Vec<index::BBox>,
+    tree: index::BoxIndex,
     repaired: bool,
 }
 
 /// Rejects input paths that cross themselves or each other, naming the path and the point.
 /// Neighbouring segments may meet only at their shared vertex (a spike that runs back along
 /// itself is allowed: it offsets as a 180° turn).
-/// Ok: the boxes the search made, each segment's grown by ε, the paths one after another
-/// (what the offset's distance questions ask of the same segments: see `InputSet::new`).
-fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<Vec<index::BBox>, OffsetError> {
+/// Ok: the tree the search walked, over each segment's box grown by ε, the paths one after
+/// another (what the offset's distance questions ask of the same segments: see
+/// `InputSet::new`).
+fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<index::BoxIndex, OffsetError> {
     // report the crossing met first along the paths
     let best = std::cell::Cell::new(usize::MAX);
     let mut first: Option<Crossing> = None;
-    let boxes = each_crossing(
+    let tree = each_crossing(
         paths,
         eps,
         |order, _, _| order < best.get(),
@@ -832,7 +834,7 @@ fn check_crossings(paths: &[(&[Seg], bool)], eps: f64) -> Result<Vec<index::BBox
             path: c.a.0,
             at: c.at,
         }),
-        None => Ok(boxes),
+        None => Ok(tree),
     }
 }
 
@@ -851,20 +853,20 @@ struct Crossing {
 
 /// Calls `found` for the crossings (by the input rule) of every pair of segments `wanted`
 /// asks for (it is given the pair's order and both segments' (path, index)); at most one
-/// crossing per pair. Returns the segments' boxes grown by ε, one path after another.
+/// crossing per pair. Returns the tree it walked: over the segments' boxes grown by ε, one
+/// path after another.
 fn each_crossing(
     paths: &[(&[Seg], bool)],
     eps: f64,
     mut wanted: impl FnMut(usize, (usize, usize), (usize, usize)) -> bool,
     mut found: impl FnMut(Crossing),
-) -> Vec<index::BBox> {
+) -> index::BoxIndex {
     // the segments numbered one path after another, each number's (path, index) beside
     // it; the segments themselves are read where they lie (at a million segments a copy
     // of them all is 64 MB written and read again)
     let total: usize = paths.iter().map(|(segs, _)| segs.len()).sum();
     let mut owner: Vec<(u32, u32)> = Vec::with_capacity(total);
-    // (with the room for the levels of the distance questions' tree, which is packed over
-    // them: see `prune::InputSet`)
+    // (with the room for the levels of the tree packed over them)
     let mut boxes: Vec<index::BBox> = Vec::with_capacity(index::BoxIndex::room(total));
     for (pi, (segs, _)) in paths.iter().enumerate() {
         for (k, s) in segs.iter().enumerate() {
@@ -872,6 +874,7 @@ fn each_crossing(
             boxes.push(index::grow(s.bbox(), eps));
         }
     }
+    let tree = index::BoxIndex::in_order_owned(boxes);
     let owner_of = |i: usize| -> (usize, usize) {
         let (p, k) = owner[i];
         (p as usize, k as usize)
@@ -884,7 +887,7 @@ fn each_crossing(
         let (segs, closed) = paths[pa];
         kb == ka + 1 || (closed && ka == segs.len() - 1 && kb == 0)
     };
-    index::overlapping_pairs_in_order(&boxes, |i, j| {
+    tree.overlapping_pairs(|i, j| {
         let (oi, oj) = (owner_of(i), owner_of(j));
         if !wanted(i.min(j), oi, oj) {
             return;
@@ -929,7 +932,7 @@ fn each_crossing(
             return;
         }
     });
-    boxes
+    tree
 }
 
 /// Where the boundary runs on either side of `p`, a point of segment `k` of `path` at
@@ -1056,15 +1059,16 @@ fn circle(c: Point, r: f64) -> [Seg; 2] {
 /// Closed, oriented loops (outers counter-clockwise, islands clockwise) offset by `o` to
 /// the left: in one stage, or with round joins and a distance much larger than the
 /// loops' features in several (see `stages`), each from the loops the one before left.
-/// `convex`: the loops are one convex loop of lines (as `check_input` found); `boxes`: the
-/// loops' segments' boxes grown by ε if the check made them (see `run`), else none;
+/// `convex`: the loops are one convex loop of lines (as `check_input` found); `tree`: the
+/// input check's over the loops' segments' boxes grown by ε if it made one (see `run`),
+/// else an empty one;
 /// `turnings`: per loop, its length and turns if its survey found them as it now runs
 /// (see `Survey`), else empty or None.
 #[allow(clippy::too_many_arguments)]
 fn run_closed(
     mut loops: Vec<(Vec<Seg>, bool)>,
     convex: bool,
-    mut boxes: Vec<index::BBox>,
+    mut tree: index::BoxIndex,
     mut turnings: Vec<Option<raw::Turning>>,
     o: f64,
     opts: &OffsetOptions,
@@ -1104,20 +1108,13 @@ fn run_closed(
         };
         on_input = false;
         let Some(step) = step else {
-            let result = run(&loops, &[], boxes, rest, opts, eps);
+            let result = run(&loops, &[], tree, rest, opts, eps);
             timer.report("last stage", rest);
             return result;
         };
         // the stage's loops as regions, so an island left without its outer goes, then
         // as the next stage's input (the result is valid input: see `despike`, `zigzag`)
-        let regions = assemble(run(
-            &loops,
-            &[],
-            std::mem::take(&mut boxes),
-            step,
-            opts,
-            eps,
-        ));
+        let regions = assemble(run(&loops, &[], std::mem::take(&mut tree), step, opts, eps));
         timer.report("stage", step);
         rest -= step;
         loops = regions
@@ -1136,13 +1133,13 @@ fn run_closed(
 }
 
 /// Raw offsets of every path by `o` to the left, the global prune, then polylines.
-/// `boxes`: the paths' segments' boxes one path after another, grown by ε, as the input
-/// check made them (at a million segments, making them again for the distance questions
-/// read 64 MB and wrote 32 MB); empty: none made yet.
+/// `tree`: the input check's over the paths' segments' boxes one path after another, grown
+/// by ε (the distance questions ask it: at a million segments, making the boxes again read
+/// 64 MB and wrote 32 MB); empty: none made yet.
 fn run(
     paths: &[(Vec<Seg>, bool)],
     splitters: &[Seg],
-    boxes: Vec<index::BBox>,
+    tree: index::BoxIndex,
     o: f64,
     opts: &OffsetOptions,
     eps: f64,
@@ -1151,7 +1148,7 @@ fn run(
         .iter()
         .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
         .collect();
-    let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect(), boxes);
+    let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect(), tree);
     let valid_eps = slack(opts.tolerance, eps);
     let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());

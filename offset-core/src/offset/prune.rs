@@ -2,7 +2,7 @@
 //! split them there, drop each run that comes nearer the input than |d| (minus a hair), and
 //! stitch the surviving runs end to end into the offset's paths.
 
-use super::index::{grow, overlapping_pairs_in_order, BBox, BoxIndex};
+use super::index::{grow, BBox, BoxIndex};
 use super::raw::{Extremes, Origin, RawPath};
 use super::seg::{intersect, Seg};
 use crate::geom::{hi, lo, Point};
@@ -35,14 +35,20 @@ impl Hasher for CellHasher {
 /// Run ends by grid cell.
 type Cells = HashMap<(i64, i64), Vec<usize>, BuildHasherDefault<CellHasher>>;
 
-/// The input paths' segments, for distance questions. A handful of questions is answered
-/// by scanning every segment; for more, an R-tree is built first (packed in path order:
-/// neighbours along a path lie side by side, so no sort).
+/// The input paths' segments, for distance questions. Given the input check's tree over
+/// their boxes (packed in path order), every question asks it; without one, a handful of
+/// questions is answered by scanning every segment, and for more the tree is packed first
+/// (in path order too: neighbours along a path lie side by side, so no sort).
 pub struct InputSet<'a> {
     paths: Vec<&'a [Seg]>,
-    /// the segments' boxes, if made already (the input check's, grown by ε)
-    boxes: Vec<BBox>,
-    index: Option<(BoxIndex, Vec<&'a Seg>)>,
+    /// where each path's segments start when they are numbered one path after another
+    starts: Vec<usize>,
+    /// every segment in that numbering, when there are several paths and more than a
+    /// handful of questions (else empty: a search among `starts`)
+    flat: Vec<&'a Seg>,
+    /// the tree over the segments' boxes in that numbering, or over a superset of each
+    /// (the input check's, grown by ε), once there is one
+    index: Option<BoxIndex>,
     /// the segment that last answered "nearer": asked first next time (the runs come in
     /// order along their curves, and neighbouring invalid runs mostly come too near the
     /// same stretch of the input)
@@ -53,26 +59,47 @@ pub struct InputSet<'a> {
 const SCANS: usize = 4;
 
 impl<'a> InputSet<'a> {
-    /// `boxes`: the segments' boxes, one path after another, or a superset of each (the
-    /// input check's, grown by ε), if they were made; else empty.
-    pub fn new(paths: Vec<&'a [Seg]>, boxes: Vec<BBox>) -> InputSet<'a> {
+    /// `tree`: over the segments' boxes, one path after another, or a superset of each (the
+    /// input check's, grown by ε), if one was made; else an empty one.
+    pub fn new(paths: Vec<&'a [Seg]>, tree: BoxIndex) -> InputSet<'a> {
+        let mut starts = Vec::with_capacity(paths.len());
+        let mut total = 0;
+        for p in &paths {
+            starts.push(total);
+            total += p.len();
+        }
         InputSet {
             paths,
-            boxes,
-            index: None,
+            starts,
+            flat: Vec::new(),
+            index: (total > 0 && tree.len() == total).then_some(tree),
             hint: Cell::new(0),
         }
     }
 
     /// Prepares for about `questions` distance questions.
     pub fn expect(&mut self, questions: usize) {
+        if questions > SCANS && self.paths.len() > 1 && self.flat.is_empty() {
+            self.flat = self.paths.iter().flat_map(|p| p.iter()).collect();
+        }
         if questions > SCANS && self.index.is_none() {
-            let segs: Vec<&Seg> = self.paths.iter().flat_map(|p| p.iter()).collect();
-            let boxes = match std::mem::take(&mut self.boxes) {
-                given if given.len() == segs.len() => given,
-                _ => segs.iter().map(|s| s.bbox()).collect(),
-            };
-            self.index = Some((BoxIndex::in_order_owned(boxes), segs));
+            let total: usize = self.paths.iter().map(|p| p.len()).sum();
+            let mut boxes = Vec::with_capacity(BoxIndex::room(total));
+            boxes.extend(self.paths.iter().flat_map(|p| p.iter()).map(|s| s.bbox()));
+            self.index = Some(BoxIndex::in_order_owned(boxes));
+        }
+    }
+
+    /// Segment `i` of the numbering one path after another.
+    #[inline]
+    fn seg(&self, i: usize) -> &'a Seg {
+        if self.paths.len() == 1 {
+            &self.paths[0][i]
+        } else if !self.flat.is_empty() {
+            self.flat[i]
+        } else {
+            let p = self.starts.partition_point(|&s| s <= i) - 1;
+            &self.paths[p][i - self.starts[p]]
         }
     }
 
@@ -104,15 +131,16 @@ impl<'a> InputSet<'a> {
         if thr <= 0.0 {
             return false;
         }
-        let Some((index, segs)) = &self.index else {
+        let Some(index) = &self.index else {
             return self.either_closer(p, p, thr);
         };
-        if segs.get(self.hint.get()).is_some_and(|s| s.dist(p) < thr) {
+        let hint = self.hint.get();
+        if hint < index.len() && self.seg(hint).dist(p) < thr {
             return true;
         }
         let mut found = false;
         index.query_disc(p.x, p.y, thr, |i| {
-            if segs[i].dist(p) < thr {
+            if self.seg(i).dist(p) < thr {
                 found = true;
                 self.hint.set(i);
                 return false;
@@ -358,9 +386,10 @@ pub fn prune(
     // length of both, so `gap` is asked only of hits nearer
     let reach = eps * (1.0 + NEAR_LEN);
     boxes.extend(splitters.iter().map(|s| grow(s.bbox(), eps)));
+    let tree = BoxIndex::in_order_owned(boxes);
     // (segment, parameter, point, which piece is inside the other curve) of every split
     let mut splits: Vec<(u32, f64, Point, Inside)> = Vec::new();
-    overlapping_pairs_in_order(&boxes, |i, j| {
+    tree.overlapping_pairs(|i, j| {
         if i >= n {
             return;
         }
