@@ -6,7 +6,9 @@
 //! for the dense circle's inradius less 1e-3). `incremental:K` after the reps makes K
 //! passes, each from the previous result; `cav` offsets with cavalier_contours instead
 //! (the bench's anchor, its shape built outside the timing as there; callgrind it with
-//! `--toggle-collect='cavalier_contours::shape_algorithms::Shape*::parallel_offset*'`).
+//! `--toggle-collect='cavalier_contours::shape_algorithms::Shape*::parallel_offset*'`);
+//! `between` runs a cavalier_contours offset of the same region, untimed, before each of
+//! machlink's rounds, as the bench interleaves them.
 //! Prints the best time, the output's size and a digest of its every coordinate (the same
 //! digest before and after a change: the same results, bit for bit).
 
@@ -26,7 +28,7 @@ use inputs::{dense_circle as circle, gear, islands};
 fn main() {
     offset_core::heap::hold_freed_memory();
     let args: Vec<String> = std::env::args().collect();
-    let usage = "usage: kernel_case gear:N|gear+:N|circle:N D [reps] [incremental:K]";
+    let usage = "usage: kernel_case gear:N|gear+:N|circle:N D [reps] [incremental:K] [cav | between]";
     let Some((kind, n)) = args.get(1).and_then(|a| a.split_once(':')) else {
         eprintln!("{usage}");
         std::process::exit(2);
@@ -104,7 +106,22 @@ fn main() {
     let opts = OffsetOptions::default();
     let mut best = f64::INFINITY;
     let mut out = Vec::new();
+    // `between`: a cavalier_contours offset of the same region before each round, untimed,
+    // as the bench interleaves the kernels (its buffers take the caches and the heap)
+    let between = args.iter().any(|a| a == "between").then(|| {
+        let shape = CShape::from_plines(region.boundaries().map(|p| {
+            let mut c = CPline::with_capacity(p.len(), p.closed);
+            for v in &p.vertices {
+                c.add(v.x, v.y, v.bulge);
+            }
+            c
+        }));
+        shape
+    });
     for _ in 0..reps {
+        if let Some(shape) = &between {
+            std::hint::black_box(shape.parallel_offset(-d, &ShapeOffsetOptions::default()));
+        }
         let t = Instant::now();
         // the first pass from the given region (checked), each later one from the pass
         // before (the kernel's result: no crossing search of its input)
