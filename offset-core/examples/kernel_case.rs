@@ -28,7 +28,8 @@ use inputs::{dense_circle as circle, gear, islands};
 fn main() {
     offset_core::heap::hold_freed_memory();
     let args: Vec<String> = std::env::args().collect();
-    let usage = "usage: kernel_case gear:N|gear+:N|circle:N D [reps] [incremental:K] [cav | between]";
+    let usage =
+        "usage: kernel_case gear:N|gear+:N|circle:N D [reps] [incremental:K] [cav | between]";
     let Some((kind, n)) = args.get(1).and_then(|a| a.split_once(':')) else {
         eprintln!("{usage}");
         std::process::exit(2);

@@ -170,9 +170,20 @@ pub fn meet_only_at_the_joint(s1: &Seg, s2: &Seg, eps: f64) -> bool {
         (false, false) => (s1.b - s1.a).dot(s2.b - s2.a) > 0.0,
         (true, true) => false,
         _ => {
-            let (t1, t2) = (s1.tangent_at(1.0), s2.tangent_at(0.0));
-            let r = if s1.is_arc() { s1.r } else { s2.r };
-            t1.dot(t2) > 0.0 && t1.cross(t2).abs() * r <= eps * 0.25
+            // the line's direction `d` and the arc's radius `w` at the joint, neither made
+            // a unit: the arc's tangent there is ±w⊥ / r, so the unit tangents' dot product
+            // has the sign of d · ±w⊥, and their cross product times r is
+            // |d × w⊥| / |d| = |d · w| / |d| (no root, no division)
+            let (line, arc, w) = if s1.is_arc() {
+                (s2, s1, s1.b - s1.c)
+            } else {
+                (s1, s2, s2.a - s2.c)
+            };
+            let d = line.b - line.a;
+            let tangent = if arc.sw > 0.0 { w.perp() } else { -w.perp() };
+            let off = d.dot(w);
+            let slack = eps * 0.25;
+            d.dot(tangent) > 0.0 && off * off <= slack * slack * d.dot(d)
         }
     }
 }
@@ -870,4 +881,74 @@ pub fn prune(
         });
     }
     Pruned { chains, uncrossed }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rule in unit tangents, as `meet_only_at_the_joint` states it.
+    fn by_unit_tangents(s1: &Seg, s2: &Seg, eps: f64) -> bool {
+        let (t1, t2) = (s1.tangent_at(1.0), s2.tangent_at(0.0));
+        let r = if s1.is_arc() { s1.r } else { s2.r };
+        t1.dot(t2) > 0.0 && t1.cross(t2).abs() * r <= eps * 0.25
+    }
+
+    #[test]
+    fn a_line_and_an_arc_meet_only_at_the_joint_when_tangent_there() {
+        let eps = 1e-6;
+        let mut rnd = crate::test_rng::uniform(2501);
+        let mut tangent = 0;
+        for _ in 0..2000 {
+            // an arc about c from angle a0 through sw, and a line into its start (or out
+            // of its end) at an angle `kink` off the arc's tangent there
+            let c = Point::new(rnd() * 20.0 - 10.0, rnd() * 20.0 - 10.0);
+            let r = 0.01 + rnd() * 50.0;
+            let (a0, sw) = (rnd() * 6.0, (rnd() - 0.5) * 3.0);
+            let at = |a: f64| c + Point::new(a.cos(), a.sin()) * r;
+            let arc = Seg::arc(c, r, at(a0), at(a0 + sw), sw);
+            // a kink of a few ε / r either way of the rule's bound, or a large one
+            let kink = match rnd() {
+                x if x < 0.7 => (rnd() - 0.5) * 2.0 * eps / r,
+                x if x < 0.9 => (rnd() - 0.5) * 4.0,
+                _ => std::f64::consts::PI - rnd() * 0.1,
+            };
+            let len = 0.001 + rnd() * 10.0;
+            let rot = |t: Point, k: f64| {
+                Point::new(t.x * k.cos() - t.y * k.sin(), t.x * k.sin() + t.y * k.cos())
+            };
+            let into = rot(arc.tangent_at(0.0), kink);
+            let line_in = Seg::line(arc.a - into * len, arc.a);
+            let out = rot(arc.tangent_at(1.0), kink);
+            let line_out = Seg::line(arc.b, arc.b + out * len);
+            for (s1, s2) in [(&line_in, &arc), (&arc, &line_out)] {
+                let want = by_unit_tangents(s1, s2, eps);
+                let got = meet_only_at_the_joint(s1, s2, eps);
+                // the two forms round differently only right at the bound
+                let sine = kink.sin().abs() * r;
+                if (sine - eps * 0.25).abs() > 1e-9 * eps {
+                    assert_eq!(got, want, "kink {kink}, r {r}, sw {sw}");
+                }
+                tangent += got as usize;
+            }
+        }
+        // both answers came up often
+        assert!(tangent > 500 && tangent < 3500, "{tangent} of 4000 tangent");
+        // two lines: on at less than a right angle, not back
+        let (o, x, y) = (
+            Point::new(0.0, 0.0),
+            Point::new(1.0, 0.0),
+            Point::new(0.0, 1.0),
+        );
+        assert!(meet_only_at_the_joint(
+            &Seg::line(o - x, o),
+            &Seg::line(o, x + y),
+            eps
+        ));
+        assert!(!meet_only_at_the_joint(
+            &Seg::line(o - x, o),
+            &Seg::line(o, y - x),
+            eps
+        ));
+    }
 }

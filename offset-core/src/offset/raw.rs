@@ -343,8 +343,9 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
     let corners = if closed { m } else { m - 1 };
     let ring = Ring { m };
     let tangents = Tangents { segs, ring };
-    let stackable = |k: usize| -> bool {
-        let (t1, t2) = tangents.corner(k);
+    // (each corner's tangents are found once a step and handed to what asks them: a root
+    // and a division per line each time, and four askers, were a tenth of a gear's offset)
+    let stackable = |k: usize, (t1, t2): (Point, Point)| -> bool {
         let (cr, dt) = (t1.cross(t2), t1.dot(t2));
         // two lines turning towards the offset side, neither straight on nor reversing
         !segs[k].is_arc()
@@ -355,20 +356,21 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
     };
     // whether the line after corner k has turned less than MAX_RUN_TURN from `first`, the
     // run's first line (the run turns one way, checked at every corner, so it cannot wrap)
-    let within_cap = |first: Point, k: usize| -> bool {
-        let t = tangents.corner(k).1;
+    let within_cap = |first: Point, (_, t): (Point, Point)| -> bool {
         first.cross(t) * o >= 0.0 && first.dot(t) > MAX_RUN_TURN.cos()
     };
     // a closed path starts after a corner the stack does not handle, so no run wraps
     let s0 = if closed {
-        (0..m).find(|&k| !stackable(k)).map_or(0, |k| ring.next(k))
+        (0..m)
+            .find(|&k| !stackable(k, tangents.corner(k)))
+            .map_or(0, |k| ring.next(k))
     } else {
         0
     };
     let mut out = Out::with_capacity(2 * m);
     out.push(offset_raw(&segs[s0], tangents.at(s0).0, o));
     // the stack's scratch, one for every run of this path
-    let mut stack: Vec<(Seg, Seg)> = Vec::new();
+    let mut stack: Vec<(Seg, Seg, f64)> = Vec::new();
     let mut step = 0;
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
@@ -376,15 +378,21 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
         boxing.catch_up(&out.segs);
         let k = ring.at(s0, step);
         let closing = closed && step == m - 1;
-        if !closing && step >= pairwise_until && stackable(k) {
+        let at_k = tangents.corner(k);
+        if !closing && step >= pairwise_until && stackable(k, at_k) {
             // the longest run of stackable corners from here, turning less than the cap
-            let first = tangents.corner(k).0;
+            let first = at_k.0;
             let mut end = step;
-            while end < corners
-                && !(closed && end == m - 1)
-                && stackable(ring.at(s0, end))
-                && within_cap(first, ring.at(s0, end))
-            {
+            while end < corners && !(closed && end == m - 1) {
+                let ke = ring.at(s0, end);
+                let at_e = if end == step {
+                    at_k
+                } else {
+                    tangents.corner(ke)
+                };
+                if !(stackable(ke, at_e) && within_cap(first, at_e)) {
+                    break;
+                }
                 end += 1;
             }
             if end > step {
@@ -393,7 +401,7 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
                     .map(|r| r.seg)
                     .unwrap_or_else(|| offset_seg(&segs[k], tangents.at(k).0, o));
                 if stack_run(segs, tangents, s0, step, end, floor, o, eps, &mut stack) {
-                    for (seg, _) in stack.drain(..) {
+                    for (seg, _, _) in stack.drain(..) {
                         out.push(RawSeg {
                             seg,
                             origin: Origin::Offset,
@@ -414,20 +422,13 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
         let next_raw = if closing {
             out.get(0)
         } else {
-            offset_raw(&segs[k2], tangents.at(k2).0, o)
+            // (the tangent out of corner k is segment k2's at its start)
+            offset_raw(&segs[k2], at_k.1, o)
         };
         let mut next = next_raw.seg;
         let last = out.segs.len() - 1;
         let mut prev = out.segs[last];
-        let join = pair_corner(
-            &segs[k],
-            &segs[k2],
-            tangents.corner(k),
-            &mut prev,
-            &mut next,
-            o,
-            eps,
-        );
+        let join = pair_corner(&segs[k], &segs[k2], at_k, &mut prev, &mut next, o, eps);
         out.segs[last] = prev;
         if let Some(j) = join {
             out.push(j);
@@ -518,9 +519,9 @@ fn tangents_and_length(s: &Seg) -> ((Point, Point), f64) {
 /// The stack over the corners `from..to` (counted from segment `s0`), starting with `floor`,
 /// the offset of the segment before corner `from` as it stands. Leaves in `stack` (the
 /// caller's scratch, kept from run to run: cleared here) the kept lines, each beside the
-/// whole offset segment it is part of, the first being `floor` trimmed; false when the run
-/// does not resolve into lines each kept within its own offset segment (then the corners
-/// are joined the pair-wise way).
+/// whole offset segment it is part of and that segment's length, the first being `floor`
+/// trimmed; false when the run does not resolve into lines each kept within its own offset
+/// segment (then the corners are joined the pair-wise way).
 #[allow(clippy::too_many_arguments)]
 fn stack_run(
     segs: &[Seg],
@@ -531,22 +532,27 @@ fn stack_run(
     floor: Seg,
     o: f64,
     eps: f64,
-    stack: &mut Vec<(Seg, Seg)>,
+    stack: &mut Vec<(Seg, Seg, f64)>,
 ) -> bool {
     let ring = tangents.ring;
     stack.clear();
     let k0 = ring.at(s0, from);
-    stack.push((floor, offset_seg(&segs[k0], tangents.at(k0).0, o)));
+    // the run is of lines: a line's tangent at its end is the one at its start, so the
+    // tangent into each corner is the one out of the corner before (one root a line)
+    let (mut t_in, _) = tangents.at(k0);
+    let first = offset_seg(&segs[k0], t_in, o);
+    stack.push((floor, first, first.length()));
     for step in from..to {
         let k = ring.at(s0, step);
         let k2 = ring.next(k);
-        let whole = offset_seg(&segs[k2], tangents.at(k2).0, o);
+        let (t_out, _) = tangents.at(k2);
+        let whole = offset_seg(&segs[k2], t_out, o);
         let mut next = whole;
         let mut adjacent = true;
         loop {
-            let (top, top_whole) = stack[stack.len() - 1];
+            let (top, top_whole, top_length) = stack[stack.len() - 1];
             let x = if adjacent {
-                miter_point(segs[k].b, tangents.corner(k), o)
+                miter_point(segs[k].b, (t_in, t_out), o)
             } else {
                 match line_meet(&top_whole, &whole) {
                     Some(x) => x,
@@ -554,7 +560,7 @@ fn stack_run(
                 }
             };
             // how far past the kept line's start, along its own direction
-            let ahead = (x - top.a).dot(top_whole.b - top_whole.a) / top_whole.length();
+            let ahead = (x - top.a).dot(top_whole.b - top_whole.a) / top_length;
             if ahead > eps * 1e-3 {
                 let last = stack.len() - 1;
                 stack[last].0 = Seg::line(top.a, x);
@@ -568,12 +574,13 @@ fn stack_run(
             stack.pop();
             adjacent = false;
         }
-        stack.push((next, whole));
+        stack.push((next, whole, whole.length()));
+        t_in = t_out;
     }
     // every kept line must lie, in its own direction, within its own offset segment
     let n = stack.len();
-    stack.iter().enumerate().all(|(i, (kept, whole))| {
-        let e = eps / whole.length().max(eps);
+    stack.iter().enumerate().all(|(i, (kept, whole, length))| {
+        let e = eps / length.max(eps);
         let (ta, tb) = (whole.param(kept.a), whole.param(kept.b));
         let start_ok = i == 0 || ta >= -e;
         let end_ok = i == n - 1 || tb <= 1.0 + e;
