@@ -20,9 +20,16 @@
 //! offsets run past the row's limit (the check of its outputs is not held to it), the
 //! cell then saying so.
 //!
+//! After the table, two blocks side by side: the gear of 1k, 10k, 100k and 1M vertices
+//! with and without islands at 2 mm, and the 10k gear with islands at 2, 20, 200 and 400
+//! mm, machlink and cavalier_contours on every input of a block in each round, so each
+//! decade and each distance's growth is read from times taken under the same conditions
+//! (the table's rows run minutes apart).
+//!
 //! Run: `cargo bench -p offset-core --bench offset_bench` (add `-- quick` to skip the 1M
-//! rows, `-- rounds N` for N rounds instead of the defaults, `-- only TEXT` for the rows
-//! whose name holds TEXT).
+//! rows and sizes, `-- rounds N` for N rounds instead of the defaults, `-- only TEXT` for
+//! the rows whose name holds TEXT; `-- only scaling` and `-- only growth` run one block
+//! alone).
 
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
@@ -546,6 +553,104 @@ fn fmt_time(c: &Outcome) -> String {
     }
 }
 
+/// One input of a side-by-side block: its name, boundaries, distance, and rounds (at most).
+struct Side {
+    name: String,
+    boundaries: Vec<Polyline>,
+    d: f64,
+    rounds: usize,
+}
+
+/// machlink and cavalier_contours on every input of a block in each round, round-robin,
+/// nothing else between: the ratios between inputs (a decade of the gear, a distance
+/// against 2 mm) read from rows run minutes apart moved by a tenth with whatever else the
+/// machine did meanwhile, as a round after an idle wait runs slower. Returns each input's
+/// best times in ms, (machlink, cavalier_contours).
+fn side_by_side(inputs: &[Side], rounds: usize) -> Vec<(f64, f64)> {
+    let (ml, cav) = (Machlink, Cavalier);
+    let sets: Vec<(MlSet, CShape<f64>, Plan)> = inputs
+        .iter()
+        .map(|x| {
+            (
+                ml.load(&x.boundaries),
+                cav.load(&x.boundaries),
+                Plan::Once(x.d),
+            )
+        })
+        .collect();
+    let mut best = vec![(f64::INFINITY, f64::INFINITY); inputs.len()];
+    for round in 0..rounds {
+        for (k, (m, c, plan)) in sets.iter().enumerate() {
+            if round >= inputs[k].rounds {
+                continue;
+            }
+            let tm = run_once(&ml, m, plan).0;
+            let tc = run_once(&cav, c, plan).0;
+            best[k] = (best[k].0.min(tm), best[k].1.min(tc));
+        }
+    }
+    best
+}
+
+/// The gear of each size, with and without islands, at d = -2 (a million: 3 rounds).
+fn scaling_inputs(sizes: &[usize]) -> Vec<Side> {
+    sizes
+        .iter()
+        .flat_map(|&n| [(n, false), (n, true)])
+        .map(|(n, islands)| Side {
+            name: format!("{n}{}", if islands { " + 10 islands" } else { "" }),
+            boundaries: if islands {
+                gear_with_islands(n)
+            } else {
+                vec![gear(n)]
+            },
+            d: -2.0,
+            rounds: if n >= 1_000_000 { 3 } else { usize::MAX },
+        })
+        .collect()
+}
+
+/// The 10k gear with islands at 2, 20, 200 and 400 mm.
+fn distance_inputs() -> Vec<Side> {
+    [2.0, 20.0, 200.0, 400.0]
+        .iter()
+        .map(|&d| Side {
+            name: format!("{d} mm"),
+            boundaries: gear_with_islands(10_000),
+            d: -d,
+            rounds: usize::MAX,
+        })
+        .collect()
+}
+
+/// A block's table: each input's best times and its ratio to `base(k)`, the input it is
+/// read against (none: a dash).
+fn print_side_by_side(
+    title: &str,
+    against: &str,
+    inputs: &[Side],
+    best: &[(f64, f64)],
+    base: impl Fn(usize) -> Option<usize>,
+) {
+    println!("| {title} | machlink best (ms) | cavalier_contours best (ms) | machlink: {against} | cavalier_contours: {against} |");
+    println!("|---|---:|---:|---:|---:|");
+    for (k, (x, &(tm, tc))) in inputs.iter().zip(best).enumerate() {
+        let ratio = |f: fn(&(f64, f64)) -> f64| {
+            base(k).map_or("–".into(), |b| {
+                format!("{:.1}×", f(&best[k]) / f(&best[b]))
+            })
+        };
+        println!(
+            "| {} | {} | {} | {} | {} |",
+            x.name,
+            fmt_ms(tm),
+            fmt_ms(tc),
+            ratio(|t| t.0),
+            ratio(|t| t.1),
+        );
+    }
+}
+
 /// What the goals of scale and distance read from machlink's best times (by row name):
 /// each decade of the gear rows, without and with islands, and the distance series'
 /// growth from 2 mm. Rows the run left out are left out here.
@@ -563,7 +668,7 @@ fn goal_lines(best: &[(String, f64)]) -> Vec<String> {
             .collect();
         if !decades.is_empty() {
             lines.push(format!(
-                "decades, {label} (machlink best ÷ best, goal ≤ 12×): {}",
+                "decades from the rows above, {label} (machlink best ÷ best, goal ≤ 12×): {}",
                 decades.join(", ")
             ));
         }
@@ -768,6 +873,43 @@ fn main() {
         println!("{line}");
     }
     println!();
+    let rounds = forced.unwrap_or(9);
+    if only.is_none() || only.as_deref() == Some("scaling") {
+        let sizes: &[usize] = if quick {
+            &[1_000, 10_000, 100_000]
+        } else {
+            &[1_000, 10_000, 100_000, 1_000_000]
+        };
+        let inputs = scaling_inputs(sizes);
+        println!(
+            "scaling: every size in each round, {rounds} rounds (a million: 3); load average (1 min): {}",
+            load_average()
+        );
+        println!();
+        let best = side_by_side(&inputs, rounds);
+        // (inputs alternate without and with islands: the decade before is two back)
+        print_side_by_side("gear, d = -2", "the decade before", &inputs, &best, |k| {
+            k.checked_sub(2)
+        });
+        println!();
+    }
+    if only.is_none() || only.as_deref() == Some("growth") {
+        let inputs = distance_inputs();
+        println!(
+            "growth with distance: every distance in each round, {rounds} rounds; load average (1 min): {}",
+            load_average()
+        );
+        println!();
+        let best = side_by_side(&inputs, rounds);
+        print_side_by_side(
+            "gear 10000 + 10 islands, shrunk by",
+            "against 2 mm",
+            &inputs,
+            &best,
+            |k| (k > 0).then_some(0),
+        );
+        println!();
+    }
     println!(
         "the whole run: {:.0} s; load average (1 min) at the end: {}",
         started.elapsed().as_secs_f64(),
