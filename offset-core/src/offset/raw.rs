@@ -369,8 +369,10 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
     };
     let mut out = Out::with_capacity(2 * m);
     out.push(offset_raw(&segs[s0], tangents.at(s0).0, o));
-    // the stack's scratch, one for every run of this path
+    // the stack's scratch, one for every run of this path, and the tangents out of the
+    // run's corners as its search found them
     let mut stack: Vec<(Seg, Seg, f64)> = Vec::new();
+    let mut run_outs: Vec<Point> = Vec::new();
     let mut step = 0;
     // corners before this one are joined the pair-wise way (a run the stack could not resolve)
     let mut pairwise_until = 0;
@@ -383,16 +385,19 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
             // the longest run of stackable corners from here, turning less than the cap
             let first = at_k.0;
             let mut end = step;
+            let mut at_e = at_k;
+            run_outs.clear();
             while end < corners && !(closed && end == m - 1) {
                 let ke = ring.at(s0, end);
-                let at_e = if end == step {
-                    at_k
-                } else {
-                    tangents.corner(ke)
-                };
+                if end > step {
+                    // segment ke is a line (the corner before is stackable): its tangent
+                    // at its end is the one out of that corner
+                    at_e = (at_e.1, tangents.at(ring.next(ke)).0);
+                }
                 if !(stackable(ke, at_e) && within_cap(first, at_e)) {
                     break;
                 }
+                run_outs.push(at_e.1);
                 end += 1;
             }
             if end > step {
@@ -400,7 +405,13 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
                     .pop()
                     .map(|r| r.seg)
                     .unwrap_or_else(|| offset_seg(&segs[k], tangents.at(k).0, o));
-                if stack_run(segs, tangents, s0, step, end, floor, o, eps, &mut stack) {
+                let run = Run {
+                    s0,
+                    from: step,
+                    t_in: at_k.0,
+                    outs: &run_outs,
+                };
+                if stack_run(segs, ring, run, floor, o, eps, &mut stack) {
                     for (seg, _, _) in stack.drain(..) {
                         out.push(RawSeg {
                             seg,
@@ -516,36 +527,42 @@ fn tangents_and_length(s: &Seg) -> ((Point, Point), f64) {
     }
 }
 
-/// The stack over the corners `from..to` (counted from segment `s0`), starting with `floor`,
-/// the offset of the segment before corner `from` as it stands. Leaves in `stack` (the
+/// A run of corners for the stack: the corners `from..from + outs.len()`, counted from
+/// segment `s0`, with the unit tangent into the first and the one out of each (as the
+/// run's search found them: a root a line, not three).
+#[derive(Clone, Copy)]
+struct Run<'a> {
+    s0: usize,
+    from: usize,
+    t_in: Point,
+    outs: &'a [Point],
+}
+
+/// The stack over the corners of `run`, starting with `floor`, the offset of the segment
+/// before the run's first corner as it stands. Leaves in `stack` (the
 /// caller's scratch, kept from run to run: cleared here) the kept lines, each beside the
 /// whole offset segment it is part of and that segment's length, the first being `floor`
 /// trimmed; false when the run does not resolve into lines each kept within its own offset
 /// segment (then the corners are joined the pair-wise way).
-#[allow(clippy::too_many_arguments)]
 fn stack_run(
     segs: &[Seg],
-    tangents: Tangents,
-    s0: usize,
-    from: usize,
-    to: usize,
+    ring: Ring,
+    run: Run,
     floor: Seg,
     o: f64,
     eps: f64,
     stack: &mut Vec<(Seg, Seg, f64)>,
 ) -> bool {
-    let ring = tangents.ring;
     stack.clear();
-    let k0 = ring.at(s0, from);
+    let k0 = ring.at(run.s0, run.from);
     // the run is of lines: a line's tangent at its end is the one at its start, so the
-    // tangent into each corner is the one out of the corner before (one root a line)
-    let (mut t_in, _) = tangents.at(k0);
+    // tangent into each corner is the one out of the corner before
+    let mut t_in = run.t_in;
     let first = offset_seg(&segs[k0], t_in, o);
     stack.push((floor, first, first.length()));
-    for step in from..to {
-        let k = ring.at(s0, step);
+    for (step, &t_out) in (run.from..).zip(run.outs) {
+        let k = ring.at(run.s0, step);
         let k2 = ring.next(k);
-        let (t_out, _) = tangents.at(k2);
         let whole = offset_seg(&segs[k2], t_out, o);
         let mut next = whole;
         let mut adjacent = true;
