@@ -524,6 +524,24 @@ fn cell(x: &Outcome) -> Option<&Cell> {
     }
 }
 
+/// The gear's sizes, for its rows and the scaling block.
+const GEAR_SIZES: [usize; 4] = [1_000, 10_000, 100_000, 1_000_000];
+/// The distances (mm) of the 10k gear with islands, for its rows and the growth block.
+const SERIES_MM: [f64; 4] = [2.0, 20.0, 200.0, 400.0];
+
+/// A gear row's name (what `goal_lines` finds it by).
+fn gear_row(n: usize, islands: bool) -> String {
+    format!(
+        "gear {n}{}, d = -2",
+        if islands { " + 10 islands" } else { "" }
+    )
+}
+
+/// A distance series row's name.
+fn series_row(d: f64) -> String {
+    format!("gear 10000 + 10 islands, d = -{d} (distance series)")
+}
+
 /// Milliseconds to three significant figures (the decade and distance ratios are read
 /// from these: a 10k row's 1.5 ms rounded to a tenth was ±3 %).
 fn fmt_ms(ms: f64) -> String {
@@ -612,7 +630,7 @@ fn scaling_inputs(sizes: &[usize]) -> Vec<Side> {
 
 /// The 10k gear with islands at 2, 20, 200 and 400 mm.
 fn distance_inputs() -> Vec<Side> {
-    [2.0, 20.0, 200.0, 400.0]
+    SERIES_MM
         .iter()
         .map(|&d| Side {
             name: format!("{d} mm"),
@@ -657,13 +675,13 @@ fn print_side_by_side(
 fn goal_lines(best: &[(String, f64)]) -> Vec<String> {
     let of = |name: String| best.iter().find(|(n, _)| *n == name).map(|(_, t)| *t);
     let mut lines = Vec::new();
-    for (label, islands) in [("gear", ""), ("gear with islands", " + 10 islands")] {
-        let decades: Vec<String> = [1_000usize, 10_000, 100_000]
-            .iter()
-            .filter_map(|&n| {
-                let t0 = of(format!("gear {n}{islands}, d = -2"))?;
-                let t1 = of(format!("gear {}{islands}, d = -2", n * 10))?;
-                Some(format!("{n} → {}: {:.1}×", n * 10, t1 / t0))
+    for (label, islands) in [("gear", false), ("gear with islands", true)] {
+        let decades: Vec<String> = GEAR_SIZES
+            .windows(2)
+            .filter_map(|w| {
+                let t0 = of(gear_row(w[0], islands))?;
+                let t1 = of(gear_row(w[1], islands))?;
+                Some(format!("{} → {}: {:.1}×", w[0], w[1], t1 / t0))
             })
             .collect();
         if !decades.is_empty() {
@@ -673,13 +691,9 @@ fn goal_lines(best: &[(String, f64)]) -> Vec<String> {
             ));
         }
     }
-    let series = |d: u32| {
-        of(format!(
-            "gear 10000 + 10 islands, d = -{d} (distance series)"
-        ))
-    };
-    if let Some(t2) = series(2) {
-        let growth: Vec<String> = [20, 200, 400]
+    let series = |d: f64| of(series_row(d));
+    if let Some(t2) = series(SERIES_MM[0]) {
+        let growth: Vec<String> = SERIES_MM[1..]
             .iter()
             .filter_map(|&d| Some(format!("{d} mm {:.1}×", series(d)? / t2)))
             .collect();
@@ -697,7 +711,7 @@ fn goal_lines(best: &[(String, f64)]) -> Vec<String> {
 /// index is the same for the child process whatever the options).
 fn cases() -> Vec<Case> {
     let mut cases = Vec::new();
-    for n in [1_000usize, 10_000, 100_000, 1_000_000] {
+    for n in GEAR_SIZES {
         // (the 100k rows take as many rounds as the 10k ones: the decade between them is
         // read from best against best, and a best of 5 against one of 9 was not alike)
         let rounds = match n {
@@ -712,10 +726,7 @@ fn cases() -> Vec<Case> {
         };
         for with_islands in [false, true] {
             cases.push(Case {
-                name: format!(
-                    "gear {n}{}, d = -2",
-                    if with_islands { " + 10 islands" } else { "" }
-                ),
+                name: gear_row(n, with_islands),
                 boundaries: if with_islands {
                     gear_with_islands(n)
                 } else {
@@ -734,9 +745,9 @@ fn cases() -> Vec<Case> {
             });
         }
     }
-    for d in [2.0, 20.0, 200.0, 400.0] {
+    for d in SERIES_MM {
         cases.push(Case {
-            name: format!("gear 10000 + 10 islands, d = -{d} (distance series)"),
+            name: series_row(d),
             boundaries: gear_with_islands(10_000),
             plan: Plan::Once(-d),
             rounds: 7,
@@ -875,10 +886,10 @@ fn main() {
     println!();
     let rounds = forced.unwrap_or(9);
     if only.is_none() || only.as_deref() == Some("scaling") {
-        let sizes: &[usize] = if quick {
-            &[1_000, 10_000, 100_000]
+        let sizes = if quick {
+            &GEAR_SIZES[..3]
         } else {
-            &[1_000, 10_000, 100_000, 1_000_000]
+            &GEAR_SIZES[..]
         };
         let inputs = scaling_inputs(sizes);
         println!(

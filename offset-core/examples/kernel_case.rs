@@ -25,6 +25,15 @@ static HEAP: offset_core::heap::PlanningHeap = offset_core::heap::PlanningHeap;
 mod inputs;
 use inputs::{dense_circle as circle, gear, islands};
 
+/// A boundary as cavalier_contours' polyline.
+fn to_cav(p: &Polyline) -> CPline<f64> {
+    let mut c = CPline::with_capacity(p.len(), p.closed);
+    for v in &p.vertices {
+        c.add(v.x, v.y, v.bulge);
+    }
+    c
+}
+
 fn main() {
     offset_core::heap::hold_freed_memory();
     let args: Vec<String> = std::env::args().collect();
@@ -74,13 +83,6 @@ fn main() {
         .and_then(|k| k.parse().ok())
         .unwrap_or(1);
     if args.iter().any(|a| a == "cav") {
-        let to_cav = |p: &Polyline| {
-            let mut c = CPline::with_capacity(p.len(), p.closed);
-            for v in &p.vertices {
-                c.add(v.x, v.y, v.bulge);
-            }
-            c
-        };
         let shape = CShape::from_plines(region.boundaries().map(to_cav));
         let mut best = f64::INFINITY;
         let mut verts = 0;
@@ -109,16 +111,10 @@ fn main() {
     let mut out = Vec::new();
     // `between`: a cavalier_contours offset of the same region before each round, untimed,
     // as the bench interleaves the kernels (its buffers take the caches and the heap)
-    let between = args.iter().any(|a| a == "between").then(|| {
-        let shape = CShape::from_plines(region.boundaries().map(|p| {
-            let mut c = CPline::with_capacity(p.len(), p.closed);
-            for v in &p.vertices {
-                c.add(v.x, v.y, v.bulge);
-            }
-            c
-        }));
-        shape
-    });
+    let between = args
+        .iter()
+        .any(|a| a == "between")
+        .then(|| CShape::from_plines(region.boundaries().map(to_cav)));
     for _ in 0..reps {
         if let Some(shape) = &between {
             std::hint::black_box(shape.parallel_offset(-d, &ShapeOffsetOptions::default()));
