@@ -100,10 +100,51 @@ fn direction(s: &Seg) -> Point {
 /// were, when the result would be empty or could not be checked (the caller then takes the
 /// general way, which also decides emptiness). The result takes the input's storage: a
 /// dense loop's result is as long as it.
+#[cfg(test)]
 pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
+    match shrunk(segs, o, eps) {
+        Some(result) => {
+            result.sides_into(segs);
+            true
+        }
+        None => false,
+    }
+}
+
+/// [`shrink`]'s result as its vertices (what the caller may resample without making the
+/// sides: a dense loop at near collapse keeps all of its 100,000, 6.4 MB written and read
+/// again as segments for 600 lines).
+pub(super) struct Shrunk {
+    pts: Vec<Point>,
+    head: usize,
+}
+
+impl Shrunk {
+    /// The result's vertices in order round it: side j runs from vertex j - 1 to vertex j
+    /// (side 0 from the last vertex).
+    pub(super) fn vertices(&self) -> &[Point] {
+        &self.pts[self.head..]
+    }
+
+    /// The result's sides, in `segs` (in place of what it held).
+    pub(super) fn sides_into(&self, segs: &mut Vec<Seg>) {
+        let verts = self.vertices();
+        segs.clear();
+        let mut prev = verts[verts.len() - 1];
+        segs.extend(verts.iter().map(|&v| {
+            let s = Seg::line(prev, v);
+            prev = v;
+            s
+        }));
+    }
+}
+
+/// [`shrink`], the result as its vertices; None when the result would be empty or could
+/// not be checked.
+pub(super) fn shrunk(segs: &[Seg], o: f64, eps: f64) -> Option<Shrunk> {
     let m = segs.len();
     if !above(o, 0.0) || m < 3 {
-        return false;
+        return None;
     }
     let mut scale: f64 = 1.0;
     // the sides' unit directions
@@ -165,11 +206,11 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             // a half turn or more from the line kept before: the result is empty, or
             // nearly so (the general way decides)
             if !above(dirs[b].cross(dirs[k]), 0.0) {
-                return false;
+                return None;
             }
             match if b + 1 == k { corner(b, k) } else { meet(b, k) } {
                 Some(x) => pts.push(x),
-                None => return false,
+                None => return None,
             }
         }
         dq.push(k as u32);
@@ -177,7 +218,7 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
     loop {
         let n = dq.len() - head;
         if n < 3 {
-            return false;
+            return None;
         }
         let (first, last) = (dq[head] as usize, dq[dq.len() - 1] as usize);
         if left(first, pts[pts.len() - 1]) <= 0.0 {
@@ -189,15 +230,13 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             head += 1;
             continue;
         }
-        let Some(closing) = meet(last, first) else {
-            return false;
-        };
+        let closing = meet(last, first)?;
         let (second, before_last) = (dq[head + 1] as usize, dq[dq.len() - 2] as usize);
         if !above(dirs[last].cross(dirs[first]), 0.0)
             || left(second, closing) <= 0.0
             || left(before_last, closing) <= 0.0
         {
-            return false;
+            return None;
         }
         pts.push(closing);
         break;
@@ -216,7 +255,7 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
         let v1 = verts[j];
         let kj = kept[j] as usize;
         if (v1 - v0).dot(dirs[kj]) < -slack {
-            return false;
+            return None;
         }
         let ok = if j + 1 < n {
             holds(kj + 1..kept[j + 1] as usize, v1)
@@ -224,17 +263,10 @@ pub(super) fn shrink(segs: &mut Vec<Seg>, o: f64, eps: f64) -> bool {
             holds(kj + 1..m, v1) && holds(0..kept[0] as usize, v1)
         };
         if !ok {
-            return false;
+            return None;
         }
     }
-    segs.clear();
-    let mut prev = verts[n - 1];
-    segs.extend(verts.iter().map(|&v| {
-        let s = Seg::line(prev, v);
-        prev = v;
-        s
-    }));
-    true
+    Some(Shrunk { pts, head })
 }
 
 #[cfg(test)]

@@ -1076,7 +1076,14 @@ fn run_closed(
 ) -> Loops {
     // one convex loop of lines shrunk: the intersection of its moved sides, no global stage
     if let [(segs, true)] = loops.as_mut_slice() {
-        if convex && o > 0.0 && convex::shrink(segs, o, eps) {
+        if let Some(result) = convex.then(|| convex::shrunk(segs, o, eps)).flatten() {
+            // all of a dense loop's sides shorter than the slack: resampled from the
+            // vertices as `despike` would resample its sides
+            let delta = slack(opts.tolerance, eps);
+            if let Some(lines) = resample_vertices(result.vertices(), delta) {
+                return finish_despiked(vec![(lines, true)], false, opts, eps);
+            }
+            result.sides_into(segs);
             return finish(loops, opts, eps);
         }
     }
@@ -1200,7 +1207,7 @@ fn finish_known(
     let valid_eps = slack(opts.tolerance, eps);
     // (despike says whether it left a piece as it was: no segment shorter than the slack)
     let mut as_raw = uncrossed;
-    let mut pieces: Vec<(Vec<Seg>, bool)> = pieces
+    let pieces: Vec<(Vec<Seg>, bool)> = pieces
         .into_iter()
         .enumerate()
         .map(|(k, (segs, closed))| {
@@ -1213,6 +1220,17 @@ fn finish_known(
             (segs, closed)
         })
         .collect();
+    finish_despiked(pieces, as_raw, opts, eps)
+}
+
+/// The rest of `finish_known` once the pieces are despiked; `as_raw`: they are whole raw
+/// curves the prune found uncrossed, and despiking left them as they were.
+fn finish_despiked(
+    mut pieces: Vec<(Vec<Seg>, bool)>,
+    as_raw: bool,
+    opts: &OffsetOptions,
+    eps: f64,
+) -> Loops {
     // what the prune and the joins leave may still zig-zag by less than the bound where
     // nearly tangent offsets were cut and stitched: cut those lobes off here, so the result
     // is valid input as it stands (the same repair the input check makes); one convex
@@ -1314,24 +1332,65 @@ fn despike(mut segs: Vec<Seg>, closed: bool, delta: f64) -> (Vec<Seg>, bool) {
 /// and no point moves by more than `delta`. A loop shorter than three times `delta` stays
 /// as it is. Err(the loop as it came, k) when its segment k is not that short.
 fn resample_loop(segs: Vec<Seg>, delta: f64) -> Result<Vec<Seg>, (Vec<Seg>, usize)> {
-    let first = segs[0].a;
+    let sides = segs.iter().map(|s| (s.length2(), s.length(), s.b));
+    match resample_sides(segs[0].a, sides, delta) {
+        Resampled::Lines(out) => Ok(out),
+        Resampled::AsItIs => Ok(segs),
+        Resampled::Long(k) => Err((segs, k)),
+    }
+}
+
+/// `resample_loop` of the closed loop of lines through `verts` (side j from vertex j - 1
+/// to vertex j, side 0 from the last), without its sides made first; None where that would
+/// leave the loop as it is or refuse it (some side is not that short).
+fn resample_vertices(verts: &[Point], delta: f64) -> Option<Vec<Seg>> {
+    let mut prev = *verts.last()?;
+    let sides = verts.iter().map(|&v| {
+        let d = v - prev;
+        prev = v;
+        let l2 = d.dot(d);
+        (l2, l2.sqrt(), v)
+    });
+    match resample_sides(*verts.last()?, sides, delta) {
+        Resampled::Lines(out) => Some(out),
+        Resampled::AsItIs | Resampled::Long(_) => None,
+    }
+}
+
+/// What `resample_sides` made of a loop.
+enum Resampled {
+    Lines(Vec<Seg>),
+    /// shorter than three times `delta`: it stays as it is
+    AsItIs,
+    /// its side k is not shorter than `delta`
+    Long(usize),
+}
+
+/// The resampling of `resample_loop`, from the loop's start and each side's squared
+/// length, length and end, in order.
+fn resample_sides(
+    first: Point,
+    sides: impl Iterator<Item = (f64, f64, Point)>,
+    delta: f64,
+) -> Resampled {
     let mut out: Vec<Seg> = Vec::new();
     let (mut start, mut acc, mut total) = (first, 0.0, 0.0);
-    for (k, s) in segs.iter().enumerate() {
-        if !s.shorter_than(delta) {
-            return Err((segs, k));
+    for (k, (l2, l, b)) in sides.enumerate() {
+        // (`Seg::shorter_than`: a NaN is not short)
+        let short = l2 < delta * delta;
+        if !short {
+            return Resampled::Long(k);
         }
-        let l = s.length();
         acc += l;
         total += l;
         if acc >= delta {
-            out.push(Seg::line(start, s.b));
-            start = s.b;
+            out.push(Seg::line(start, b));
+            start = b;
             acc = 0.0;
         }
     }
     if total < 3.0 * delta {
-        return Ok(segs);
+        return Resampled::AsItIs;
     }
     // close the loop: the last line ends at the first point, a stub is absorbed
     match out.last_mut() {
@@ -1339,7 +1398,7 @@ fn resample_loop(segs: Vec<Seg>, delta: f64) -> Result<Vec<Seg>, (Vec<Seg>, usiz
         _ => out.push(Seg::line(start, first)),
     }
     out.retain(|s| s.a != s.b);
-    Ok(out)
+    Resampled::Lines(out)
 }
 
 /// A finished path with its signed area (0 when open), measured from its segments while
@@ -1531,6 +1590,41 @@ mod tests {
         let e = raw::ends_of(&segs, 1.0);
         assert_eq!(e.away, 0.0);
         assert!((e.toward - TAU).abs() <= 1e-12 && (e.length - TAU).abs() <= 1e-12);
+    }
+
+    #[test]
+    fn a_loop_resampled_from_its_vertices_is_the_loop_resampled_from_its_sides() {
+        // loops round a tiny circle whose sides are mostly shorter than delta, some not
+        let mut rand = crate::test_rng::uniform(25);
+        let mut resampled = 0;
+        for round in 0..400 {
+            let n = 3 + (rand() * 300.0) as usize;
+            let r = 1e-8 * (1.0 + 200.0 * rand());
+            let verts: Vec<Point> = (0..n)
+                .map(|i| {
+                    let a = (i as f64 + 0.3 * rand()) / n as f64 * std::f64::consts::TAU;
+                    Point::new(3.0 + r * a.cos(), -2.0 + r * a.sin())
+                })
+                .collect();
+            let delta = if round % 5 == 0 { 1e-9 } else { 1e-7 };
+            let mut sides = Vec::with_capacity(n);
+            let mut prev = verts[n - 1];
+            for &v in &verts {
+                sides.push(Seg::line(prev, v));
+                prev = v;
+            }
+            let from_sides = match resample_loop(sides.clone(), delta) {
+                Ok(out) if out != sides => Some(out),
+                _ => None,
+            };
+            let from_vertices = resample_vertices(&verts, delta);
+            assert_eq!(
+                from_vertices, from_sides,
+                "round {round}: {n} vertices, r {r}"
+            );
+            resampled += usize::from(from_vertices.is_some());
+        }
+        assert!(resampled > 100, "only {resampled} loops resampled");
     }
 
     #[test]
