@@ -4,7 +4,7 @@
 
 use super::index::{grow, BBox, BoxIndex};
 use super::raw::{Extremes, Origin, RawPath};
-use super::seg::{intersect, Seg};
+use super::seg::{intersect, Norm, Seg};
 use crate::geom::{hi, lo, Point};
 use std::cell::Cell;
 use std::collections::HashMap;
@@ -149,6 +149,25 @@ impl<'a> InputSet<'a> {
         });
         found
     }
+}
+
+/// A sweep up to this (radians) has its midpoint from the bisector of its ends' radii.
+const BISECTED_SWEEP: f64 = 2.5;
+
+/// The points of `s` at parameters 0.5 and 0.25 (`Seg::point_at`). An arc's, when it
+/// sweeps at most `BISECTED_SWEEP`, come from bisecting its ends' radii and then the
+/// first half's, without trigonometry: its start angle's atan2 and the sine and cosine of
+/// each point were a tenth of a later stage's time (the prune asks them of every run).
+fn mid_and_quarter(s: &Seg) -> (Point, Point) {
+    if !s.is_arc() || s.sw.abs() > BISECTED_SWEEP {
+        return (s.point_at(0.5), s.point_at(0.25));
+    }
+    // the radii's sum points at the middle of a sweep below π, and is at least
+    // 2 r cos(1.25) long
+    let on_circle = |v: Point| s.c + v * (s.r / v.norm());
+    let mid = on_circle((s.a - s.c) + (s.b - s.c));
+    let quarter = on_circle((s.a - s.c) + (mid - s.c));
+    (mid, quarter)
 }
 
 /// A stitched piece of the result.
@@ -622,7 +641,8 @@ pub fn prune(
     // the outer's lies symmetric about that point, while the rest of it comes nearer)
     let thr = dist - valid_eps;
     let keeps_distance = |longest: &Seg| -> bool {
-        !input.either_closer(longest.point_at(0.5), longest.point_at(0.25), thr)
+        let (mid, quarter) = mid_and_quarter(longest);
+        !input.either_closer(mid, quarter, thr)
     };
     // the curves nothing cuts, kept whole or dropped whole, from the last path to the first
     // so each one's segments are split off the end of the numbering (the first path's,
@@ -892,6 +912,33 @@ mod tests {
         let (t1, t2) = (s1.tangent_at(1.0), s2.tangent_at(0.0));
         let r = if s1.is_arc() { s1.r } else { s2.r };
         t1.dot(t2) > 0.0 && t1.cross(t2).abs() * r <= eps * 0.25
+    }
+
+    #[test]
+    fn a_runs_samples_are_its_points_at_a_half_and_a_quarter() {
+        let mut rand = crate::test_rng::uniform(7);
+        for k in 0..2000 {
+            let c = Point::new(200.0 * rand() - 100.0, 200.0 * rand() - 100.0);
+            let r = 1e-3 * 10f64.powf(6.0 * rand());
+            let start = std::f64::consts::TAU * rand();
+            // sweeps of either sense up to a whole turn, most of them bisected
+            let sw = (if k % 2 == 0 { 1.0 } else { -1.0 }) * 3.2 * rand().powi(2) * 1.9;
+            let on = |t: f64| c + Point::new(t.cos(), t.sin()) * r;
+            let arc = Seg::arc(c, r, on(start), on(start + sw), sw);
+            let (mid, quarter) = mid_and_quarter(&arc);
+            for (got, t) in [(mid, 0.5), (quarter, 0.25)] {
+                let want = arc.point_at(t);
+                assert!(
+                    got.dist(want) <= 1e-12 * (r + c.len()),
+                    "sweep {sw}, radius {r}: {got:?} for {want:?} at {t}"
+                );
+            }
+        }
+        let line = Seg::line(Point::new(1.0, 2.0), Point::new(5.0, -2.0));
+        assert_eq!(
+            mid_and_quarter(&line),
+            (Point::new(3.0, 0.0), Point::new(2.0, 1.0))
+        );
     }
 
     #[test]
