@@ -1417,6 +1417,12 @@ struct Loops {
     uncrossed: bool,
 }
 
+/// How many segments ahead `build` asks the cache for (a prefetch): at a million segments
+/// its loads of each next one were more than half of its time, and its time a tenth of the
+/// offset's; 16 ahead took 6 % off the million-vertex gear and nothing off the 10k one.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+const BUILD_AHEAD: usize = 16;
+
 /// A polyline from stitched segments: zero-length pieces dropped, collinear lines and
 /// co-circular arcs merged, loops with no area (a region offset to a line) dropped.
 ///
@@ -1445,6 +1451,15 @@ fn build(mut out: Vec<Seg>, closed: bool, eps: f64) -> Option<Loop> {
     // merged in place: the kept segments move to the front
     let mut kept = 0;
     for i in 0..out.len() {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(ahead) = out.get(i + BUILD_AHEAD) {
+            // SAFETY: a prefetch reads nothing a fault could come from
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                    (ahead as *const Seg).cast::<i8>(),
+                );
+            }
+        }
         let s = out[i];
         if s.shorter_than(tiny) {
             continue;
