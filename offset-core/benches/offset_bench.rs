@@ -579,10 +579,11 @@ struct Side {
 }
 
 /// machlink and cavalier_contours on every input of a block in each round, round-robin,
-/// each timed offset right after an untimed one of the same, nothing else between: the ratios between inputs (a decade of the gear, a distance
-/// against 2 mm) read from rows run minutes apart moved by a tenth with whatever else the
-/// machine did meanwhile, as a round after an idle wait runs slower. Returns each input's
-/// best times in ms, (machlink, cavalier_contours).
+/// each timed offset right after an untimed one of the same, nothing else between: the
+/// ratios between inputs (a decade of the gear, a distance against 2 mm) read from rows
+/// run minutes apart moved by a tenth with whatever else the machine did meanwhile, as a
+/// round after an idle wait runs slower. Returns each input's best times in ms,
+/// (machlink, cavalier_contours).
 fn side_by_side(inputs: &[Side], rounds: usize) -> Vec<(f64, f64)> {
     let (ml, cav) = (Machlink, Cavalier);
     let sets: Vec<(MlSet, CShape<f64>, Plan)> = inputs

@@ -1344,14 +1344,15 @@ fn resample_loop(segs: Vec<Seg>, delta: f64) -> Result<Vec<Seg>, (Vec<Seg>, usiz
 /// to vertex j, side 0 from the last), without its sides made first; None where that would
 /// leave the loop as it is or refuse it (some side is not that short).
 fn resample_vertices(verts: &[Point], delta: f64) -> Option<Vec<Seg>> {
-    let mut prev = *verts.last()?;
+    let first = *verts.last()?;
+    let mut prev = first;
     let sides = verts.iter().map(|&v| {
         let d = v - prev;
         prev = v;
         let l2 = d.dot(d);
         (l2, l2.sqrt(), v)
     });
-    match resample_sides(*verts.last()?, sides, delta) {
+    match resample_sides(first, sides, delta) {
         Resampled::Lines(out) => Some(out),
         Resampled::AsItIs | Resampled::Long(_) => None,
     }
