@@ -10,7 +10,9 @@
 //! `between` runs a cavalier_contours offset of the same region, untimed, before each of
 //! machlink's rounds, as the bench interleaves them.
 //! Prints the best time, the output's size and a digest of its every coordinate (the same
-//! digest before and after a change: the same results, bit for bit).
+//! digest before and after a change: the same results, bit for bit). With `KC_EACH` set in
+//! the environment it also prints each round's time and page faults on stderr (the first
+//! rounds at a million vertices fault the heap in; the later ones should take none).
 
 use cavalier_contours::polyline::{PlineCreation, PlineSource, PlineSourceMut, Polyline as CPline};
 use cavalier_contours::shape_algorithms::{Shape as CShape, ShapeOffsetOptions};
@@ -32,6 +34,20 @@ fn to_cav(p: &Polyline) -> CPline<f64> {
         c.add(v.x, v.y, v.bulge);
     }
     c
+}
+
+/// The page faults this process has taken so far (`KC_EACH`'s rounds; 0 where libc is not
+/// a dependency).
+fn faults() -> i64 {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: getrusage writes the zeroed struct it is handed
+    unsafe {
+        let mut u: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_SELF, &mut u);
+        u.ru_minflt
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    0
 }
 
 fn main() {
@@ -115,10 +131,13 @@ fn main() {
         .iter()
         .any(|a| a == "between")
         .then(|| CShape::from_plines(region.boundaries().map(to_cav)));
+    // KC_EACH set: every round's time on stderr (the first rounds fault the heap in)
+    let each = std::env::var_os("KC_EACH").is_some();
     for _ in 0..reps {
         if let Some(shape) = &between {
             std::hint::black_box(shape.parallel_offset(-d, &ShapeOffsetOptions::default()));
         }
+        let f0 = faults();
         let t = Instant::now();
         // the first pass from the given region (checked), each later one from the pass
         // before (the kernel's result: no crossing search of its input)
@@ -139,6 +158,13 @@ fn main() {
             };
         }
         best = best.min(t.elapsed().as_secs_f64());
+        if each {
+            eprintln!(
+                "  {:.3} ms, {} faults",
+                t.elapsed().as_secs_f64() * 1e3,
+                faults() - f0
+            );
+        }
         out = cur.into_regions();
     }
     let verts: usize = out

@@ -466,19 +466,27 @@ impl BoxIndex {
                 ((a + 1) * NODE).min(below.len()),
                 ((b + 1) * NODE).min(below.len()),
             );
+            // A node's pairs of children go on the stack last to first, so the walk takes
+            // them in path order, as it reports the pairs of boxes within a node. When it
+            // took them backwards (each group of NODE segments in order, the groups in
+            // reverse), the crossing search of the million-vertex gear ran 23 or 52 ms by
+            // where its buffers lay in the heap; in path order it runs 18 ms either way.
             if a == b {
-                for i in a * NODE..a1 {
-                    let bi = below[i];
-                    if k == 1 {
-                        // the boxes themselves: report the pairs here rather than through
-                        // the stack
+                if k == 1 {
+                    // the boxes themselves: report the pairs here rather than through the
+                    // stack
+                    for i in a * NODE..a1 {
+                        let bi = below[i];
                         for j in i + 1..b1 {
                             if overlap(&bi, &below[j]) {
                                 f(i, j);
                             }
                         }
-                    } else {
-                        for j in i..b1 {
+                    }
+                } else {
+                    for i in (a * NODE..a1).rev() {
+                        let bi = below[i];
+                        for j in (i..b1).rev() {
                             if overlap(&bi, &below[j]) {
                                 stack.push((k - 1, i, j));
                             }
@@ -509,13 +517,20 @@ impl BoxIndex {
                     n_b += 1;
                 }
             }
-            for &i in &ia[..n_a] {
-                let bi = below[i];
-                for &j in &jb[..n_b] {
-                    if overlap(&bi, &below[j]) {
-                        if k == 1 {
+            if k == 1 {
+                for &i in &ia[..n_a] {
+                    let bi = below[i];
+                    for &j in &jb[..n_b] {
+                        if overlap(&bi, &below[j]) {
                             f(i, j);
-                        } else {
+                        }
+                    }
+                }
+            } else {
+                for &i in ia[..n_a].iter().rev() {
+                    let bi = below[i];
+                    for &j in jb[..n_b].iter().rev() {
+                        if overlap(&bi, &below[j]) {
                             stack.push((k - 1, i, j));
                         }
                     }
