@@ -868,6 +868,28 @@ pub fn prune(
             // touched it there, or was a bridge. What leaves along the other curve is then a
             // piece of a local loop too thin for the distance test (a collapsed arc's chord
             // grazing the next offset arc within ε), and taking it strands the chain.
+            // Of several, the ones the chain can go on from (a valid run starts where each
+            // ends, or it closes the chain, or its curve ends there) are kept: where three
+            // crossings fall within a few ε (a notch closing as the boundary grows), the
+            // run along the arriving curve may end at a crossing no valid run leaves, and
+            // taking it stranded the chain, and with it the loop.
+            if cands.len() > 1 {
+                let goes_on = |k: usize| -> bool {
+                    let f = run_end(&runs[k]);
+                    if f.dist(first_start) <= match_eps || straight_on(k).is_none() {
+                        return true;
+                    }
+                    let mut on = false;
+                    near(&starts, f, &mut |k2| {
+                        on |= k2 != k && !used[k2] && run_start(&runs[k2]).dist(f) <= match_eps;
+                    });
+                    on
+                };
+                let live = cands.iter().filter(|&&k| goes_on(k)).count();
+                if live > 0 && live < cands.len() {
+                    cands.retain(|&k| goes_on(k));
+                }
+            }
             let best = if cands.len() > 1 && !another_arrives(cur, e) {
                 cands.iter().copied().find(|&k| Some(k) == straight_on(cur))
             } else {

@@ -425,3 +425,31 @@ fn grown_blob_327_one_wave_grows_back_as_valid_input() {
         0.01,
     );
 }
+
+#[test]
+fn grown_blob_301_two_waves_keeps_its_outer_where_a_notch_closes() {
+    // a fresh draw found this one: the last grow, by 2.126, came back empty. A notch of the
+    // boundary closes at about that distance, and three crossings of the raw offset fell
+    // within 5e-5 mm of each other near (18.451, 10.578). The stitch, arriving there along
+    // the outer, took the run going on along its own curve, which ended at a crossing no
+    // valid run leaves: the loop was stranded and dropped, and only a 5e-5 mm sliver
+    // closed. `offset_checked` holds every result to the exact offset both ways (an empty
+    // one misses all of it) and to no crossing
+    grown_blob_case(
+        301,
+        &[
+            (0.9034562139435033, 8.451594062165977, 0.3102261882701644),
+            (1.8113988404331591, 3.7697986623807336, 4.419879882752845),
+        ],
+        0.1563210908195591,
+        3576003496664999674,
+        0.9938328038212282,
+        &[
+            -2.791529687437907,
+            -1.0125631503486099,
+            2.4596383031913747,
+            2.1257338122077507,
+        ],
+        0.01,
+    );
+}
