@@ -453,3 +453,50 @@ fn grown_blob_301_two_waves_keeps_its_outer_where_a_notch_closes() {
         0.01,
     );
 }
+
+#[test]
+fn grown_blob_301_grows_into_one_region_while_its_notch_pinches_shut() {
+    // the region of the case above before its last grow, grown by 2.120 to 2.140 mm: the
+    // notch pinches shut in that span. A grown connected region is connected, so each
+    // result is one region (at 2.126 to 2.131 a lens 3 µm long and 3 nm thin came back as
+    // a second region inside the first, and grew into a disc inside it by the next pass)
+    let waves = [
+        (0.9034562139435033, 8.0, 0.3102261882701644),
+        (1.8113988404331591, 4.0, 4.419879882752845),
+    ];
+    let b = blob(
+        Point::new(0.0, 0.0),
+        20.0,
+        301,
+        &waves,
+        0.1563210908195591,
+        3576003496664999674,
+    );
+    let tol = 0.01;
+    let mut cur = Region::new(b, vec![]);
+    for d in [
+        0.9938328038212282,
+        -2.791529687437907,
+        -1.0125631503486099,
+        2.4596383031913747,
+    ] {
+        let next = offset_checked("blob 301", &cur, d, tol).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            next.len(),
+            1,
+            "blob 301 offset by {d}: {} regions",
+            next.len()
+        );
+        cur = next.into_iter().next().unwrap();
+    }
+    for k in 0..=20 {
+        let d = 2.12 + 0.001 * k as f64;
+        let out = offset_checked("blob 301", &cur, d, tol).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(out.len(), 1, "grown by {d}: {} regions", out.len());
+        assert!(
+            out[0].islands.is_empty(),
+            "grown by {d}: {} islands",
+            out[0].islands.len()
+        );
+    }
+}
