@@ -1477,14 +1477,14 @@ fn resample_sides(
 struct Loop {
     poly: Polyline,
     area: f64,
-    /// closed and no wider than `SLIVER_WIDTH` ε on average (area against length): the
-    /// kind of loop the stitch closes where curves cross within a few ε, which `assemble`
-    /// drops when it lies inside another region (see `nested_outers`)
+    /// closed, its area at most `SLIVER_WIDTH` ε times its length (so on average that thin
+    /// or thinner): the kind of loop the stitch closes where curves cross within a few ε,
+    /// which `assemble` drops when it lies inside another region (see `nested_outers`)
     sliver: bool,
 }
 
-/// How wide on average (in ε) a loop may be and still count as a sliver ([`Loop::sliver`]);
-/// the lens of `nested_outers` was about 3 ε wide.
+/// How thin on average (in ε) a loop may be and still count as a sliver ([`Loop::sliver`]);
+/// the lens of `nested_outers` was about 1.4 ε (its area over its length), 4 ε across.
 const SLIVER_WIDTH: f64 = 64.0;
 
 /// The loops of one offset (or of one stage of it).

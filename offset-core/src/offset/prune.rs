@@ -861,13 +861,6 @@ pub fn prune(
                     cands.push(k);
                 }
             });
-            // Where one valid run arrives and two leave, the one that goes on along the
-            // arriving run's own curve is taken: at a crossing the curves divide the plane,
-            // so the arriving curve's next piece lies inside the other and is invalid; two
-            // valid pieces of one curve on either side of a cut mean the other curve only
-            // touched it there, or was a bridge. What leaves along the other curve is then a
-            // piece of a local loop too thin for the distance test (a collapsed arc's chord
-            // grazing the next offset arc within ε), and taking it strands the chain.
             // Of several, the ones the chain can go on from (a valid run starts where each
             // ends, or it closes the chain, or its curve ends there) are kept: where three
             // crossings fall within a few ε (a notch closing as the boundary grows), the
@@ -890,6 +883,13 @@ pub fn prune(
                     cands.retain(|&k| goes_on(k));
                 }
             }
+            // Where one valid run arrives and two leave, the one that goes on along the
+            // arriving run's own curve is taken: at a crossing the curves divide the plane,
+            // so the arriving curve's next piece lies inside the other and is invalid; two
+            // valid pieces of one curve on either side of a cut mean the other curve only
+            // touched it there, or was a bridge. What leaves along the other curve is then a
+            // piece of a local loop too thin for the distance test (a collapsed arc's chord
+            // grazing the next offset arc within ε), and taking it strands the chain.
             let best = if cands.len() > 1 && !another_arrives(cur, e) {
                 cands.iter().copied().find(|&k| Some(k) == straight_on(cur))
             } else {
