@@ -384,17 +384,7 @@ fn assemble(polys: Loops) -> Vec<Region> {
             islands.push(l.poly);
         }
     }
-    let probes: Vec<Point> = islands
-        .iter()
-        .map(|isl| {
-            Seg::from_bulge(
-                isl.vertices[0].pos(),
-                isl.vertices[1 % isl.len()].pos(),
-                isl.vertices[0].bulge,
-            )
-            .point_at(0.5)
-        })
-        .collect();
+    let probes: Vec<Point> = islands.iter().map(probe).collect();
     // per island: the smallest outer around its probe; each outer is walked once for all
     // the probes inside its bounds (of several outers: one outer's walk answers for every
     // probe, and its bounds would cost a walk of their own)
@@ -444,14 +434,22 @@ fn assemble(polys: Loops) -> Vec<Region> {
             regions[k].islands.push(isl);
         }
     }
-    if redundant.iter().any(|&r| r) {
-        let mut k = 0;
-        regions.retain(|_| {
-            k += 1;
-            !redundant[k - 1]
-        });
-    }
     regions
+        .into_iter()
+        .zip(redundant)
+        .filter_map(|(r, gone)| (!gone).then_some(r))
+        .collect()
+}
+
+/// A point on a loop, the middle of its first segment: which loops are around it says which
+/// are around the loop (the result's loops do not cross).
+fn probe(p: &Polyline) -> Point {
+    Seg::from_bulge(
+        p.vertices[0].pos(),
+        p.vertices[1 % p.len()].pos(),
+        p.vertices[0].bulge,
+    )
+    .point_at(0.5)
 }
 
 /// Per outer, true when it is a sliver (see [`Loop::sliver`]) lying in another region
@@ -479,13 +477,7 @@ fn nested_outers(
     let bounds: Vec<_> = outers.iter().map(|(p, _)| p.bounds()).collect();
     let island_bounds: Vec<_> = islands.iter().map(Polyline::bounds).collect();
     for j in (0..outers.len()).filter(|&j| slivers[j] && !own_islands[j]) {
-        let p = &outers[j].0;
-        let probe = [Seg::from_bulge(
-            p.vertices[0].pos(),
-            p.vertices[1 % p.len()].pos(),
-            p.vertices[0].bulge,
-        )
-        .point_at(0.5)];
+        let probe = [probe(&outers[j].0)];
         // the smallest other outer around it
         let mut around: Option<(usize, f64)> = None;
         for (k, (o, a)) in outers.iter().enumerate() {

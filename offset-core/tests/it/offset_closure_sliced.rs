@@ -282,6 +282,15 @@ proptest! {
     }
 }
 
+/// The blob of a draw of `offsets_of_grown_dense_blobs_stay_valid_input` (its waves'
+/// frequencies rounded as there), checked valid input at `tol`.
+fn case_blob(n: usize, waves: &[(f64, f64, f64)], jitter: f64, seed: u64, tol: f64) -> Polyline {
+    let waves: Vec<_> = waves.iter().map(|&(a, f, p)| (a, f.round(), p)).collect();
+    let b = blob(Point::new(0.0, 0.0), 20.0, n, &waves, jitter, seed);
+    assert!(first_crossing(std::slice::from_ref(&b), tol).is_none());
+    b
+}
+
 /// Draws of `offsets_of_grown_dense_blobs_stay_valid_input` that once failed, kept as named
 /// cases: (n, waves, jitter, seed), grow, then the distances, and the tolerance.
 fn grown_blob_case(
@@ -293,9 +302,7 @@ fn grown_blob_case(
     ds: &[f64],
     tol: f64,
 ) {
-    let waves: Vec<_> = waves.iter().map(|&(a, f, p)| (a, f.round(), p)).collect();
-    let b = blob(Point::new(0.0, 0.0), 20.0, n, &waves, jitter, seed);
-    assert!(first_crossing(std::slice::from_ref(&b), tol).is_none());
+    let b = case_blob(n, waves, jitter, seed, tol);
     let mut all = vec![grow];
     all.extend_from_slice(ds);
     if let Err(e) = offsets_again("blob", Region::new(b, vec![]), &all, tol) {
@@ -426,6 +433,22 @@ fn grown_blob_327_one_wave_grows_back_as_valid_input() {
     );
 }
 
+/// The draw of the two blob 301 cases: its waves, jitter and seed, then the grow and the
+/// distances it was offset by.
+const BLOB_301_WAVES: [(f64, f64, f64); 2] = [
+    (0.9034562139435033, 8.451594062165977, 0.3102261882701644),
+    (1.8113988404331591, 3.7697986623807336, 4.419879882752845),
+];
+const BLOB_301_JITTER: f64 = 0.1563210908195591;
+const BLOB_301_SEED: u64 = 3576003496664999674;
+const BLOB_301_OFFSETS: [f64; 5] = [
+    0.9938328038212282,
+    -2.791529687437907,
+    -1.0125631503486099,
+    2.4596383031913747,
+    2.1257338122077507,
+];
+
 #[test]
 fn grown_blob_301_two_waves_keeps_its_outer_where_a_notch_closes() {
     // a fresh draw found this one: the last grow, by 2.126, came back empty. A notch of the
@@ -437,19 +460,11 @@ fn grown_blob_301_two_waves_keeps_its_outer_where_a_notch_closes() {
     // one misses all of it) and to no crossing
     grown_blob_case(
         301,
-        &[
-            (0.9034562139435033, 8.451594062165977, 0.3102261882701644),
-            (1.8113988404331591, 3.7697986623807336, 4.419879882752845),
-        ],
-        0.1563210908195591,
-        3576003496664999674,
-        0.9938328038212282,
-        &[
-            -2.791529687437907,
-            -1.0125631503486099,
-            2.4596383031913747,
-            2.1257338122077507,
-        ],
+        &BLOB_301_WAVES,
+        BLOB_301_JITTER,
+        BLOB_301_SEED,
+        BLOB_301_OFFSETS[0],
+        &BLOB_301_OFFSETS[1..],
         0.01,
     );
 }
@@ -460,26 +475,10 @@ fn grown_blob_301_grows_into_one_region_while_its_notch_pinches_shut() {
     // notch pinches shut in that span. A grown connected region is connected, so each
     // result is one region (at 2.126 to 2.131 a lens 3 µm long and 3 nm thin came back as
     // a second region inside the first, and grew into a disc inside it by the next pass)
-    let waves = [
-        (0.9034562139435033, 8.0, 0.3102261882701644),
-        (1.8113988404331591, 4.0, 4.419879882752845),
-    ];
-    let b = blob(
-        Point::new(0.0, 0.0),
-        20.0,
-        301,
-        &waves,
-        0.1563210908195591,
-        3576003496664999674,
-    );
     let tol = 0.01;
+    let b = case_blob(301, &BLOB_301_WAVES, BLOB_301_JITTER, BLOB_301_SEED, tol);
     let mut cur = Region::new(b, vec![]);
-    for d in [
-        0.9938328038212282,
-        -2.791529687437907,
-        -1.0125631503486099,
-        2.4596383031913747,
-    ] {
+    for &d in &BLOB_301_OFFSETS[..4] {
         let next = offset_checked("blob 301", &cur, d, tol).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             next.len(),
