@@ -8,6 +8,7 @@ mod prune;
 mod raw;
 pub mod seg;
 mod stages;
+mod swallowtail;
 mod zigzag;
 
 use crate::geom::{hi, lo, Point, Polyline, Region, Shape, Vertex};
@@ -141,7 +142,8 @@ pub fn offset_polyline(
         }
         // a piece of this side's offset may come round to the path's other side: the other
         // side's raw offset marks where it starts to come too near (the dual offset)
-        splitters.extend(raw::raw_path(&segs, false, -distance, eps).segs);
+        // (as it lies: no swallowtail resolved, every crossing of it marks a cut)
+        splitters.extend(raw::raw_path(&segs, false, -distance, eps, 0.0).segs);
         Ok(run(
             &[(segs, false)],
             &splitters,
@@ -1213,12 +1215,14 @@ fn run(
     opts: &OffsetOptions,
     eps: f64,
 ) -> Loops {
+    let valid_eps = slack(opts.tolerance, eps);
+    // nearer the input than this, a point is dropped by the prune's test of a run too
+    let sure = o.abs() - valid_eps;
     let raws: Vec<RawPath> = paths
         .iter()
-        .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps))
+        .map(|(segs, closed)| raw::raw_path(segs, *closed, o, eps, sure))
         .collect();
     let mut input = InputSet::new(paths.iter().map(|(s, _)| s.as_slice()).collect(), tree);
-    let valid_eps = slack(opts.tolerance, eps);
     let prune::Pruned { chains, uncrossed } = prune(raws, splitters, &mut input, o, eps, valid_eps);
     let mut pieces: Vec<(Vec<Seg>, bool)> = Vec::with_capacity(chains.len());
     // per piece: no segment of it is shorter than the slack, as the prune found (round

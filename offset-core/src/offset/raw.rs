@@ -5,6 +5,7 @@
 
 use super::index::{grow, BBox};
 use super::seg::{angle, intersect, wrap, Norm, Seg};
+use super::swallowtail;
 use crate::geom::Point;
 use std::f64::consts::PI;
 
@@ -38,7 +39,7 @@ const TURN_EPS: f64 = 1e-12;
 /// [`raw_path`]'s segments, each beside its origin (for the tests).
 #[cfg(test)]
 pub fn raw_offset(segs: &[Seg], closed: bool, o: f64, eps: f64) -> Vec<RawSeg> {
-    let RawPath { segs, origins, .. } = raw_path(segs, closed, o, eps);
+    let RawPath { segs, origins, .. } = raw_path(segs, closed, o, eps, o.abs() * (1.0 - 1e-9));
     segs.into_iter()
         .zip(origins)
         .map(|(seg, origin)| RawSeg { seg, origin })
@@ -170,16 +171,19 @@ pub struct Extremes {
 /// offset half-planes, i.e. the exact local offset, so the local invalid loops of a curve
 /// whose curvature radius falls below |o| never reach the global stage. Anything else
 /// (arcs, turns the other way, a stretch turning more than `MAX_RUN_TURN`) is joined the
-/// old pair-wise way and left to the global stage.
+/// old pair-wise way; where that leaves a swallowtail (neighbours that do not meet at a
+/// corner towards the offset side), it is taken apart as far as each piece that goes is
+/// proven nearer the input than `sure` (see `swallowtail`; `sure` ≤ 0: never), and the
+/// rest is left to the global stage.
 ///
 /// The boxes are made as soon as each segment is final, while it is still in the cache (at
 /// a million segments a pass of its own over the raw offset read 100 MB again).
-pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
+pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64) -> RawPath {
     let mut boxing = Boxing::new(eps, 2 * segs.len());
     let Out {
         segs: mut out,
         mut origins,
-    } = unfinished(segs, closed, o, eps, &mut boxing);
+    } = unfinished(segs, closed, o, eps, sure, &mut boxing);
     let Boxing {
         mut boxes,
         short,
@@ -217,6 +221,10 @@ pub fn raw_path(segs: &[Seg], closed: bool, o: f64, eps: f64) -> RawPath {
         extremes,
     }
 }
+
+/// The last segments of a raw offset in the making that stay unboxed: the next corner may
+/// still trim the last, and a swallowtail pop the ones before (see `swallowtail`).
+const UNBOXED: usize = 16;
 
 /// A raw segment no longer than the root of this goes (ε / 1000).
 fn short_length2(eps: f64) -> f64 {
@@ -274,12 +282,21 @@ impl Boxing {
         self.boxes.push(grow(s.bbox(), self.eps));
     }
 
+    /// Forgets the boxes from segment `k` on (a swallowtail popped or cut them), and with
+    /// them what was measured: the longest and shortest are no longer known.
+    fn forget_from(&mut self, k: usize) {
+        if k < self.boxes.len() {
+            self.boxes.truncate(k.max(1));
+            self.extremes = None;
+        }
+    }
+
     /// Boxes every segment of `out` but its first and its last not yet boxed.
     #[inline]
     fn catch_up(&mut self, out: &[Seg]) {
         for s in out
             .iter()
-            .take(out.len().saturating_sub(1))
+            .take(out.len().saturating_sub(UNBOXED))
             .skip(self.boxes.len())
         {
             self.add(s);
@@ -334,7 +351,7 @@ impl Out {
 
 /// The raw offset before segments shorter than ε / 1000 are dropped, boxed by `boxing` as
 /// it is made.
-fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing) -> Out {
+fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &mut Boxing) -> Out {
     let m = segs.len();
     if m == 0 {
         boxing.finish(&[]);
@@ -440,6 +457,44 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, boxing: &mut Boxing)
         let last = out.segs.len() - 1;
         let mut prev = out.segs[last];
         let join = pair_corner(&segs[k], &segs[k2], at_k, &mut prev, &mut next, o, eps);
+        // neighbours that do not meet at a corner to the offset side: the swallowtail
+        // taken apart here where every piece of it is proven too near
+        let folds = join.is_some_and(|j| j.origin == Origin::Bridge && j.seg.is_arc());
+        if folds && !closing && sure > 0.0 {
+            // the offsets after the corner, as far as the path (a closed one up to its
+            // first segment, which the closing corner trims) goes
+            let ahead = |b: usize| -> Option<(Seg, Seg)> {
+                if step + 1 + b >= m {
+                    return None;
+                }
+                let kb = ring.at(s0, step + 1 + b);
+                let t = if b == 0 { at_k.1 } else { tangents.at(kb).0 };
+                Some((offset_seg(&segs[kb], t, o), segs[kb]))
+            };
+            let cut = swallowtail::resolve(&out.segs, &out.origins, ahead, o, eps, sure);
+            if let Some(cut) = cut {
+                let keep = out.segs.len() - cut.popped;
+                // the boxes of what changed go too (made again as the rest are)
+                boxing.forget_from(keep - 1);
+                out.segs.truncate(keep);
+                out.origins.truncate(keep);
+                let top = out.segs[keep - 1];
+                out.segs[keep - 1] = top.sub(0.0, top.a, cut.t, cut.at);
+                let kb = ring.at(s0, step + 1 + cut.skipped);
+                let t = if cut.skipped == 0 {
+                    at_k.1
+                } else {
+                    tangents.at(kb).0
+                };
+                let after = offset_raw(&segs[kb], t, o);
+                out.push(RawSeg {
+                    seg: after.seg.sub(cut.u, cut.at, 1.0, after.seg.b),
+                    origin: after.origin,
+                });
+                step += 1 + cut.skipped;
+                continue;
+            }
+        }
         out.segs[last] = prev;
         if let Some(j) = join {
             out.push(j);
@@ -786,7 +841,7 @@ mod tests {
         let segs: Vec<Seg> = (0..4)
             .map(|i| Seg::line(square[i], square[(i + 1) % 4]))
             .collect();
-        let raw = raw_path(&segs, true, -1.0, 1e-9);
+        let raw = raw_path(&segs, true, -1.0, 1e-9, 1.0 - 1e-9);
         let e = raw.extremes.expect("no segment dropped");
         let l2: Vec<f64> = raw.segs.iter().map(|s| s.length2()).collect();
         let max = l2.iter().cloned().fold(0.0, f64::max);
@@ -811,7 +866,7 @@ mod tests {
             Seg::line(p(5.0, 0.0), p(5.0 + 1e-13, 0.0)),
             Seg::line(p(5.0 + 1e-13, 0.0), p(10.0, 0.0)),
         ];
-        let raw = raw_path(&segs, false, 1.0, 1e-9);
+        let raw = raw_path(&segs, false, 1.0, 1e-9, 1.0 - 1e-9);
         assert!(raw.segs.iter().all(|s| s.length2() > short_length2(1e-9)));
         assert_eq!(
             (raw.segs.len(), raw.origins.len()),

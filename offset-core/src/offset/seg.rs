@@ -265,7 +265,7 @@ impl Seg {
     }
 
     /// Whether the direction of `p` from the centre lies within the sweep.
-    fn within_sweep(&self, p: Point) -> bool {
+    pub(super) fn within_sweep(&self, p: Point) -> bool {
         let v = p - self.c;
         let s = self.sw.signum();
         let after_start = s * (self.a - self.c).cross(v) >= 0.0;
