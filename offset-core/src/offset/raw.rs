@@ -709,6 +709,19 @@ fn pair_corner(
     let p2 = next.a;
     let collinear = straight_on || (p1.dist(p2) <= eps && cos > 0.0);
     if collinear {
+        let gap = p1 - p2;
+        if gap.dot(gap) <= short_length2(eps) {
+            // no wider than a bridge that would go as too short (the offsets of a smooth
+            // joint, a rounding apart): a line's end is moved across it instead
+            if !next.is_arc() {
+                next.a = p1;
+                return None;
+            }
+            if !prev.is_arc() {
+                prev.b = p2;
+                return None;
+            }
+        }
         if p1.dist(p2) > 0.0 {
             return Some(RawSeg {
                 seg: Seg::line(p1, p2),

@@ -45,9 +45,9 @@ pub(super) fn resolve(
     eps: f64,
     sure: f64,
 ) -> Option<Cut> {
-    let floor = 1;
+    // (the first piece stays: the closing corner trims it)
     let last = kept.len().checked_sub(1)?;
-    if last < floor {
+    if last < 1 {
         return None;
     }
     let (mut popped, mut skipped) = (0, 0);
@@ -72,7 +72,7 @@ pub(super) fn resolve(
                 });
             }
         }
-        if k > floor && within(&top, &next_input, sure, None, eps) {
+        if k > 1 && within(&top, &next_input, sure, None, eps) {
             popped += 1;
             continue;
         }
@@ -137,63 +137,63 @@ pub(super) fn within(p: &Seg, f: &Seg, sure: f64, except: Option<Point>, eps: f6
             return true;
         }
     }
-    let mut ok = true;
+    // (a distance that is not a number is not nearer; the first point too far ends it)
     critical_points(p, f, &mut |q| {
-        // (a distance that is not a number is not nearer)
-        let near = f.dist(q) < sure;
-        if ok && !near && !except.is_some_and(|x| q.dist(x) <= eps) {
-            ok = false;
-        }
-    });
-    ok
+        f.dist(q) < sure || except.is_some_and(|x| q.dist(x) <= eps)
+    })
 }
 
-/// The points of `p` where its distance from `f` can be largest: its ends, and where the
-/// distance along `p` has a critical point or a kink. Away from `f` itself the distance
-/// from a line, a point or an arc is smooth (where the nearest point moves from an arc's
-/// sector to its end, both measures meet with the same gradient), but for the ridge where
-/// the nearest point jumps from one end of an arc to the other: the line through its
-/// centre square to its chord. So the points asked are those on that line, and where
-/// each measure has its critical points: on an arc `p`, the points farthest from each
-/// point measured from (and nearest to an arc's centre, whose distance is a cone's), and
-/// the extremes across a line; on a line `p` only the point nearest an arc's centre, the
-/// distance from a point or a line being convex along a line.
-fn critical_points(p: &Seg, f: &Seg, each: &mut impl FnMut(Point)) {
-    each(p.a);
-    each(p.b);
+/// The points of `p` where its distance from `f` can be largest, handed to `each` until it
+/// returns false (then false): its ends, and where the distance along `p` has a critical
+/// point or a kink. Away from `f` itself the distance from a line, a point or an arc is
+/// smooth (where the nearest point moves from an arc's sector to its end, both measures
+/// meet with the same gradient), but for the ridge where the nearest point jumps from one
+/// end of an arc to the other: the line through its centre square to its chord. So the
+/// points asked are those on that line, and where each measure has its critical points: on
+/// an arc `p`, the points farthest from each point measured from (and nearest to an arc's
+/// centre, whose distance is a cone's), and the extremes across a line; on a line `p` only
+/// the point nearest an arc's centre, the distance from a point or a line being convex
+/// along a line.
+fn critical_points(p: &Seg, f: &Seg, each: &mut impl FnMut(Point) -> bool) -> bool {
+    if !(each(p.a) && each(p.b)) {
+        return false;
+    }
     if f.is_arc() {
         let (c, a, b) = (f.c, f.a, f.b);
-        line_cuts(p, c, (b - a).perp(), each);
-        if p.is_arc() {
-            extremes_from(p, c, true, each);
-            extremes_from(p, a, false, each);
-            extremes_from(p, b, false, each);
-        } else {
-            nearest_on_line(p, c, each);
+        if !line_cuts(p, c, (b - a).perp(), each) {
+            return false;
         }
-        return;
+        return if p.is_arc() {
+            extremes_from(p, c, true, each)
+                && extremes_from(p, a, false, each)
+                && extremes_from(p, b, false, each)
+        } else {
+            nearest_on_line(p, c, each)
+        };
     }
     if !p.is_arc() {
-        return;
+        return true;
     }
-    extremes_from(p, f.a, false, each);
+    if !extremes_from(p, f.a, false, each) {
+        return false;
+    }
     let d = f.b - f.a;
     if d.x == 0.0 && d.y == 0.0 {
-        return;
+        return true;
     }
-    extremes_from(p, f.b, false, each);
+    if !extremes_from(p, f.b, false, each) {
+        return false;
+    }
     let u = d.perp() * (p.r / d.norm());
-    for q in [p.c + u, p.c - u] {
-        if p.within_sweep(q) {
-            each(q);
-        }
-    }
+    [p.c + u, p.c - u]
+        .into_iter()
+        .all(|q| !p.within_sweep(q) || each(q))
 }
 
-/// The points of `p` on the line through `o` along `dir`.
-fn line_cuts(p: &Seg, o: Point, dir: Point, each: &mut impl FnMut(Point)) {
+/// The points of `p` on the line through `o` along `dir` (as `critical_points` hands them).
+fn line_cuts(p: &Seg, o: Point, dir: Point, each: &mut impl FnMut(Point) -> bool) -> bool {
     if dir.x == 0.0 && dir.y == 0.0 {
-        return;
+        return true;
     }
     if p.is_arc() {
         let l = dir.norm();
@@ -202,55 +202,50 @@ fn line_cuts(p: &Seg, o: Point, dir: Point, each: &mut impl FnMut(Point)) {
         let half_b = w.dot(u);
         let disc = half_b * half_b - (w.dot(w) - p.r * p.r);
         if disc < 0.0 {
-            return;
+            return true;
         }
         let root = disc.sqrt();
-        for s in [-half_b - root, -half_b + root] {
-            let q = o + u * s;
-            if p.within_sweep(q) {
-                each(q);
-            }
-        }
+        [-half_b - root, -half_b + root]
+            .into_iter()
+            .map(|s| o + u * s)
+            .all(|q| !p.within_sweep(q) || each(q))
     } else {
         let e = p.b - p.a;
         let den = dir.cross(e);
         if den == 0.0 {
-            return;
+            return true;
         }
         let t = -dir.cross(p.a - o) / den;
-        if (0.0..=1.0).contains(&t) {
-            each(p.a + e * t);
-        }
+        !(0.0..=1.0).contains(&t) || each(p.a + e * t)
     }
 }
 
-/// On the arc `p`, the point farthest from `x` and, with `nearest`, the one nearest it.
-fn extremes_from(p: &Seg, x: Point, nearest: bool, each: &mut impl FnMut(Point)) {
+/// On the arc `p`, the point farthest from `x` and, with `nearest`, the one nearest it
+/// (as `critical_points` hands them).
+fn extremes_from(p: &Seg, x: Point, nearest: bool, each: &mut impl FnMut(Point) -> bool) -> bool {
     let v = p.c - x;
     let l = v.norm();
     if l == 0.0 {
         // the centre: every point of the arc is as far
-        return;
+        return true;
     }
     let u = v * (p.r / l);
-    if p.within_sweep(p.c + u) {
-        each(p.c + u);
-    }
-    if nearest && p.within_sweep(p.c - u) {
-        each(p.c - u);
-    }
+    (!p.within_sweep(p.c + u) || each(p.c + u))
+        && (!nearest || !p.within_sweep(p.c - u) || each(p.c - u))
 }
 
-/// On the line `p`, the point nearest `x` when it lies between the ends.
-fn nearest_on_line(p: &Seg, x: Point, each: &mut impl FnMut(Point)) {
+/// On the line `p`, the point nearest `x` when it lies between the ends (as
+/// `critical_points` hands them).
+fn nearest_on_line(p: &Seg, x: Point, each: &mut impl FnMut(Point) -> bool) -> bool {
     let e = p.b - p.a;
     let l2 = e.dot(e);
     if l2 > 0.0 {
         let t = (x - p.a).dot(e) / l2;
         if t > 0.0 && t < 1.0 {
-            each(p.a + e * t);
+            return each(p.a + e * t);
         }
     }
+    true
 }
 
 #[cfg(test)]
@@ -269,7 +264,10 @@ mod tests {
 
     fn found(p: &Seg, f: &Seg) -> f64 {
         let mut m: f64 = 0.0;
-        critical_points(p, f, &mut |q| m = m.max(f.dist(q)));
+        critical_points(p, f, &mut |q| {
+            m = m.max(f.dist(q));
+            true
+        });
         m
     }
 
