@@ -55,34 +55,35 @@ pub(super) fn resolve(
     for _ in 0..MOST {
         let k = last - popped;
         let top = kept[k];
-        // (the corner's own neighbours are known not to meet)
-        if popped + skipped > 0 {
-            if let Some((x, t, u)) = meeting(&top, &next, eps) {
-                let top_input = feature(&top, origins[k], o)?;
-                let tail = top.sub(t, x, 1.0, top.b);
-                let head = next.sub(0.0, next.a, u, x);
-                let proven = within(&tail, &next_input, sure, Some(x), eps)
-                    && within(&head, &top_input, sure, Some(x), eps);
-                return proven.then_some(Cut {
-                    popped,
-                    skipped,
-                    at: x,
-                    t,
-                    u,
-                });
-            }
-        }
+        // a piece proven nearer the input than |o| cannot meet the other one, every point
+        // of which lies |o| from its own input: so the meeting is asked only when neither
+        // goes
         if k > 1 && within(&top, &next_input, sure, None, eps) {
             popped += 1;
             continue;
         }
-        match feature(&top, origins[k], o) {
-            Some(f) if within(&next, &f, sure, None, eps) => {
-                skipped += 1;
-                (next, next_input) = ahead(skipped)?;
-            }
-            _ => return None,
+        let top_input = feature(&top, origins[k], o)?;
+        if within(&next, &top_input, sure, None, eps) {
+            skipped += 1;
+            (next, next_input) = ahead(skipped)?;
+            continue;
         }
+        // (the corner's own neighbours are known not to meet)
+        if popped + skipped == 0 {
+            return None;
+        }
+        let (x, t, u) = meeting(&top, &next, eps)?;
+        let tail = top.sub(t, x, 1.0, top.b);
+        let head = next.sub(0.0, next.a, u, x);
+        let proven = within(&tail, &next_input, sure, Some(x), eps)
+            && within(&head, &top_input, sure, Some(x), eps);
+        return proven.then_some(Cut {
+            popped,
+            skipped,
+            at: x,
+            t,
+            u,
+        });
     }
     None
 }
