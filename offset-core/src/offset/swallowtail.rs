@@ -140,8 +140,35 @@ pub(super) fn within(p: &Seg, f: &Seg, sure: f64, except: Option<Point>, eps: f6
     }
     // (a distance that is not a number is not nearer; the first point too far ends it)
     critical_points(p, f, &mut |q| {
-        f.dist(q) < sure || except.is_some_and(|x| q.dist(x) <= eps)
+        nearer(f, q, sure) || except.is_some_and(|x| q.dist(x) <= eps)
     })
+}
+
+/// Whether `q` lies nearer `f` than `sure` (> 0): `Seg::dist` compared, its roots
+/// squared away (a proof asks this of every point it finds).
+#[inline]
+fn nearer(f: &Seg, q: Point, sure: f64) -> bool {
+    let sure2 = sure * sure;
+    if f.is_arc() {
+        let v = q - f.c;
+        let d2 = v.dot(v);
+        if d2 > 0.0 && f.within_sweep(q) {
+            // |(|v| − r)| < sure
+            let (low, high) = (f.r - sure, f.r + sure);
+            return (low <= 0.0 || d2 > low * low) && d2 < high * high;
+        }
+        let (da, db) = (q - f.a, q - f.b);
+        return da.dot(da).min(db.dot(db)) < sure2;
+    }
+    let e = f.b - f.a;
+    let l2 = e.dot(e);
+    let t = if l2 > 0.0 {
+        ((q - f.a).dot(e) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let d = q - f.a.lerp(f.b, t);
+    d.dot(d) < sure2
 }
 
 /// The points of `p` where its distance from `f` can be largest, handed to `each` until it
@@ -315,6 +342,27 @@ mod tests {
                 exact <= dense + step / 2.0 + 1e-9,
                 "case {case}: {exact} > {dense}: {p:?} {f:?}"
             );
+        }
+    }
+
+    #[test]
+    fn nearer_says_what_the_distance_says() {
+        let mut rng = uniform(0x000e_a2e2);
+        for case in 0..20000 {
+            let f = random_seg(&mut rng);
+            let f = if case % 10 == 0 {
+                Seg::line(f.a, f.a)
+            } else {
+                f
+            };
+            let q = random_seg(&mut rng).a;
+            for sure in [0.5, 2.0, 7.0] {
+                let d = f.dist(q);
+                // (a point within a rounding of the distance may be said either way)
+                if (d - sure).abs() > 1e-9 {
+                    assert_eq!(nearer(&f, q, sure), d < sure, "case {case}: {f:?} {q:?}");
+                }
+            }
         }
     }
 
