@@ -955,4 +955,78 @@ mod tests {
             assert!((s.dist(mid) - 1.0).abs() < 1e-9);
         }
     }
+
+    /// A stage's result: the bench's gear of 1,000 vertices (50 teeth) shrunk by 4.4 mm,
+    /// smooth arcs and lines but for the corners between teeth, which turn to the inside.
+    fn shrunk_gear() -> Vec<Seg> {
+        let n = 1000;
+        let pts: Vec<Point> = (0..n)
+            .map(|i| {
+                let a = i as f64 / n as f64 * std::f64::consts::TAU;
+                let r = 100.0 + 3.0 * (50.0 * a).sin();
+                Point::new(r * a.cos(), r * a.sin())
+            })
+            .collect();
+        let gear = crate::geom::Region {
+            outer: crate::geom::Polyline::from_points(&pts, true),
+            islands: Vec::new(),
+        };
+        let r = crate::offset::offset_regions_valid(&[gear], -4.4, &Default::default()).unwrap();
+        super::super::clean(&r.regions()[0].outer, 1e-9)
+    }
+
+    #[test]
+    fn a_swallowtail_is_taken_apart_and_nothing_valid_with_it() {
+        let segs = shrunk_gear();
+        let (o, eps) = (8.0, 1e-9);
+        let sure = o - 1e-7;
+        let taken = raw_path(&segs, true, o, eps, sure).segs;
+        let left = raw_path(&segs, true, o, eps, 0.0).segs;
+        // every tooth's swallowtail went: far fewer pieces, and no two of them cross but
+        // neighbours at their joint (the global stage has nothing to do), or by the seam,
+        // where the first piece stays for the closing corner to trim
+        assert!(
+            taken.len() * 3 < left.len(),
+            "{} of {}",
+            taken.len(),
+            left.len()
+        );
+        let seam = |i: usize| i < 16 || i + 16 > taken.len();
+        for i in 0..taken.len() {
+            for j in i + 2..taken.len() {
+                if seam(i) && seam(j) {
+                    continue;
+                }
+                let h = intersect(&taken[i], &taken[j], eps);
+                assert_eq!(h.n, 0, "pieces {i} and {j} of {} cross", taken.len());
+            }
+        }
+        // every point of the raw offset left whole that keeps its distance (a point of the
+        // exact offset) lies on what is left once the swallowtails are taken apart
+        let mut kept = 0;
+        for s in &left {
+            for k in 0..=16 {
+                let p = s.point_at(k as f64 / 16.0);
+                if dist_to(&segs, p) > o - 1e-7 {
+                    kept += 1;
+                    assert!(
+                        dist_to(&taken, p) < 1e-7,
+                        "{p:?} keeps its distance but went"
+                    );
+                }
+            }
+        }
+        assert!(kept > 500, "only {kept} points keep their distance");
+        // and what is left away from the seam is the exact offset: every point keeps its
+        // distance
+        for (i, s) in taken.iter().enumerate().filter(|(i, _)| !seam(*i)) {
+            for k in 0..=16 {
+                let p = s.point_at(k as f64 / 16.0);
+                assert!(
+                    dist_to(&segs, p) > o - 1e-6,
+                    "{p:?} of {i} is too near, yet kept"
+                );
+            }
+        }
+    }
 }
