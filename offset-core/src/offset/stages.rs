@@ -52,11 +52,13 @@ const FAN_PER_LENGTH: f64 = 0.5;
 /// input is an earlier one's result: arcs joined smoothly, and corners that turn to the
 /// offset side, whose swallowtails the raw offset takes apart where it makes them (see
 /// `swallowtail`), so its fans cross little that reaches the global stage. Measured on the
-/// 10,000-vertex bench gear with ten islands at 50 to 400 mm and on the 100,000-vertex one
-/// at 200 mm: 8 and 16 cost the same, 64 a sixth more at 100,000, 0.5 (as the first
-/// stage) half as much again at 200 mm. The bound stays, so where swallowtails are not
-/// taken apart (a piece not proven) the crossings still grow with the boundary only.
-const LATER_FAN_PER_LENGTH: f64 = 8.0;
+/// 10,000-vertex bench gear with ten islands at 20 to 400 mm, interleaved: 8 and 16 cost
+/// the same where the rest after the first stage is one stage of either (up to 200 mm),
+/// and at 400 mm 16 makes it one stage where 8 makes two (1.88 against 2.02 ms); 0.5, the
+/// first stage's, cost twice as much at 200 mm, and 64 a sixth more on the 100,000-vertex
+/// gear. The bound stays, so where a swallowtail is not taken apart (a piece not proven)
+/// the crossings still grow with the boundary only.
+const LATER_FAN_PER_LENGTH: f64 = 16.0;
 
 /// The stage on the input itself goes this share of the step the fans allow. Its fans
 /// come from the polyline's corners, and the raw offset's stack resolves the turns toward

@@ -134,7 +134,8 @@ pub(super) fn within(p: &Seg, f: &Seg, sure: f64, except: Option<Point>, eps: f6
     // of it nearer than `sure` when its centre is nearer by the radius
     if p.is_arc() && except.is_none() && p.sw.abs() <= std::f64::consts::PI {
         let m = (p.a + p.b) * 0.5;
-        if f.dist(m) + p.a.dist(m) < sure {
+        let half = p.a.dist(m);
+        if half < sure && nearer(f, m, sure - half) {
             return true;
         }
     }
