@@ -472,6 +472,15 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &
                 Some((offset_seg(&segs[kb], t, o), segs[kb]))
             };
             let cut = swallowtail::resolve(&out.segs, &out.origins, ahead, o, eps, sure);
+            // the offset the cut starts must meet the one after it at its own corner: cut
+            // past that meeting, what is left of it is a sliver beside its successor (a
+            // stretch nearly straight on), which neither the next corner nor the global
+            // stage takes apart; then the swallowtail goes to the global stage whole
+            let cut = cut.filter(|cut| {
+                let end = step + 1 + cut.skipped;
+                end >= corners
+                    || meets_after(segs, ring, tangents, s0, end, cut, at_k.1, &out, o, eps)
+            });
             if let Some(cut) = cut {
                 let keep = out.segs.len() - cut.popped;
                 // the boxes of what changed go too (made again as the rest are)
@@ -511,6 +520,45 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &
     }
     boxing.finish(&out.segs);
     out
+}
+
+/// Whether the offset a swallowtail's cut starts (the one of segment `end` after `s0`,
+/// kept from the cut on) meets the offset after it at its own corner, as `pair_corner`
+/// would find (the closing corner's: `out`'s first). `t0`: the tangent out of the corner
+/// the swallowtail was made at. Out of line: asked once a swallowtail, it stays out of
+/// the loop over the corners.
+#[allow(clippy::too_many_arguments)]
+#[inline(never)]
+fn meets_after(
+    segs: &[Seg],
+    ring: Ring,
+    tangents: Tangents,
+    s0: usize,
+    end: usize,
+    cut: &swallowtail::Cut,
+    t0: Point,
+    out: &Out,
+    o: f64,
+    eps: f64,
+) -> bool {
+    let m = segs.len();
+    let kb = ring.at(s0, end);
+    let t = if cut.skipped == 0 {
+        t0
+    } else {
+        tangents.at(kb).0
+    };
+    let whole = offset_seg(&segs[kb], t, o);
+    let mut kept = whole.sub(cut.u, cut.at, 1.0, whole.b);
+    let kb2 = ring.next(kb);
+    let at_kb = tangents.corner(kb);
+    let mut after = if end == m - 1 {
+        out.segs[0]
+    } else {
+        offset_seg(&segs[kb2], at_kb.1, o)
+    };
+    let join = pair_corner(&segs[kb], &segs[kb2], at_kb, &mut kept, &mut after, o, eps);
+    !join.is_some_and(|j| j.origin == Origin::Bridge && j.seg.is_arc())
 }
 
 /// Segment indices round a path of `m` segments (a closed path's last is followed by its

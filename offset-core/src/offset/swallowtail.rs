@@ -89,11 +89,15 @@ pub(super) fn resolve(
 }
 
 /// Where `top` (kept) and `next` meet with something of each left: the meeting last
-/// along `top`.
+/// along `top` that leaves no other meeting on both kept parts (`top` before it, `next`
+/// after it). Cut at the other one of two, the two kept parts would cross again right by
+/// their new joint, a loop the global stage does not look for between neighbours.
 fn meeting(top: &Seg, next: &Seg, eps: f64) -> Option<(Point, f64, f64)> {
-    intersect(top, next, eps)
-        .iter()
-        .filter(|&(_, t, u)| t > 0.0 && u < 1.0)
+    let hits = intersect(top, next, eps);
+    let ok = |&(_, t, u): &(Point, f64, f64)| t > 0.0 && u < 1.0;
+    hits.iter()
+        .filter(ok)
+        .filter(|&(_, t, u)| !hits.iter().filter(ok).any(|(_, t2, u2)| t2 < t && u2 > u))
         .max_by(|x, y| x.1.total_cmp(&y.1))
 }
 
