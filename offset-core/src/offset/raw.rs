@@ -479,7 +479,7 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &
             let cut = cut.filter(|cut| {
                 let end = step + 1 + cut.skipped;
                 end >= corners
-                    || meets_after(segs, ring, tangents, s0, end, cut, at_k.1, &out, o, eps)
+                    || meets_after(segs, ring, tangents, s0, end, &cut.after, &out, o, eps)
             });
             if let Some(cut) = cut {
                 let keep = out.segs.len() - cut.popped;
@@ -490,15 +490,9 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &
                 let top = out.segs[keep - 1];
                 out.segs[keep - 1] = top.sub(0.0, top.a, cut.t, cut.at);
                 let kb = ring.at(s0, step + 1 + cut.skipped);
-                let t = if cut.skipped == 0 {
-                    at_k.1
-                } else {
-                    tangents.at(kb).0
-                };
-                let after = offset_raw(&segs[kb], t, o);
                 out.push(RawSeg {
-                    seg: after.seg.sub(cut.u, cut.at, 1.0, after.seg.b),
-                    origin: after.origin,
+                    seg: cut.after,
+                    origin: moved_origin(&segs[kb], &cut.after),
                 });
                 step += 1 + cut.skipped;
                 continue;
@@ -522,11 +516,10 @@ fn unfinished(segs: &[Seg], closed: bool, o: f64, eps: f64, sure: f64, boxing: &
     out
 }
 
-/// Whether the offset a swallowtail's cut starts (the one of segment `end` after `s0`,
-/// kept from the cut on) meets the offset after it at its own corner, as `pair_corner`
-/// would find (the closing corner's: `out`'s first). `t0`: the tangent out of the corner
-/// the swallowtail was made at. Out of line: asked once a swallowtail, it stays out of
-/// the loop over the corners.
+/// Whether `kept`, what a swallowtail's cut keeps of the offset of segment `end` after
+/// `s0`, meets the offset after it at its own corner, as `pair_corner` would find (the
+/// closing corner's: `out`'s first). Out of line: asked once a swallowtail, it stays out
+/// of the loop over the corners.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
 fn meets_after(
@@ -535,21 +528,14 @@ fn meets_after(
     tangents: Tangents,
     s0: usize,
     end: usize,
-    cut: &swallowtail::Cut,
-    t0: Point,
+    kept: &Seg,
     out: &Out,
     o: f64,
     eps: f64,
 ) -> bool {
     let m = segs.len();
     let kb = ring.at(s0, end);
-    let t = if cut.skipped == 0 {
-        t0
-    } else {
-        tangents.at(kb).0
-    };
-    let whole = offset_seg(&segs[kb], t, o);
-    let mut kept = whole.sub(cut.u, cut.at, 1.0, whole.b);
+    let mut kept = *kept;
     let kb2 = ring.next(kb);
     let at_kb = tangents.corner(kb);
     let mut after = if end == m - 1 {
@@ -853,12 +839,18 @@ fn join_arc(v: Point, p1: Point, p2: Point, o: f64, concave: bool) -> Seg {
 /// segment: an arc that collapsed to its chord is a bridge.
 fn offset_raw(s: &Seg, t: Point, o: f64) -> RawSeg {
     let seg = offset_seg(s, t, o);
-    let origin = if s.is_arc() && !seg.is_arc() {
+    let origin = moved_origin(s, &seg);
+    RawSeg { seg, origin }
+}
+
+/// What `moved`, the offset of input segment `s` (or a part of it), is: a bridge where an
+/// arc collapsed to its chord, else an offset.
+fn moved_origin(s: &Seg, moved: &Seg) -> Origin {
+    if s.is_arc() && !moved.is_arc() {
         Origin::Bridge
     } else {
         Origin::Offset
-    };
-    RawSeg { seg, origin }
+    }
 }
 
 /// One segment moved by `o` to its left; `t` is its unit tangent at the start (the caller

@@ -18,14 +18,14 @@ use super::seg::{intersect, Norm, Seg};
 use crate::geom::Point;
 
 /// What the resolution leaves: the last `popped` kept pieces go, the next `skipped`
-/// offsets are not made, the piece kept last is cut at `at` (its parameter `t`) and the
-/// next offset made starts there (its parameter `u`).
+/// offsets are not made, the piece kept last is cut at `at` (its parameter `t`), and
+/// `after`, what is kept of the next offset made, starts there.
 pub(super) struct Cut {
     pub popped: usize,
     pub skipped: usize,
     pub at: Point,
     pub t: f64,
-    pub u: f64,
+    pub after: Seg,
 }
 
 /// How many pieces one resolution may pop and skip together.
@@ -82,7 +82,7 @@ pub(super) fn resolve(
             skipped,
             at: x,
             t,
-            u,
+            after: next.sub(u, x, 1.0, next.b),
         });
     }
     None
