@@ -312,3 +312,98 @@ fn a_gcode_preview_draws_the_program_s_own_geometry() {
         "the circle's centre ({ax}, {ay}) is the rectangle's ({lx}, {ly})"
     );
 }
+
+/// A gear of `teeth` teeth of amplitude 3 mm on a radius of `r` mm, as a dense SVG polygon
+/// (a CAD export's polyline: 20 vertices a tooth).
+fn gear_svg(r: f64, teeth: usize) -> (String, Vec<(f64, f64)>) {
+    let n = teeth * 20;
+    let pts: Vec<(f64, f64)> = (0..n)
+        .map(|i| {
+            let a = i as f64 / n as f64 * std::f64::consts::TAU;
+            let rr = r + 3.0 * (teeth as f64 * a).sin();
+            (r + 5.0 + rr * a.cos(), r + 5.0 + rr * a.sin())
+        })
+        .collect();
+    let d: Vec<String> = pts.iter().map(|(x, y)| format!("{x:.6} {y:.6}")).collect();
+    let side = 2.0 * r + 10.0;
+    let svg = format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{side}mm" height="{side}mm" viewBox="0 0 {side} {side}"><path d="M{} Z" fill="black"/></svg>"#,
+        d.join(" L")
+    );
+    (svg, pts)
+}
+
+#[test]
+fn a_toothed_pocket_keeps_the_tool_off_every_tooth_in_every_pass() {
+    // pass after pass each tooth's corner folds the offset back (a swallowtail the raw
+    // offset takes apart): the program must still keep the cutter clear of the wall
+    let (svg, pts) = gear_svg(30.0, 15);
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gear.svg");
+    std::fs::write(&file, svg).unwrap();
+    let nc = dir.path().join("gear.nc");
+    let (ok, err) = machlink(&[
+        "plan",
+        file.to_str().unwrap(),
+        "--op",
+        "pocket",
+        "--tool-diameter",
+        "6",
+        "--stepover",
+        "40%",
+        "--depth",
+        "1",
+        "--post",
+        "grbl",
+        "-o",
+        nc.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let gcode = std::fs::read_to_string(&nc).unwrap();
+    // the SVG's y axis points down: the drawing's points mirrored as the import does
+    let wall = |x: f64, y: f64| -> f64 {
+        let side = 70.0;
+        (0..pts.len())
+            .map(|i| {
+                let (a, b) = (pts[i], pts[(i + 1) % pts.len()]);
+                let (ax, ay, bx, by) = (a.0, side - a.1, b.0, side - b.1);
+                let (dx, dy) = (bx - ax, by - ay);
+                let t = (((x - ax) * dx + (y - ay) * dy) / (dx * dx + dy * dy)).clamp(0.0, 1.0);
+                ((x - ax - t * dx).powi(2) + (y - ay - t * dy).powi(2)).sqrt()
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let word = |l: &str, c: char| -> Option<f64> {
+        l.split_whitespace()
+            .find(|w| w.starts_with(c))
+            .and_then(|w| w[1..].parse().ok())
+    };
+    let (mut x, mut y, mut z) = (0.0, 0.0, 0.0);
+    let (mut cuts, mut nearest) = (0usize, f64::INFINITY);
+    for l in gcode.lines() {
+        let moving = ["G0", "G1", "G2", "G3"].iter().any(|g| l.starts_with(g));
+        if !moving {
+            continue;
+        }
+        x = word(l, 'X').unwrap_or(x);
+        y = word(l, 'Y').unwrap_or(y);
+        z = word(l, 'Z').unwrap_or(z);
+        if z < 0.0 && !l.starts_with("G0") {
+            cuts += 1;
+            nearest = nearest.min(wall(x, y));
+        }
+    }
+    assert!(cuts > 200, "only {cuts} cutting moves:\n{gcode}");
+    // every cutting move's end keeps the tool's radius from the wall (G-code numbers are
+    // written to 1 µm)
+    assert!(
+        nearest > 3.0 - 2e-3,
+        "a cut ends {nearest} mm from the wall"
+    );
+    // and the first pass runs along it, touching the tool's radius (the wall measured is
+    // the one cut)
+    assert!(
+        nearest < 3.0 + 2e-3,
+        "no cut comes nearer the wall than {nearest} mm"
+    );
+}
